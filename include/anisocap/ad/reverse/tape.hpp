@@ -1,0 +1,102 @@
+#pragma once
+/// @file
+/// Reverse mode over whole-tensor operations (one record per layer op, not per scalar).
+///
+/// Forward code computes values eagerly and, when the tape is recording and an input or a
+/// parameter needs a gradient, records a closure that pushes the output's gradient back.
+/// `backward()` runs the closures in reverse order. Intermediate values and gradients live in the
+/// tape's arena, reset by `clear()`, so a fixed-size step allocates nothing after the first.
+#include <functional>
+#include <utility>
+#include <vector>
+
+#include "anisocap/core/memory.hpp"
+#include "anisocap/core/tensor.hpp"
+
+namespace anisocap::ad {
+
+/// A tensor value with its gradient. `grad` is allocated (zeroed) only when `requires_grad`.
+template <int C, class T = float>
+struct variable {
+  tensor<C, T> value;
+  tensor<C, T> grad;
+  bool requires_grad = false;
+};
+
+/// The tape: recorded backward closures plus the arena that holds a step's tensors.
+class tape {
+ public:
+  explicit tape(std::size_t initial_arena_bytes = 0) : arena_(initial_arena_bytes) {}
+
+  /// True when operations should record their backward pass.
+  bool recording() const noexcept { return recording_; }
+
+  /// Records a backward closure (ignored in no-grad mode).
+  void record(std::function<void()> backward_step) {
+    if (recording_) steps_.push_back(std::move(backward_step));
+  }
+
+  /// Runs every recorded closure in reverse order, then forgets them.
+  void backward() {
+    for (auto it = steps_.rbegin(); it != steps_.rend(); ++it) (*it)();
+    steps_.clear();
+  }
+
+  /// Forgets recorded steps and releases the arena for reuse (keeps its memory).
+  void clear() {
+    steps_.clear();
+    arena_.reset();
+  }
+
+  /// Number of recorded steps.
+  std::size_t size() const noexcept { return steps_.size(); }
+
+  /// Memory for a step's activations and gradients.
+  anisocap::arena& memory() noexcept { return arena_; }
+
+  /// A new tensor in the tape's arena (uninitialised).
+  template <int C, class T = float>
+  tensor<C, T> make_tensor(int batch, int height, int width) { return tensor<C, T>(arena_, batch, height, width); }
+
+  /// A new variable in the arena; its gradient is allocated and zeroed when requires_grad.
+  template <int C, class T = float>
+  variable<C, T> make_variable(int batch, int height, int width, bool requires_grad) {
+    variable<C, T> v{make_tensor<C, T>(batch, height, width), {}, requires_grad && recording_};
+    if (v.requires_grad) {
+      v.grad = make_tensor<C, T>(batch, height, width);
+      v.grad.fill(T(0));
+    }
+    return v;
+  }
+
+  /// Wraps an existing tensor as a leaf variable.
+  template <int C, class T = float>
+  variable<C, T> leaf(tensor<C, T> value, bool requires_grad = false) {
+    variable<C, T> v{value, {}, requires_grad && recording_};
+    if (v.requires_grad) {
+      v.grad = make_tensor<C, T>(value.batch(), value.height(), value.width());
+      v.grad.fill(T(0));
+    }
+    return v;
+  }
+
+  /// Scope in which nothing is recorded (inference).
+  class no_grad_guard {
+   public:
+    explicit no_grad_guard(tape& t) : t_(t), previous_(t.recording_) { t_.recording_ = false; }
+    ~no_grad_guard() { t_.recording_ = previous_; }
+    no_grad_guard(const no_grad_guard&) = delete;
+    no_grad_guard& operator=(const no_grad_guard&) = delete;
+
+   private:
+    tape& t_;
+    bool previous_;
+  };
+
+ private:
+  std::vector<std::function<void()>> steps_;
+  anisocap::arena arena_;
+  bool recording_ = true;
+};
+
+}  // namespace anisocap::ad

@@ -1,0 +1,132 @@
+#pragma once
+/// @file
+/// Aligned buffers and the arena that a training step reuses, so that a fixed-size network
+/// allocates nothing after its first step.
+#include <atomic>
+#include <cstddef>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <new>
+#include <vector>
+
+#include "anisocap/core/simd.hpp"
+
+namespace anisocap {
+
+/// Counts calls to the system allocator made through this header (aligned_allocate), so tests can
+/// prove that a steady-state step allocates nothing.
+inline std::atomic<std::size_t>& system_allocation_count() {
+  static std::atomic<std::size_t> count{0};
+  return count;
+}
+
+/// Allocates `bytes` aligned to simd::alignment (64); throws std::bad_alloc on failure.
+inline void* aligned_allocate(std::size_t bytes) {
+  std::size_t rounded = (bytes + simd::alignment - 1) / simd::alignment * simd::alignment;
+  if (rounded == 0) rounded = simd::alignment;
+  void* p = std::aligned_alloc(simd::alignment, rounded);
+  if (!p) throw std::bad_alloc();
+  system_allocation_count().fetch_add(1, std::memory_order_relaxed);
+  return p;
+}
+
+/// Deleter for aligned_allocate.
+struct aligned_deleter {
+  void operator()(void* p) const noexcept { std::free(p); }
+};
+
+/// An owning, 64-byte-aligned, zero-initialised array of T (T trivially copyable).
+template <class T>
+class aligned_buffer {
+ public:
+  aligned_buffer() = default;
+  explicit aligned_buffer(std::size_t n) : size_(n), data_(static_cast<T*>(aligned_allocate(n * sizeof(T)))) {
+    std::memset(static_cast<void*>(data_.get()), 0, n * sizeof(T));
+  }
+  aligned_buffer(const aligned_buffer& o) : aligned_buffer(o.size_) {
+    if (size_) std::memcpy(static_cast<void*>(data_.get()), o.data(), size_ * sizeof(T));
+  }
+  aligned_buffer& operator=(const aligned_buffer& o) {
+    if (this != &o) { aligned_buffer t(o); *this = std::move(t); }
+    return *this;
+  }
+  aligned_buffer(aligned_buffer&&) noexcept = default;
+  aligned_buffer& operator=(aligned_buffer&&) noexcept = default;
+
+  T* data() noexcept { return data_.get(); }
+  const T* data() const noexcept { return data_.get(); }
+  std::size_t size() const noexcept { return size_; }
+  bool empty() const noexcept { return size_ == 0; }
+  T& operator[](std::size_t i) noexcept { return data_.get()[i]; }
+  const T& operator[](std::size_t i) const noexcept { return data_.get()[i]; }
+  T* begin() noexcept { return data(); }
+  T* end() noexcept { return data() + size_; }
+  const T* begin() const noexcept { return data(); }
+  const T* end() const noexcept { return data() + size_; }
+
+ private:
+  std::size_t size_ = 0;
+  std::unique_ptr<T, aligned_deleter> data_;
+};
+
+/// A bump allocator over large aligned blocks. `reset()` makes all memory reusable without
+/// returning it to the system; after one pass has sized the arena, identical passes allocate
+/// nothing (the blocks are merged into one of the high-water size on reset).
+class arena {
+ public:
+  explicit arena(std::size_t initial_bytes = 0) {
+    if (initial_bytes) blocks_.push_back(block(initial_bytes));
+  }
+
+  /// Returns `bytes` of 64-byte-aligned, uninitialised memory valid until the next reset().
+  void* allocate(std::size_t bytes) {
+    bytes = (bytes + simd::alignment - 1) / simd::alignment * simd::alignment;
+    if (blocks_.empty() || blocks_.back().used + bytes > blocks_.back().capacity) {
+      blocks_.push_back(block(std::max<std::size_t>(bytes, blocks_.empty() ? bytes : blocks_.back().capacity)));
+    }
+    auto& b = blocks_.back();
+    void* p = b.memory.get() + b.used;
+    b.used += bytes;
+    in_use_ += bytes;
+    high_water_ = std::max(high_water_, in_use_);
+    return p;
+  }
+
+  template <class T>
+  T* allocate_array(std::size_t n) { return static_cast<T*>(allocate(n * sizeof(T))); }
+
+  /// Frees everything at once; keeps (and consolidates) the memory for the next pass.
+  void reset() {
+    if (blocks_.size() > 1) {
+      blocks_.clear();
+      blocks_.push_back(block(high_water_));
+    } else if (!blocks_.empty()) {
+      blocks_.back().used = 0;
+    }
+    in_use_ = 0;
+  }
+
+  /// Largest number of bytes in use at once since construction.
+  std::size_t high_water_bytes() const noexcept { return high_water_; }
+  /// Bytes held from the system.
+  std::size_t capacity_bytes() const noexcept {
+    std::size_t c = 0;
+    for (auto& b : blocks_) c += b.capacity;
+    return c;
+  }
+
+ private:
+  struct block {
+    explicit block(std::size_t bytes)
+        : capacity(bytes), memory(static_cast<std::byte*>(aligned_allocate(bytes))) {}
+    std::size_t capacity;
+    std::size_t used = 0;
+    std::unique_ptr<std::byte, aligned_deleter> memory;
+  };
+  std::vector<block> blocks_;
+  std::size_t in_use_ = 0;
+  std::size_t high_water_ = 0;
+};
+
+}  // namespace anisocap
