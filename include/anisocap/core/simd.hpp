@@ -2,6 +2,10 @@
 /// @file
 /// The SIMD backend: the one place that names xsimd's architectures. Kernels elsewhere write
 /// `simd::batch<float>` and stay portable; raw intrinsics belong here only (there are none yet).
+#include <cmath>
+#include <cstddef>
+#include <type_traits>
+
 #include <xsimd/xsimd.hpp>
 
 namespace anisocap::simd {
@@ -22,5 +26,107 @@ inline constexpr std::size_t alignment = 64;
 
 /// Name of the compiled instruction set, for benchmark reports.
 inline const char* arch_name() { return arch::name(); }
+
+// ---- one vocabulary for scalar and SIMD values ---------------------------------------------------
+// Kernels are templates on a value type V that is either a plain float/double (the scalar build,
+// also used in double for gradient checks) or an xsimd batch. These overloads give both the same
+// spelling, so one template compiles to both paths.
+
+/// Number of lanes of V (1 for scalars).
+template <class V>
+struct lanes : std::integral_constant<std::size_t, 1> {};
+template <class T, class A>
+struct lanes<xsimd::batch<T, A>> : std::integral_constant<std::size_t, xsimd::batch<T, A>::size> {};
+template <class V>
+inline constexpr std::size_t lanes_v = lanes<V>::value;
+
+/// Scalar element type of V.
+template <class V>
+struct scalar_of { using type = V; };
+template <class T, class A>
+struct scalar_of<xsimd::batch<T, A>> { using type = T; };
+template <class V>
+using scalar_t = typename scalar_of<V>::type;
+
+/// Loads lanes_v<V> consecutive values (aligned for batches).
+template <class V>
+inline V load(const scalar_t<V>* p) {
+  if constexpr (lanes_v<V> == 1) return *p;
+  else return V::load_aligned(p);
+}
+/// Loads lanes_v<V> consecutive values without an alignment requirement.
+template <class V>
+inline V load_unaligned(const scalar_t<V>* p) {
+  if constexpr (lanes_v<V> == 1) return *p;
+  else return V::load_unaligned(p);
+}
+/// Stores lanes_v<V> consecutive values (aligned for batches).
+template <class V>
+inline void store(scalar_t<V>* p, const V& v) {
+  if constexpr (lanes_v<V> == 1) *p = v;
+  else v.store_aligned(p);
+}
+/// Lane i holds first + i.
+template <class V>
+inline V iota(scalar_t<V> first) {
+  if constexpr (lanes_v<V> == 1) return first;
+  else {
+    alignas(alignment) scalar_t<V> v[lanes_v<V>];
+    for (std::size_t i = 0; i < lanes_v<V>; ++i) v[i] = first + scalar_t<V>(i);
+    return V::load_aligned(v);
+  }
+}
+/// Sum of all lanes.
+template <class V>
+inline scalar_t<V> reduce_add(const V& v) {
+  if constexpr (lanes_v<V> == 1) return v;
+  else return xsimd::hadd(v);
+}
+/// True when any lane of a mask is set.
+inline bool any(bool b) { return b; }
+template <class T, class A>
+inline bool any(const xsimd::batch_bool<T, A>& b) { return xsimd::any(b); }
+/// True when every lane of a mask is set.
+inline bool all(bool b) { return b; }
+template <class T, class A>
+inline bool all(const xsimd::batch_bool<T, A>& b) { return xsimd::all(b); }
+
+/// Lane-wise c ? a : b.
+template <class T>
+inline T select(bool c, const T& a, const T& b) { return c ? a : b; }
+template <class T, class A>
+inline xsimd::batch<T, A> select(const xsimd::batch_bool<T, A>& c, const xsimd::batch<T, A>& a,
+                                 const xsimd::batch<T, A>& b) {
+  return xsimd::select(c, a, b);
+}
+
+#define ANISOCAP_SIMD_UNARY(name, expr_scalar, expr_batch)                              \
+  inline float name(float x) { return expr_scalar; }                                    \
+  inline double name(double x) { return expr_scalar; }                                  \
+  template <class T, class A>                                                           \
+  inline xsimd::batch<T, A> name(const xsimd::batch<T, A>& x) { return expr_batch; }
+ANISOCAP_SIMD_UNARY(exp, std::exp(x), xsimd::exp(x))
+ANISOCAP_SIMD_UNARY(log, std::log(x), xsimd::log(x))
+ANISOCAP_SIMD_UNARY(sqrt, std::sqrt(x), xsimd::sqrt(x))
+ANISOCAP_SIMD_UNARY(abs, std::abs(x), xsimd::abs(x))
+ANISOCAP_SIMD_UNARY(sin, std::sin(x), xsimd::sin(x))
+ANISOCAP_SIMD_UNARY(cos, std::cos(x), xsimd::cos(x))
+#undef ANISOCAP_SIMD_UNARY
+
+inline float min(float a, float b) { return a < b ? a : b; }
+inline double min(double a, double b) { return a < b ? a : b; }
+inline float max(float a, float b) { return a > b ? a : b; }
+inline double max(double a, double b) { return a > b ? a : b; }
+template <class T, class A>
+inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::min(a, b); }
+template <class T, class A>
+inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::max(a, b); }
+/// a * b + c (one fused instruction for batches where the target has FMA).
+inline float fma(float a, float b, float c) { return a * b + c; }
+inline double fma(double a, double b, double c) { return a * b + c; }
+template <class T, class A>
+inline xsimd::batch<T, A> fma(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b, const xsimd::batch<T, A>& c) {
+  return xsimd::fma(a, b, c);
+}
 
 }  // namespace anisocap::simd

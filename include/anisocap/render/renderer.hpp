@@ -1,0 +1,417 @@
+#pragma once
+/// @file
+/// The renderer of MODEL.md 4 and the fused image loss of MODEL.md 5 with its gradient.
+///
+/// Texel-space rendering: pixel p of image i is the radiance leaving texel p towards camera c_i,
+/// lit by a point light at l_i with intensity I_i:
+///   R_i(p) = f(p; v, l) * max(0, n_s.l) * I_i / |l_i - p|^2,   zero where n_s.v <= 0.
+/// Work is SIMD over texels (16 consecutive texels of one parameter plane per AVX-512 register) and
+/// OpenMP over blocks of texels. The fused pass `loss_and_gradient` evaluates
+///   L = sum_i mean_{p,c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|
+/// and dL/d(maps) without materialising any rendered image.
+///
+/// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 are
+/// `ad::dual`s over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
+/// compile-time `brdf_features` enable); albedos enter linearly and get their derivatives in closed
+/// form. Gradients are formed as (dL/dR * R) * dE, which stays finite when R is huge or tiny.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/ad/forward/dual.hpp"
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/brdf/ward.hpp"
+#include "anisocap/core/image.hpp"
+#include "anisocap/core/simd.hpp"
+#include "anisocap/render/capture.hpp"
+
+namespace anisocap {
+
+/// The epsilon of the log image loss (MODEL.md 5, paper eq. 5).
+inline constexpr float loss_epsilon = 0.01f;
+
+/// Where a map set lies inside the whole material: texels render at their global positions
+/// (MODEL.md 4 decision), so a tile of a larger material renders exactly as it would in place.
+struct tile_placement {
+  int full_width = 0;   ///< whole material width in texels (0: the maps are the whole material)
+  int full_height = 0;  ///< whole material height in texels
+  int x0 = 0;           ///< column of the tile's first texel in the whole material
+  int y0 = 0;           ///< row of the tile's first texel in the whole material
+};
+
+/// Options of the renderer and the fused loss.
+struct render_options {
+  /// Cull the specular lobe where it is negligible: a lane is culled when
+  /// a'_s * exp(E) * G * I < cull_tolerance * 0.01, which changes that pixel's log loss term by at
+  /// most cull_tolerance (|log(x + d + 0.01) - log(x + 0.01)| <= d / 0.01). The exp() and the
+  /// specular gradient are skipped for a block of texels when every lane is culled. 0 disables.
+  float cull_tolerance = 0.0f;
+};
+
+namespace detail {
+
+/// Slots of the active non-linear parameters in the dual vectors, fixed by the features.
+template <brdf_features F>
+struct parameter_slots {
+  static constexpr int sx = 0;
+  static constexpr int sy = F.anisotropic ? 1 : -1;
+  static constexpr int f0 = F.fresnel ? (F.anisotropic ? 2 : 1) : -1;
+  static constexpr int nx_ = F.normal_map ? 1 + int(F.anisotropic) + int(F.fresnel) : -1;
+  static constexpr int ny_ = F.normal_map ? nx_ + 1 : -1;
+  static constexpr int alpha = F.anisotropic ? 1 + int(F.anisotropic) + int(F.fresnel) + 2 * int(F.normal_map) : -1;
+  static constexpr std::size_t count = 1 + 2 * std::size_t(F.anisotropic) + std::size_t(F.fresnel) + 2 * std::size_t(F.normal_map);
+  /// Map-plane index of each slot.
+  static constexpr std::array<int, count> plane = [] {
+    std::array<int, count> a{};
+    a[sx] = lobe_x;
+    if constexpr (F.anisotropic) { a[sy] = lobe_y; a[alpha] = rotation; }
+    if constexpr (F.fresnel) a[f0] = fresnel_f0;
+    if constexpr (F.normal_map) { a[nx_] = normal_x; a[ny_] = normal_y; }
+    return a;
+  }();
+};
+
+/// One light/camera configuration, pre-converted for the kernels.
+struct configuration_constants {
+  float cx, cy, cz;        ///< camera
+  float lx, ly, lz;        ///< light
+  float intensity[3];      ///< light intensity per channel
+};
+
+inline std::vector<configuration_constants> to_constants(const capture& cap) {
+  std::vector<configuration_constants> out;
+  out.reserve(cap.images.size());
+  for (const auto& im : cap.images)
+    out.push_back({im.camera[0], im.camera[1], im.camera[2], im.light[0], im.light[1], im.light[2],
+                   {im.intensity[0], im.intensity[1], im.intensity[2]}});
+  return out;
+}
+
+/// Per-texel quantities that do not depend on the configuration, computed once per block.
+template <brdf_features F, class V, std::size_t N>
+struct texel_state {
+  using D = ad::dual<V, N>;
+  using slots = parameter_slots<F>;
+  V px, py;                       ///< texel centre position
+  V diffuse[3], specular[3];
+  D nx, ny, nz;                   ///< shading normal
+  D inv_s;                        ///< 1 / sqrt(1 - nx^2) (tangent normalisation)
+  D cos_a, sin_a;                 ///< rotation
+  D inv_sx2, inv_sy2;             ///< 1 / sigma^2
+  D log_norm;                     ///< -log(pi sx sy)
+  D inv_f0m1;                     ///< 1 / F0 - 1
+
+  /// Loads texel parameters at flat index i (lanes i..i+lanes-1), seeding the duals.
+  void load(const material_maps& maps, std::size_t i, V px_, V py_) {
+    using namespace ward_limits;
+    px = px_; py = py_;
+    for (int c = 0; c < 3; ++c) {
+      diffuse[c] = simd::load<V>(maps.plane(diffuse_r + c) + i);
+      specular[c] = simd::load<V>(maps.plane(specular_r + c) + i);
+    }
+    auto seed = [&](int plane, int slot, V lower) {
+      V v = simd::load<V>(maps.plane(plane) + i);
+      v = simd::max(v, lower);
+      if constexpr (N > 0) return D::variable(v, std::size_t(slot));
+      else { (void)slot; return D(v); }
+    };
+    const D sx = seed(lobe_x, slots::sx, V(min_lobe));
+    D sy = sx;
+    if constexpr (F.anisotropic) sy = seed(lobe_y, slots::sy, V(min_lobe));
+    inv_sx2 = V(1) / (sx * sx);
+    inv_sy2 = V(1) / (sy * sy);
+    log_norm = -ad::log(V(std::numbers::pi_v<float>) * sx * sy);
+    if constexpr (F.fresnel) {
+      const D f0 = seed(fresnel_f0, slots::f0, V(min_f0));
+      inv_f0m1 = V(1) / f0 - V(1);
+    }
+    if constexpr (F.normal_map) {
+      nx = seed(normal_x, slots::nx_, V(-1));
+      ny = seed(normal_y, slots::ny_, V(-1));
+      D z2 = V(1) - nx * nx - ny * ny;
+      nz = ad::sqrt(ad::max(z2, V(min_normal_z2)));
+      inv_s = V(1) / ad::sqrt(ad::max(V(1) - nx * nx, V(min_normal_z2)));
+    } else {
+      nx = D(V(0)); ny = D(V(0)); nz = D(V(1)); inv_s = D(V(1));
+    }
+    if constexpr (F.anisotropic) {
+      const D a = seed(rotation, slots::alpha, V(-1e30f));
+      cos_a = ad::cos(a);
+      sin_a = ad::sin(a);
+    }
+  }
+};
+
+/// The result of one texel block under one configuration.
+template <class V, std::size_t N>
+struct shading {
+  V valid;                    ///< 1 where the texel is lit and seen, else 0
+  V lobe;                     ///< exp(E): specular lobe times Fresnel ratio (0 if culled/invalid)
+  ad::dual<V, N> log_lobe;    ///< E with its gradient
+  ad::dual<V, N> geometry;    ///< G = max(0, n.l) / r^2 with its gradient (intensity not included)
+  bool specular_culled;       ///< every lane's lobe was negligible: lobe == 0, skip its gradient
+};
+
+/// Shades one block of texels under one configuration (MODEL.md 3-4).
+template <brdf_features F, class V, std::size_t N>
+inline shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
+  using D = ad::dual<V, N>;
+  using namespace ward_limits;
+  shading<V, N> s;
+  // Directions to light and camera.
+  const V lx = V(k.lx) - t.px, ly = V(k.ly) - t.py, lz = V(k.lz);
+  const V r2 = simd::max(lx * lx + ly * ly + lz * lz, V(min_distance2));
+  const V inv_r = V(1) / simd::sqrt(r2);
+  const V vx0 = V(k.cx) - t.px, vy0 = V(k.cy) - t.py, vz0 = V(k.cz);
+  const V inv_v = V(1) / simd::sqrt(simd::max(vx0 * vx0 + vy0 * vy0 + vz0 * vz0, V(min_distance2)));
+  const V ux = lx * inv_r, uy = ly * inv_r, uz = lz * inv_r;      // unit l
+  const V wx = vx0 * inv_v, wy = vy0 * inv_v, wz = vz0 * inv_v;  // unit v
+  const V hx = ux + wx, hy = uy + wy, hz = uz + wz;               // h = l + v (world)
+  const V hh = simd::max(hx * hx + hy * hy + hz * hz, V(1e-12f));
+
+  D cos_l, cos_v, hn;
+  if constexpr (F.normal_map) {
+    cos_l = t.nx * ux + t.ny * uy + t.nz * uz;
+    cos_v = t.nx * wx + t.ny * wy + t.nz * wz;
+    hn = t.nx * hx + t.ny * hy + t.nz * hz;
+  } else {
+    cos_l = D(uz); cos_v = D(wz); hn = D(hz);
+  }
+  const auto lit = (cos_l.value > V(0)) & (cos_v.value > V(0));
+  s.valid = simd::select(lit, V(1), V(0));
+  // G = max(0, n.l) / r^2.
+  s.geometry = ad::select(lit, cos_l * (V(1) / r2), D(V(0)));
+  // Exponent q = h_x^2/sx^2 + h_y^2/sy^2 in the shading frame.
+  const D hn_safe = ad::max(hn, V(min_hz));
+  D q;
+  if constexpr (F.anisotropic) {
+    D ht, hb;
+    if constexpr (F.normal_map) {
+      // t = ((1,0,0) - nx n)/s, b = n x t = (0, nz, -ny)/s with s = sqrt(1 - nx^2).
+      ht = (hx - t.nx * hn) * t.inv_s;
+      hb = (t.nz * hy - t.ny * hz) * t.inv_s;
+    } else {
+      ht = D(hx); hb = D(hy);
+    }
+    const D hxl = t.cos_a * ht + t.sin_a * hb;
+    const D hyl = t.cos_a * hb - t.sin_a * ht;
+    q = hxl * hxl * t.inv_sx2 + hyl * hyl * t.inv_sy2;
+  } else {
+    // Isotropic: h_x^2 + h_y^2 = |h|^2 - h_z^2, no tangent frame needed.
+    q = (hh - hn * hn) * t.inv_sx2;
+  }
+  // Fresnel ratio F/F0 = 1 + (1/F0 - 1)(1 - v.h')^5; v.h' is frame-independent.
+  D log_arg;
+  const D inv_hn2 = V(1) / (hn_safe * hn_safe);
+  if constexpr (F.fresnel) {
+    const V c = (wx * hx + wy * hy + wz * hz) / simd::sqrt(hh);
+    const V m = simd::max(V(1) - c, V(0));
+    const V m2 = m * m;
+    const D ratio = V(1) + t.inv_f0m1 * (m2 * m2 * m);
+    log_arg = hh * ratio * inv_hn2 * inv_hn2;
+  } else {
+    log_arg = hh * inv_hn2 * inv_hn2;
+  }
+  // E = -q / h_z^2 + log((h.h) * F/F0 / h_z^4) - log(pi sx sy): the whole lobe as one exp.
+  D e = ad::log(log_arg) + t.log_norm - q * inv_hn2;
+  e = ad::min(e, V(max_log_lobe));
+  s.log_lobe = e;
+  // Culling test: a'_s <= 1, so the lobe's contribution is below exp(E) * G per unit intensity.
+  s.specular_culled = false;
+  if (cull_log_bound > -1e30f) {
+    const auto negligible = (e.value + simd::log(simd::max(s.geometry.value, V(1e-30f)))) < V(cull_log_bound);
+    if (simd::all(negligible | !lit)) {
+      s.specular_culled = true;
+      s.lobe = V(0);
+      return s;
+    }
+  }
+  s.lobe = simd::select(lit, simd::exp(e.value), V(0));
+  return s;
+}
+
+}  // namespace detail
+
+/// log(B + 0.01) of every target image, computed once per capture for the fused loss.
+struct loss_targets {
+  std::vector<image> log_images;  ///< one 3-channel planar image per capture image
+  int width = 0, height = 0;
+};
+
+/// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels).
+inline loss_targets make_loss_targets(const std::vector<image>& photos) {
+  loss_targets t;
+  if (photos.empty()) throw std::invalid_argument("make_loss_targets: no images");
+  t.width = photos[0].width();
+  t.height = photos[0].height();
+  for (std::size_t i = 0; i < photos.size(); ++i) {
+    const image& p = photos[i];
+    if (p.width() != t.width || p.height() != t.height || p.channels() != 3)
+      throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a different size or channel count");
+    image l(p.width(), p.height(), 3);
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t k = 0; k < p.pixel_count(); ++k) l.plane(c)[k] = std::log(std::max(p.plane(c)[k], 0.0f) + loss_epsilon);
+    t.log_images.push_back(std::move(l));
+  }
+  return t;
+}
+
+namespace detail {
+
+inline tile_placement resolve(const tile_placement& t, const material_maps& maps) {
+  tile_placement r = t;
+  if (r.full_width == 0) { r.full_width = maps.width(); r.full_height = maps.height(); r.x0 = 0; r.y0 = 0; }
+  if (r.x0 < 0 || r.y0 < 0 || r.x0 + maps.width() > r.full_width || r.y0 + maps.height() > r.full_height)
+    throw std::invalid_argument("tile_placement: the tile lies outside the material");
+  return r;
+}
+
+/// Texel positions (global, MODEL.md 4) for the lanes starting at flat index i.
+template <class V>
+inline void texel_positions(std::size_t i, int width, const tile_placement& t, V& px, V& py) {
+  using S = simd::scalar_t<V>;
+  const float n = float(std::max(t.full_width, t.full_height));
+  alignas(simd::alignment) S xs[simd::lanes_v<V>], ys[simd::lanes_v<V>];
+  for (std::size_t l = 0; l < simd::lanes_v<V>; ++l) {
+    const std::size_t k = i + l;
+    const int x = int(k % std::size_t(width)) + t.x0, y = int(k / std::size_t(width)) + t.y0;
+    xs[l] = (S(x) + S(0.5) - S(0.5) * S(t.full_width)) / S(n);
+    ys[l] = (S(0.5) * S(t.full_height) - (S(y) + S(0.5))) / S(n);
+  }
+  px = simd::load<V>(xs);
+  py = simd::load<V>(ys);
+}
+
+inline float cull_log_bound(const render_options& o) {
+  return o.cull_tolerance > 0 ? std::log(o.cull_tolerance * loss_epsilon) : -1e31f;
+}
+
+}  // namespace detail
+
+/// Renders every configuration of `cap` for the map set (one 3-channel image per configuration).
+/// V picks the path: `simd::batch<float>` (default) or `float` (the scalar build of the same template).
+template <brdf_features F = all_features, class V = simd::batch<float>>
+std::vector<image> render(const material_maps& maps, const capture& cap, const tile_placement& placement = {},
+                          const render_options& options = {}) {
+  static_assert(std::is_same_v<simd::scalar_t<V>, float>, "maps are float");
+  constexpr std::size_t L = simd::lanes_v<V>;
+  const tile_placement tp = detail::resolve(placement, maps);
+  const auto configs = detail::to_constants(cap);
+  std::vector<image> out;
+  for (std::size_t i = 0; i < configs.size(); ++i) out.emplace_back(maps.width(), maps.height(), 3);
+  const std::size_t texels = maps.texel_count();
+  const std::size_t blocks = (texels + L - 1) / L;
+  const float cull = detail::cull_log_bound(options);
+  const float inv_pi = 1.0f / std::numbers::pi_v<float>;
+#pragma omp parallel for schedule(static)
+  for (std::ptrdiff_t b = 0; b < std::ptrdiff_t(blocks); ++b) {
+    const std::size_t i = std::size_t(b) * L;
+    V px, py;
+    detail::texel_positions<V>(i, maps.width(), tp, px, py);
+    detail::texel_state<F, V, 0> t;
+    t.load(maps, i, px, py);
+    for (std::size_t k = 0; k < configs.size(); ++k) {
+      const auto s = detail::shade<F, V, 0>(t, configs[k], cull);
+      for (int c = 0; c < 3; ++c) {
+        const V brdf = t.diffuse[c] * V(inv_pi) + t.specular[c] * s.lobe;
+        // Padded tail lanes write into the plane's padding (plane_stride is a multiple of 16).
+        simd::store<V>(out[k].plane(c) + i, brdf * s.geometry.value * V(configs[k].intensity[c]));
+      }
+    }
+  }
+  return out;
+}
+
+/// The fused pass: image loss (MODEL.md 5) of the map set against the targets and, when `gradient`
+/// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
+/// No rendered image is materialised. Returns the loss
+///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|.
+template <brdf_features F = all_features, class V = simd::batch<float>>
+double loss_and_gradient(const material_maps& maps, const capture& cap, const loss_targets& targets,
+                         material_maps* gradient, const tile_placement& placement = {},
+                         const render_options& options = {}) {
+  using slots = detail::parameter_slots<F>;
+  constexpr std::size_t L = simd::lanes_v<V>;
+  constexpr std::size_t N = slots::count;
+  if (targets.log_images.size() != cap.images.size())
+    throw std::invalid_argument("loss_and_gradient: " + std::to_string(cap.images.size()) + " configurations but " +
+                                std::to_string(targets.log_images.size()) + " target images");
+  if (targets.width != maps.width() || targets.height != maps.height())
+    throw std::invalid_argument("loss_and_gradient: target images and maps differ in size");
+  if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
+    throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
+  const tile_placement tp = detail::resolve(placement, maps);
+  const auto configs = detail::to_constants(cap);
+  const std::size_t texels = maps.texel_count();
+  const std::size_t blocks = (texels + L - 1) / L;
+  const float cull = detail::cull_log_bound(options);
+  const float inv_pi = 1.0f / std::numbers::pi_v<float>;
+  // Mean over pixels and the 3 channels of each image.
+  const float scale = 1.0f / (3.0f * float(texels));
+  double loss = 0;
+#pragma omp parallel for schedule(static) reduction(+ : loss)
+  for (std::ptrdiff_t b = 0; b < std::ptrdiff_t(blocks); ++b) {
+    const std::size_t i = std::size_t(b) * L;
+    V px, py;
+    detail::texel_positions<V>(i, maps.width(), tp, px, py);
+    // Lanes past the last texel (padding of the final block) get weight 0.
+    const V lane_weight = i + L <= texels ? V(scale)
+                                          : simd::select(simd::iota<V>(0.0f) < V(float(texels - i)), V(scale), V(0));
+    detail::texel_state<F, V, N> t;
+    t.load(maps, i, px, py);
+    V g_diffuse[3] = {V(0), V(0), V(0)}, g_specular[3] = {V(0), V(0), V(0)};
+    std::array<V, N> g_dual;
+    g_dual.fill(V(0));
+    V loss_acc(0);
+    for (std::size_t k = 0; k < configs.size(); ++k) {
+      const auto s = detail::shade<F, V, N>(t, configs[k], cull);
+      const V geometry = s.geometry.value;
+      V w_spec(0), w_geom(0);  // sum_c dL/dR_c * specular_c / ... (see below)
+      for (int c = 0; c < 3; ++c) {
+        const V intensity(configs[k].intensity[c]);
+        const V kd = t.diffuse[c] * V(inv_pi);
+        const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
+        const V radiance = (kd + spec) * geometry * intensity; // R_c
+        const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
+        const V diff = simd::log(radiance + V(loss_epsilon)) - target;
+        loss_acc += simd::abs(diff) * lane_weight;
+        // dL/dR_c = sign(diff) / (R_c + eps) * weight.
+        const V dl = simd::select(diff >= V(0), lane_weight, -lane_weight) / (radiance + V(loss_epsilon));
+        const V dl_gi = dl * geometry * intensity;
+        g_diffuse[c] += dl_gi * V(inv_pi);
+        g_specular[c] += dl_gi * s.lobe;
+        w_spec += dl_gi * spec;            // dR_c/dE = spec * G * I
+        w_geom += dl * (kd + spec) * intensity;  // dR_c/dG = (kd + spec) * I
+      }
+      if constexpr (N > 0) {
+        if (!s.specular_culled)
+          for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_spec, s.log_lobe.grad[p], g_dual[p]);
+        for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_geom, s.geometry.grad[p], g_dual[p]);
+      }
+    }
+    loss += double(simd::reduce_add(loss_acc));
+    if (gradient) {
+      for (int c = 0; c < 3; ++c) {
+        simd::store<V>(gradient->plane(diffuse_r + c) + i, g_diffuse[c]);
+        simd::store<V>(gradient->plane(specular_r + c) + i, g_specular[c]);
+      }
+      for (int pl : {lobe_x, lobe_y, fresnel_f0, normal_x, normal_y, rotation}) {
+        bool active = false;
+        for (std::size_t p = 0; p < N; ++p) active |= slots::plane[p] == pl;
+        if (!active) simd::store<V>(gradient->plane(pl) + i, V(0));
+      }
+      for (std::size_t p = 0; p < N; ++p) {
+        // Clamped parameters (sx below min_lobe, ...) get the gradient of the clamped value, which
+        // points back into the valid range; optimisers keep parameters inside by construction.
+        simd::store<V>(gradient->plane(slots::plane[p]) + i, g_dual[p]);
+      }
+    }
+  }
+  return loss;
+}
+
+}  // namespace anisocap
