@@ -1,0 +1,486 @@
+#pragma once
+/// @file
+/// Image files: linear OpenEXR and sRGB PNG in, float32 EXR and 8-bit sRGB PNG previews out
+/// (issue 2, item 5). Inputs are photographs of the material in texture space (MODEL.md 4), so the
+/// loss of MODEL.md 5 needs linear radiance: EXR is taken as linear, PNG (8 or 16 bit) as sRGB and
+/// linearised with the exact sRGB curve.
+///
+/// Every write goes to a temporary file beside its target and is renamed over it only once it is
+/// complete (`file_transaction`), so a failure never leaves a half-written file under the real
+/// name. Every error is an `io_error` whose message starts with the file's path.
+#include <tinyexr.h>
+#include <stb/stb_image.h>
+#include <stb/stb_image_write.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cctype>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include "anisocap/core/image.hpp"
+
+namespace anisocap {
+
+/// A file could not be read, written or validated. `what()` starts with the file's path.
+class io_error : public std::runtime_error {
+ public:
+  /// Message `path: problem`.
+  io_error(const std::filesystem::path& path, const std::string& problem)
+      : std::runtime_error(path.string() + ": " + problem), path_(path) {}
+  /// The file the problem is about.
+  const std::filesystem::path& path() const noexcept { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// ---- sRGB transfer function --------------------------------------------------------------------
+
+/// sRGB-encoded value in [0,1] to linear (IEC 61966-2-1, the piecewise curve, not gamma 2.2).
+inline double srgb_to_linear(double encoded) noexcept {
+  return encoded <= 0.04045 ? encoded / 12.92 : std::pow((encoded + 0.055) / 1.055, 2.4);
+}
+
+/// Linear value in [0,1] to sRGB encoding (inverse of srgb_to_linear).
+inline double linear_to_srgb(double linear) noexcept {
+  return linear <= 0.0031308 ? linear * 12.92 : 1.055 * std::pow(linear, 1.0 / 2.4) - 0.055;
+}
+
+// ---- whole files and atomic writes -------------------------------------------------------------
+
+/// Reads a whole file into memory; io_error if it is missing, not a regular file or unreadable.
+inline std::vector<unsigned char> read_file_bytes(const std::filesystem::path& path) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(status)) throw io_error(path, "file not found");
+  if (!std::filesystem::is_regular_file(status)) throw io_error(path, "not a regular file");
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f) throw io_error(path, std::string("cannot open for reading: ") + std::strerror(errno));
+  std::vector<unsigned char> bytes;
+  unsigned char buffer[1 << 16];
+  for (;;) {
+    const std::size_t n = std::fread(buffer, 1, sizeof buffer, f.get());
+    bytes.insert(bytes.end(), buffer, buffer + n);
+    if (n < sizeof buffer) break;
+  }
+  if (std::ferror(f.get())) throw io_error(path, "read error");
+  return bytes;
+}
+
+/// A set of files written together: `stage` writes each one completely under a temporary name in
+/// the target's folder; `commit` renames them all onto their targets; files staged but not
+/// committed are removed by the destructor. Nothing appears under a target name before `commit`,
+/// so a failure while producing any file (bad data, full disk) leaves every target untouched.
+/// Each rename is atomic (same folder), so a reader never sees a partial file.
+class file_transaction {
+ public:
+  file_transaction() = default;
+  file_transaction(const file_transaction&) = delete;
+  file_transaction& operator=(const file_transaction&) = delete;
+  /// Removes temporaries that were staged but not committed.
+  ~file_transaction() { discard(); }
+
+  /// Writes `bytes` to a temporary file that `commit` will rename to `target`. The target's folder
+  /// must exist. Throws io_error (and removes the partial temporary) on failure.
+  void stage(const std::filesystem::path& target, const void* bytes, std::size_t size) {
+    const std::filesystem::path temporary = temporary_name(target);
+    std::FILE* f = std::fopen(temporary.c_str(), "wb");
+    if (!f) throw io_error(target, std::string("cannot create file: ") + std::strerror(errno));
+    const bool written = size == 0 || std::fwrite(bytes, 1, size, f) == size;
+    const bool flushed = std::fflush(f) == 0;
+    const bool closed = std::fclose(f) == 0;
+    if (!(written && flushed && closed)) {
+      std::error_code ec;
+      std::filesystem::remove(temporary, ec);
+      throw io_error(target, "write failed (disk full?)");
+    }
+    pending_.emplace_back(temporary, target);
+  }
+  /// `stage` for a string's bytes.
+  void stage(const std::filesystem::path& target, std::string_view text) { stage(target, text.data(), text.size()); }
+
+  /// Renames every staged file onto its target (replacing existing files).
+  void commit() {
+    for (std::size_t i = 0; i < pending_.size(); ++i) {
+      std::error_code ec;
+      std::filesystem::rename(pending_[i].first, pending_[i].second, ec);
+      if (ec) {
+        pending_.erase(pending_.begin(), pending_.begin() + std::ptrdiff_t(i));
+        throw io_error(pending_.front().second, "cannot rename the temporary file into place: " + ec.message());
+      }
+    }
+    pending_.clear();
+  }
+
+  /// Removes every staged temporary without touching the targets.
+  void discard() noexcept {
+    for (auto& [temporary, target] : pending_) {
+      std::error_code ec;
+      std::filesystem::remove(temporary, ec);
+    }
+    pending_.clear();
+  }
+
+  /// Number of files staged and not yet committed.
+  std::size_t staged() const noexcept { return pending_.size(); }
+
+  /// Marker inside every temporary name (".<name>.anisocap-tmp-<random>"), e.g. for tests and cleanup.
+  static constexpr std::string_view temporary_marker = ".anisocap-tmp-";
+
+ private:
+  /// A hidden, unique name in the target's folder (same file system, so rename is atomic).
+  static std::filesystem::path temporary_name(const std::filesystem::path& target) {
+    static std::atomic<std::uint64_t> counter{std::random_device{}()};
+    const std::uint64_t id = counter.fetch_add(0x9E3779B97F4A7C15ull);
+    char hex[17];
+    std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(id));
+    std::string name(1, '.');  // appended piecewise: GCC 12 warns falsely (-Wrestrict) on "." + string
+    name.append(target.filename().string()).append(temporary_marker).append(hex);
+    return target.parent_path() / name;
+  }
+
+  std::vector<std::pair<std::filesystem::path, std::filesystem::path>> pending_;
+};
+
+/// Writes `bytes` to `target` atomically (temporary file, then rename).
+inline void write_file_atomically(const std::filesystem::path& target, std::string_view bytes) {
+  file_transaction t;
+  t.stage(target, bytes);
+  t.commit();
+}
+
+// ---- validation --------------------------------------------------------------------------------
+
+/// Checks that every pixel of `img` is finite and not negative, as radiance must be; throws
+/// io_error naming `path`, the first bad pixel (x, y, channel), its value and how many are bad.
+inline void validate_pixels(const image& img, const std::filesystem::path& path) {
+  std::size_t bad = 0, first_index = img.pixel_count();
+  int first_c = 0;
+  float first_value = 0;
+  for (int c = 0; c < img.channels(); ++c) {
+    const float* p = img.plane(c);
+    for (std::size_t i = 0; i < img.pixel_count(); ++i) {
+      if (!(p[i] >= 0.0f) || std::isinf(p[i])) {  // NaN fails the comparison
+        ++bad;
+        if (i < first_index) first_index = i, first_c = c, first_value = p[i];  // first in reading order
+      }
+    }
+  }
+  if (bad == 0) return;
+  const int first_x = int(first_index % std::size_t(img.width())), first_y = int(first_index / std::size_t(img.width()));
+  static constexpr const char* channel_names[] = {"R", "G", "B"};
+  const std::string channel = img.channels() == 3 ? channel_names[first_c] : std::to_string(first_c);
+  const char* what = std::isnan(first_value) ? "NaN" : std::isinf(first_value) ? "infinite" : "negative";
+  char value[64];
+  std::snprintf(value, sizeof value, "%g", double(first_value));
+  std::string message = "pixel (x=" + std::to_string(first_x) + ", y=" + std::to_string(first_y) + ") channel " +
+                        channel + " is " + what + " (" + value + "); images must hold finite, non-negative radiance";
+  if (bad > 1) message += " (" + std::to_string(bad) + " bad values in all)";
+  throw io_error(path, message);
+}
+
+// ---- EXR ---------------------------------------------------------------------------------------
+
+namespace detail {
+
+/// Owns tinyexr's header, image and error string for one call.
+struct exr_resources {
+  EXRHeader header;
+  EXRImage image;
+  bool header_loaded = false, image_loaded = false;
+  const char* error = nullptr;
+  exr_resources() {
+    InitEXRHeader(&header);
+    InitEXRImage(&image);
+  }
+  ~exr_resources() {
+    if (image_loaded) FreeEXRImage(&image);
+    if (header_loaded) FreeEXRHeader(&header);
+    if (error) FreeEXRErrorMessage(error);
+  }
+  exr_resources(const exr_resources&) = delete;
+  exr_resources& operator=(const exr_resources&) = delete;
+  /// tinyexr's message, or a generic one.
+  std::string message(const char* what) const {
+    return std::string(what) + (error ? std::string(": ") + error : std::string());
+  }
+};
+
+/// Encodes planes (each width*height floats, row-major) as an EXR file in memory, ZIP-compressed,
+/// with the given channel names (OpenEXR readers expect alphabetical order, e.g. B, G, R) and
+/// float32 or half storage. Used by write_exr, and by tests to make half/one-channel inputs.
+inline std::vector<unsigned char> encode_exr(const float* const* planes, const char* const* names, int channels,
+                                             int width, int height, bool half, const std::filesystem::path& path) {
+  EXRHeader header;
+  InitEXRHeader(&header);
+  EXRImage exr;
+  InitEXRImage(&exr);
+  std::vector<EXRChannelInfo> info(static_cast<std::size_t>(channels));
+  std::vector<int> pixel_types(std::size_t(channels), TINYEXR_PIXELTYPE_FLOAT);
+  std::vector<int> requested(std::size_t(channels), half ? TINYEXR_PIXELTYPE_HALF : TINYEXR_PIXELTYPE_FLOAT);
+  for (int c = 0; c < channels; ++c) {
+    std::memset(&info[std::size_t(c)], 0, sizeof(EXRChannelInfo));
+    std::snprintf(info[std::size_t(c)].name, sizeof info[std::size_t(c)].name, "%s", names[c]);
+  }
+  header.num_channels = channels;
+  header.channels = info.data();
+  header.pixel_types = pixel_types.data();
+  header.requested_pixel_types = requested.data();
+  header.compression_type = TINYEXR_COMPRESSIONTYPE_ZIP;
+  exr.num_channels = channels;
+  exr.width = width;
+  exr.height = height;
+  exr.images = reinterpret_cast<unsigned char**>(const_cast<float**>(planes));
+  unsigned char* memory = nullptr;
+  const char* error = nullptr;
+  const std::size_t size = SaveEXRImageToMemory(&exr, &header, &memory, &error);
+  if (size == 0) {
+    std::string message = "cannot encode EXR";
+    if (error) {
+      message += std::string(": ") + error;
+      FreeEXRErrorMessage(error);
+    }
+    std::free(memory);
+    throw io_error(path, message);
+  }
+  std::vector<unsigned char> bytes(memory, memory + size);
+  std::free(memory);
+  return bytes;
+}
+
+/// Lower-case extension of a path, with the dot (".exr").
+inline std::string lower_extension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
+}  // namespace detail
+
+/// Reads a linear OpenEXR file (scanline or tiled, single part, half or float channels) into a
+/// 3-channel image: R, G, B by name (A and other channels ignored); a file with one channel (Y, R
+/// or any name) or with Y but no R, G, B is replicated into all three. Throws io_error naming the
+/// file when it is missing, corrupt, deep or multi-part, subsampled, or has no usable channels.
+inline image read_exr(const std::filesystem::path& path) {
+  const std::vector<unsigned char> bytes = read_file_bytes(path);
+  EXRVersion version;
+  if (ParseEXRVersionFromMemory(&version, bytes.data(), bytes.size()) != TINYEXR_SUCCESS)
+    throw io_error(path, "not an OpenEXR file (bad magic number or truncated)");
+  if (version.multipart) throw io_error(path, "multi-part EXR files are not supported; save one part");
+  if (version.non_image) throw io_error(path, "deep EXR files are not supported");
+  detail::exr_resources r;
+  if (ParseEXRHeaderFromMemory(&r.header, &version, bytes.data(), bytes.size(), &r.error) != TINYEXR_SUCCESS)
+    throw io_error(path, r.message("corrupt EXR header"));
+  r.header_loaded = true;
+  const int n = r.header.num_channels;
+  for (int c = 0; c < n; ++c) {
+    const EXRChannelInfo& ch = r.header.channels[c];
+    if (r.header.pixel_types[c] == TINYEXR_PIXELTYPE_UINT)
+      throw io_error(path, std::string("channel ") + ch.name + " holds unsigned integers; expected half or float radiance");
+    if (ch.x_sampling != 1 || ch.y_sampling != 1)
+      throw io_error(path, std::string("channel ") + ch.name + " is subsampled; only full-resolution channels are supported");
+    r.header.requested_pixel_types[c] = TINYEXR_PIXELTYPE_FLOAT;  // half -> float on load
+  }
+  if (LoadEXRImageFromMemory(&r.image, &r.header, bytes.data(), bytes.size(), &r.error) != TINYEXR_SUCCESS)
+    throw io_error(path, r.message("corrupt or truncated EXR data"));
+  r.image_loaded = true;
+
+  int source[3] = {-1, -1, -1};
+  auto find = [&](const char* name) {
+    for (int c = 0; c < n; ++c) if (std::strcmp(r.header.channels[c].name, name) == 0) return c;
+    return -1;
+  };
+  source[0] = find("R"), source[1] = find("G"), source[2] = find("B");
+  if (source[0] < 0 || source[1] < 0 || source[2] < 0) {
+    const int y = find("Y");
+    const int single = n == 1 ? 0 : y;
+    if (single < 0) {
+      std::string names;
+      for (int c = 0; c < n; ++c) names += std::string(c ? ", " : "") + r.header.channels[c].name;
+      throw io_error(path, "expected channels R, G, B (or one channel, or Y), found: " + names);
+    }
+    source[0] = source[1] = source[2] = single;
+  }
+  const int width = r.image.width, height = r.image.height;
+  if (width <= 0 || height <= 0) throw io_error(path, "empty EXR image");
+  image out(width, height, 3);
+  if (!r.header.tiled) {
+    for (int c = 0; c < 3; ++c) {
+      const float* src = reinterpret_cast<const float*>(r.image.images[source[c]]);
+      std::copy(src, src + out.pixel_count(), out.plane(c));
+    }
+  } else {
+    // Level 0 tiles: tile (offset_x, offset_y) covers tile_size pixels from offset * tile_size.
+    const int tx = r.header.tile_size_x, ty = r.header.tile_size_y;
+    for (int t = 0; t < r.image.num_tiles; ++t) {
+      const EXRTile& tile = r.image.tiles[t];
+      for (int c = 0; c < 3; ++c) {
+        const float* src = reinterpret_cast<const float*>(tile.images[source[c]]);
+        for (int j = 0; j < ty; ++j) {
+          const int y = tile.offset_y * ty + j;
+          if (y >= height) break;
+          for (int i = 0; i < tx; ++i) {
+            const int x = tile.offset_x * tx + i;
+            if (x >= width) break;
+            out.at(c, x, y) = src[j * tx + i];
+          }
+        }
+      }
+    }
+  }
+  return out;
+}
+
+/// Writes a 1- or 3-channel image as a float32, ZIP-compressed EXR (channels Y, or B G R),
+/// atomically. Values are written as they are (validate first where that matters).
+inline void write_exr(const image& img, const std::filesystem::path& path, file_transaction& transaction) {
+  if (img.empty()) throw io_error(path, "cannot write an empty image");
+  if (img.channels() == 3) {
+    const float* planes[3] = {img.plane(2), img.plane(1), img.plane(0)};
+    const char* names[3] = {"B", "G", "R"};
+    const auto bytes = detail::encode_exr(planes, names, 3, img.width(), img.height(), false, path);
+    transaction.stage(path, bytes.data(), bytes.size());
+  } else if (img.channels() == 1) {
+    const float* planes[1] = {img.plane(0)};
+    const char* names[1] = {"Y"};
+    const auto bytes = detail::encode_exr(planes, names, 1, img.width(), img.height(), false, path);
+    transaction.stage(path, bytes.data(), bytes.size());
+  } else {
+    throw io_error(path, "EXR output takes 1 or 3 channels, the image has " + std::to_string(img.channels()));
+  }
+}
+
+/// Writes a 1- or 3-channel image as a float32 EXR, atomically (see the transaction overload).
+inline void write_exr(const image& img, const std::filesystem::path& path) {
+  file_transaction t;
+  write_exr(img, path, t);
+  t.commit();
+}
+
+// ---- PNG ---------------------------------------------------------------------------------------
+
+/// How a PNG preview maps values to 8-bit codes.
+enum class png_encoding {
+  srgb,    ///< colours (radiance, albedo): clamp to [0,1], sRGB-encode (what displays expect)
+  linear,  ///< data (lobe widths, mapped normals): clamp to [0,1], store as is, so a code reads as the value
+};
+
+/// Reads an 8- or 16-bit PNG (grey, grey+alpha, RGB or RGBA; alpha ignored, grey replicated),
+/// taken as sRGB and linearised exactly, into a 3-channel image. Throws io_error naming the file
+/// when it is missing, not a PNG, or corrupt.
+inline image read_png(const std::filesystem::path& path) {
+  const std::vector<unsigned char> bytes = read_file_bytes(path);
+  static constexpr unsigned char signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  if (bytes.size() < 8 || std::memcmp(bytes.data(), signature, 8) != 0)
+    throw io_error(path, "not a PNG file (bad signature)");
+  if (bytes.size() > std::size_t(INT32_MAX)) throw io_error(path, "PNG file too large");
+  const int size = int(bytes.size());
+  int width = 0, height = 0, channels = 0;
+  const bool sixteen = stbi_is_16_bit_from_memory(bytes.data(), size) != 0;
+  std::unique_ptr<void, void (*)(void*)> pixels(nullptr, &stbi_image_free);
+  if (sixteen) pixels.reset(stbi_load_16_from_memory(bytes.data(), size, &width, &height, &channels, 0));
+  else pixels.reset(stbi_load_from_memory(bytes.data(), size, &width, &height, &channels, 0));
+  if (!pixels) {
+    const char* reason = stbi_failure_reason();
+    throw io_error(path, std::string("corrupt PNG") + (reason ? std::string(" (") + reason + ")" : std::string()));
+  }
+  if (width <= 0 || height <= 0 || channels < 1 || channels > 4) throw io_error(path, "unsupported PNG layout");
+  // Exact sRGB decoding through a table of every code (256 or 65536 entries, computed in double).
+  const int levels = sixteen ? 65536 : 256;
+  std::vector<float> table(static_cast<std::size_t>(levels));
+  for (int i = 0; i < levels; ++i) table[std::size_t(i)] = float(srgb_to_linear(double(i) / double(levels - 1)));
+  image out(width, height, 3);
+  const int colour_channels = channels >= 3 ? 3 : 1;
+  const std::size_t count = out.pixel_count();
+  for (int c = 0; c < 3; ++c) {
+    const int src_c = colour_channels == 3 ? c : 0;
+    float* dst = out.plane(c);
+    if (sixteen) {
+      const auto* src = static_cast<const std::uint16_t*>(pixels.get());
+      for (std::size_t i = 0; i < count; ++i) dst[i] = table[src[i * std::size_t(channels) + std::size_t(src_c)]];
+    } else {
+      const auto* src = static_cast<const std::uint8_t*>(pixels.get());
+      for (std::size_t i = 0; i < count; ++i) dst[i] = table[src[i * std::size_t(channels) + std::size_t(src_c)]];
+    }
+  }
+  return out;
+}
+
+/// Encodes a 1- or 3-channel image as an 8-bit PNG in memory: each value is multiplied by
+/// 2^exposure_stops, clamped to [0,1] (NaN -> 0), encoded per `encoding`, rounded.
+inline std::vector<unsigned char> encode_png(const image& img, const std::filesystem::path& path, float exposure_stops = 0.0f,
+                                             png_encoding encoding = png_encoding::srgb) {
+  if (img.empty()) throw io_error(path, "cannot write an empty image");
+  const int channels = img.channels();
+  if (channels != 1 && channels != 3)
+    throw io_error(path, "PNG preview takes 1 or 3 channels, the image has " + std::to_string(channels));
+  const double scale = std::exp2(double(exposure_stops));
+  // 4096-entry table over [0,1] would lose dark sRGB codes; encode each value exactly instead.
+  std::vector<unsigned char> pixels(img.pixel_count() * std::size_t(channels));
+  for (int c = 0; c < channels; ++c) {
+    const float* src = img.plane(c);
+    for (std::size_t i = 0; i < img.pixel_count(); ++i) {
+      double v = double(src[i]) * scale;
+      v = v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0;  // also maps NaN to 0
+      if (encoding == png_encoding::srgb) v = linear_to_srgb(v);
+      pixels[i * std::size_t(channels) + std::size_t(c)] = static_cast<unsigned char>(std::lround(v * 255.0));
+    }
+  }
+  std::vector<unsigned char> bytes;
+  auto append = [](void* context, void* data, int size) {
+    auto* out = static_cast<std::vector<unsigned char>*>(context);
+    out->insert(out->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
+  };
+  if (!stbi_write_png_to_func(append, &bytes, img.width(), img.height(), channels, pixels.data(), img.width() * channels))
+    throw io_error(path, "cannot encode PNG");
+  return bytes;
+}
+
+/// Writes an 8-bit PNG preview (see encode_png) through `transaction`.
+inline void write_png(const image& img, const std::filesystem::path& path, file_transaction& transaction,
+                      float exposure_stops = 0.0f, png_encoding encoding = png_encoding::srgb) {
+  const auto bytes = encode_png(img, path, exposure_stops, encoding);
+  transaction.stage(path, bytes.data(), bytes.size());
+}
+
+/// Writes an 8-bit sRGB PNG preview atomically: values scaled by 2^exposure_stops, then clamped.
+inline void write_png(const image& img, const std::filesystem::path& path, float exposure_stops = 0.0f,
+                      png_encoding encoding = png_encoding::srgb) {
+  file_transaction t;
+  write_png(img, path, t, exposure_stops, encoding);
+  t.commit();
+}
+
+// ---- by extension ------------------------------------------------------------------------------
+
+/// Reads an input image by extension (.exr linear, .png sRGB; case-insensitive) into 3 channels.
+/// Does not validate pixel values (see validate_pixels).
+inline image read_image(const std::filesystem::path& path) {
+  const std::string ext = detail::lower_extension(path);
+  if (ext == ".exr") return read_exr(path);
+  if (ext == ".png") return read_png(path);
+  throw io_error(path, "unknown image type '" + path.extension().string() + "' (supported: .exr linear, .png sRGB)");
+}
+
+/// Writes by extension: .exr as float32 EXR, .png as an 8-bit sRGB preview; atomically.
+inline void write_image(const image& img, const std::filesystem::path& path) {
+  const std::string ext = detail::lower_extension(path);
+  if (ext == ".exr") return write_exr(img, path);
+  if (ext == ".png") return write_png(img, path);
+  throw io_error(path, "unknown image type '" + path.extension().string() + "' (supported: .exr, .png)");
+}
+
+}  // namespace anisocap
