@@ -2,6 +2,7 @@
 /// @file
 /// Aligned buffers and the arena that a training step reuses, so that a fixed-size network
 /// allocates nothing after its first step.
+#include <algorithm>
 #include <atomic>
 #include <cstddef>
 #include <cstdlib>
@@ -75,6 +76,9 @@ class aligned_buffer {
 /// nothing (the blocks are merged into one of the high-water size on reset).
 class arena {
  public:
+  /// Size of the first block an empty arena takes from the system.
+  static constexpr std::size_t minimum_block_bytes = std::size_t(1) << 18;
+
   explicit arena(std::size_t initial_bytes = 0) {
     if (initial_bytes) blocks_.push_back(block(initial_bytes));
   }
@@ -83,7 +87,9 @@ class arena {
   void* allocate(std::size_t bytes) {
     bytes = (bytes + simd::alignment - 1) / simd::alignment * simd::alignment;
     if (blocks_.empty() || blocks_.back().used + bytes > blocks_.back().capacity) {
-      blocks_.push_back(block(std::max<std::size_t>(bytes, blocks_.empty() ? bytes : blocks_.back().capacity)));
+      // Geometric growth keeps the first (sizing) pass to a few system allocations.
+      const std::size_t grown = blocks_.empty() ? minimum_block_bytes : 2 * blocks_.back().capacity;
+      blocks_.push_back(block(std::max(bytes, grown)));
     }
     auto& b = blocks_.back();
     void* p = b.memory.get() + b.used;
@@ -99,6 +105,8 @@ class arena {
   /// Frees everything at once; keeps (and consolidates) the memory for the next pass.
   void reset() {
     if (blocks_.size() > 1) {
+      // One block of the high-water size holds the next identical pass without a new allocation
+      // (a pass only bumps, so its peak is its total; one block wastes nothing at block ends).
       blocks_.clear();
       blocks_.push_back(block(high_water_));
     } else if (!blocks_.empty()) {

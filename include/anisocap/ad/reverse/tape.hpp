@@ -6,7 +6,9 @@
 /// parameter needs a gradient, records a closure that pushes the output's gradient back.
 /// `backward()` runs the closures in reverse order. Intermediate values and gradients live in the
 /// tape's arena, reset by `clear()`, so a fixed-size step allocates nothing after the first.
-#include <functional>
+#include <functional>  // kept for code that relied on it through this header
+#include <new>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -27,24 +29,42 @@ struct variable {
 class tape {
  public:
   explicit tape(std::size_t initial_arena_bytes = 0) : arena_(initial_arena_bytes) {}
+  ~tape() { destroy_steps(); }
+  tape(const tape&) = delete;
+  tape& operator=(const tape&) = delete;
 
   /// True when operations should record their backward pass.
   bool recording() const noexcept { return recording_; }
 
-  /// Records a backward closure (ignored in no-grad mode).
-  void record(std::function<void()> backward_step) {
-    if (recording_) steps_.push_back(std::move(backward_step));
+  /// Records a backward closure (ignored in no-grad mode). The closure is moved into the tape's
+  /// arena, not the heap, so a fixed-size step allocates nothing once the arena and the step list
+  /// have grown to size (a std::function would heap-allocate its captured tensors).
+  template <class F>
+  void record(F&& backward_step) {
+    if (!recording_) return;
+    using closure = std::decay_t<F>;
+    static_assert(alignof(closure) <= simd::alignment, "closure alignment exceeds the arena's");
+    void* memory = arena_.allocate(sizeof(closure));
+    closure* c = ::new (memory) closure(std::forward<F>(backward_step));
+    try {
+      steps_.push_back(step{c, [](void* p) { (*static_cast<closure*>(p))(); },
+                            [](void* p) noexcept { static_cast<closure*>(p)->~closure(); }});
+    } catch (...) {
+      c->~closure();
+      throw;
+    }
   }
 
-  /// Runs every recorded closure in reverse order, then forgets them.
+  /// Runs every recorded closure in reverse order, then forgets them. Gradients stay in the arena
+  /// until clear().
   void backward() {
-    for (auto it = steps_.rbegin(); it != steps_.rend(); ++it) (*it)();
-    steps_.clear();
+    for (auto it = steps_.rbegin(); it != steps_.rend(); ++it) it->run(it->closure);
+    destroy_steps();
   }
 
   /// Forgets recorded steps and releases the arena for reuse (keeps its memory).
   void clear() {
-    steps_.clear();
+    destroy_steps();
     arena_.reset();
   }
 
@@ -94,7 +114,18 @@ class tape {
   };
 
  private:
-  std::vector<std::function<void()>> steps_;
+  /// A type-erased closure living in the arena.
+  struct step {
+    void* closure;
+    void (*run)(void*);
+    void (*destroy)(void*) noexcept;
+  };
+  void destroy_steps() noexcept {
+    for (auto& s : steps_) s.destroy(s.closure);
+    steps_.clear();  // keeps the capacity: later steps push without allocating
+  }
+
+  std::vector<step> steps_;
   anisocap::arena arena_;
   bool recording_ = true;
 };

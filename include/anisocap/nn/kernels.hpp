@@ -1,0 +1,86 @@
+#pragma once
+/// @file
+/// The loops every non-convolution layer shares: element-wise SIMD transforms over a row's
+/// contiguous values (xsimd, full registers, one padded register for the tail) and OpenMP over the
+/// rows of large tensors. Reductions over pixels go through per-row partial sums in the tape's
+/// arena, then a serial sum over rows, so results do not depend on the number of threads.
+#include <algorithm>
+#include <cstddef>
+#include <stdexcept>
+#include <string>
+
+#include "anisocap/core/simd.hpp"
+#include "anisocap/core/tensor.hpp"
+
+namespace anisocap::nn::detail {
+
+/// Tensors with fewer elements than this run on one thread: a parallel region costs a few
+/// microseconds, more than the work it would split.
+inline constexpr std::size_t parallel_threshold = std::size_t(1) << 15;
+
+/// out[i] = op(in_0[i], in_1[i], ...) for i < n, on SIMD batches of T. `out` may alias an input
+/// (loads of a chunk happen before its store), which is how gradients accumulate.
+template <class T, class Op, class... In>
+inline void transform(std::size_t n, T* out, Op&& op, const In*... in) {
+  using B = simd::batch<T>;
+  constexpr std::size_t W = B::size;
+  std::size_t i = 0;
+  for (; i + W <= n; i += W) op(B::load_unaligned(in + i)...).store_unaligned(out + i);
+  if (i < n) {
+    // The tail runs through the same batch code on zero-padded copies, so it rounds identically.
+    const std::size_t r = n - i;
+    auto load_tail = [&](const T* p) {
+      alignas(simd::alignment) T buffer[W] = {};
+      std::copy(p + i, p + n, buffer);
+      return B::load_aligned(buffer);
+    };
+    alignas(simd::alignment) T result[W];
+    op(load_tail(in)...).store_aligned(result);
+    std::copy(result, result + r, out + i);
+  }
+}
+
+/// acc[i] += x[i] for i < n.
+template <class T>
+inline void add_to(T* acc, const T* x, std::size_t n) {
+  transform(n, acc, [](auto a, auto b) { return a + b; }, acc, x);
+}
+
+/// Calls f(b, y) for every row of a batch x height image stack, on all threads when `elements`
+/// (the work's size) is large. f must only write memory that belongs to its row.
+template <class F>
+inline void for_each_row(int batch, int height, std::size_t elements, F&& f) {
+  const int rows = batch * height;
+#pragma omp parallel for schedule(static) if (elements >= parallel_threshold)
+  for (int r = 0; r < rows; ++r) f(r / height, r % height);
+}
+
+/// Throws std::invalid_argument naming `op` when two tensors differ in batch, height or width.
+template <int C1, int C2, class T>
+inline void require_same_shape(const tensor<C1, T>& a, const tensor<C2, T>& b, const char* op) {
+  if (!a.same_spatial_shape(b))
+    throw std::invalid_argument(std::string(op) + ": shape mismatch (" + std::to_string(a.batch()) + "x" +
+                                std::to_string(a.height()) + "x" + std::to_string(a.width()) + " vs " +
+                                std::to_string(b.batch()) + "x" + std::to_string(b.height()) + "x" +
+                                std::to_string(b.width()) + ")");
+}
+
+/// Per-row channel sums: partial[(b * height + y) * C + c] = sum over x of f(b, y, x)[c], where
+/// `f(b, y, x, acc)` adds its C values to acc. Rows run in parallel when large.
+template <int C, class T, class F>
+inline void row_channel_sums(int batch, int height, int width, T* partial, F&& f) {
+  for_each_row(batch, height, std::size_t(batch) * height * width * C, [&](int b, int y) {
+    T* acc = partial + (std::size_t(b) * height + y) * C;
+    std::fill(acc, acc + C, T(0));
+    for (int x = 0; x < width; ++x) f(b, y, x, acc);
+  });
+}
+
+/// sums[c] = sum over rows [r0, r1) of partial[r * C + c] (serial: deterministic).
+template <int C, class T>
+inline void sum_rows(const T* partial, int r0, int r1, T* sums) {
+  std::fill(sums, sums + C, T(0));
+  for (int r = r0; r < r1; ++r) add_to(sums, partial + std::size_t(r) * C, C);
+}
+
+}  // namespace anisocap::nn::detail
