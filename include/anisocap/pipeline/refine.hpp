@@ -1,0 +1,181 @@
+#pragma once
+/// @file
+/// The per-texel optimisation (the paper's "refine" stage, MODEL.md 8.4, eq. 5): Adam on the maps
+/// against the image loss, usable on its own.
+///
+/// Parameters stay in their valid ranges by construction: Adam works on unconstrained variables u
+/// and the maps are a smooth function of them:
+///   albedos, F0:   p = sigmoid(u)                                   in (0, 1)
+///   lobe widths:   sigma = exp(log(1e-4) * (1 - sigmoid(u)))        in (1e-4, 1)   (log-space)
+///   normal x, y:   (nx, ny) = (ux, uy) / sqrt(1 + ux^2 + uy^2)       open unit disc, n_z > 0
+///   rotation:      alpha = u, wrapped into [-pi/2, pi/2) on output  (alpha is pi-periodic)
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <numbers>
+#include <vector>
+
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/render/renderer.hpp"
+
+namespace anisocap {
+
+/// Progress of a long optimisation, reported once per `progress_every` steps.
+struct optimisation_progress {
+  int step = 0;            ///< steps done
+  int steps = 0;           ///< steps planned
+  double loss = 0;         ///< image loss at this step
+  double seconds = 0;      ///< time since the start
+  double steps_per_second = 0;
+  double seconds_left = 0; ///< estimate
+};
+
+/// Options of `refine`.
+struct refine_options {
+  int steps = 500;                 ///< Adam steps (paper: 500)
+  float learning_rate = 1e-2f;     ///< in the unconstrained space u (see file comment)
+  float beta1 = 0.9f, beta2 = 0.999f, epsilon = 1e-8f;
+  render_options render{};         ///< culling etc. for the fused loss
+  tile_placement placement{};      ///< where the maps lie in a larger material
+  int progress_every = 0;          ///< 0: no progress callbacks
+  std::function<void(const optimisation_progress&)> progress;
+  /// Stop early when the loss improved by less than this fraction over the last `patience` steps (0: never).
+  double min_relative_improvement = 0.0;
+  int patience = 50;
+};
+
+/// What `refine` did.
+struct refine_result {
+  std::vector<double> losses;  ///< loss before each step
+  double final_loss = 0;       ///< loss of the returned maps
+  int steps = 0;               ///< steps run
+  double seconds = 0;
+};
+
+namespace detail {
+
+inline float sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
+inline float logit(float p) {
+  p = std::min(std::max(p, 1e-5f), 1.0f - 1e-5f);
+  return std::log(p / (1.0f - p));
+}
+inline constexpr float log_min_lobe = -9.210340371976184f;  // log(1e-4)
+
+/// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
+/// elementwise (the normal's 2x2 Jacobian is recomputed in the chain step).
+inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian) {
+  const std::size_t n = maps.texel_count();
+#pragma omp parallel for schedule(static)
+  for (std::ptrdiff_t ii = 0; ii < std::ptrdiff_t(n); ++ii) {
+    const std::size_t i = std::size_t(ii);
+    for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0}) {
+      const float s = sigmoid(u.plane(k)[i]);
+      maps.plane(k)[i] = s;
+      jacobian.plane(k)[i] = s * (1.0f - s);
+    }
+    for (int k : {lobe_x, lobe_y}) {
+      const float s = sigmoid(u.plane(k)[i]);
+      const float sigma = std::exp(log_min_lobe * (1.0f - s));
+      maps.plane(k)[i] = sigma;
+      jacobian.plane(k)[i] = sigma * (-log_min_lobe) * s * (1.0f - s);
+    }
+    const float ux = u.plane(normal_x)[i], uy = u.plane(normal_y)[i];
+    const float k = 1.0f / std::sqrt(1.0f + ux * ux + uy * uy);
+    maps.plane(normal_x)[i] = ux * k;
+    maps.plane(normal_y)[i] = uy * k;
+    const float a = u.plane(rotation)[i];
+    maps.plane(rotation)[i] = a - std::numbers::pi_v<float> * std::nearbyint(a / std::numbers::pi_v<float>);
+    jacobian.plane(rotation)[i] = 1.0f;
+  }
+}
+
+}  // namespace detail
+
+/// Unconstrained variables whose image under the refine parameterisation is (close to) `maps`.
+inline material_maps unconstrained_from_maps(const material_maps& maps) {
+  material_maps u(maps.width(), maps.height());
+  for (std::size_t i = 0; i < maps.texel_count(); ++i) {
+    for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0})
+      u.plane(k)[i] = detail::logit(maps.plane(k)[i]);
+    for (int k : {lobe_x, lobe_y}) {
+      const float sigma = std::min(std::max(maps.plane(k)[i], 1.0001e-4f), 0.9999f);
+      u.plane(k)[i] = detail::logit(1.0f - std::log(sigma) / detail::log_min_lobe);
+    }
+    float nx = maps.plane(normal_x)[i], ny = maps.plane(normal_y)[i];
+    const float r2 = nx * nx + ny * ny;
+    if (r2 > 0.998f) { const float s = std::sqrt(0.998f / r2); nx *= s; ny *= s; }
+    const float nz = std::sqrt(1.0f - nx * nx - ny * ny);
+    u.plane(normal_x)[i] = nx / nz;
+    u.plane(normal_y)[i] = ny / nz;
+    u.plane(rotation)[i] = maps.plane(rotation)[i];
+  }
+  return u;
+}
+
+/// Refines `maps` in place so that their renderings under `cap` match the photographs behind
+/// `targets` (MODEL.md 5, eq. 5). F picks the kernel: with `anisotropic` off, sy follows sx and
+/// alpha stays 0; with `normal_map` off, normals stay flat; with `fresnel` off, F0 is not optimised.
+template <brdf_features F = all_features>
+refine_result refine(material_maps& maps, const capture& cap, const loss_targets& targets, const refine_options& options = {}) {
+  const auto start = std::chrono::steady_clock::now();
+  const int w = maps.width(), h = maps.height();
+  material_maps u = unconstrained_from_maps(maps);
+  material_maps grad(w, h), jac(w, h), m1(w, h), m2(w, h);
+  refine_result result;
+  const std::size_t n = maps.texel_count();
+  std::vector<int> active = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, lobe_x};
+  if (F.anisotropic) { active.push_back(lobe_y); active.push_back(rotation); }
+  if (F.fresnel) active.push_back(fresnel_f0);
+  auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
+  double best_window_loss = 1e300;
+  for (int step = 0; step < options.steps; ++step) {
+    detail::maps_from_unconstrained(u, maps, jac);
+    if (!F.anisotropic) for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0; }
+    const double loss = loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render);
+    result.losses.push_back(loss);
+    // Adam on u (bias-corrected).
+    const float b1 = options.beta1, b2 = options.beta2;
+    const float c1 = 1.0f / (1.0f - std::pow(b1, float(step + 1))), c2 = 1.0f / (1.0f - std::pow(b2, float(step + 1)));
+    const float lr = options.learning_rate;
+    auto adam = [&](int k, std::size_t i, float g) {
+      float& a = m1.plane(k)[i];
+      float& b = m2.plane(k)[i];
+      a = b1 * a + (1 - b1) * g;
+      b = b2 * b + (1 - b2) * g * g;
+      u.plane(k)[i] -= lr * (a * c1) / (std::sqrt(b * c2) + options.epsilon);
+    };
+#pragma omp parallel for schedule(static)
+    for (std::ptrdiff_t ii = 0; ii < std::ptrdiff_t(n); ++ii) {
+      const std::size_t i = std::size_t(ii);
+      for (int k : active) adam(k, i, grad.plane(k)[i] * jac.plane(k)[i]);
+      if constexpr (F.normal_map) {
+        const float ux = u.plane(normal_x)[i], uy = u.plane(normal_y)[i];
+        const float kk = 1.0f / std::sqrt(1.0f + ux * ux + uy * uy), k3 = kk * kk * kk;
+        const float gx = grad.plane(normal_x)[i], gy = grad.plane(normal_y)[i];
+        adam(normal_x, i, gx * k3 * (1 + uy * uy) - gy * ux * uy * k3);
+        adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (1 + ux * ux));
+      }
+    }
+    result.steps = step + 1;
+    if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0) {
+      optimisation_progress p;
+      p.step = step + 1; p.steps = options.steps; p.loss = loss; p.seconds = elapsed();
+      p.steps_per_second = p.step / std::max(p.seconds, 1e-9);
+      p.seconds_left = (options.steps - p.step) / std::max(p.steps_per_second, 1e-9);
+      options.progress(p);
+    }
+    if (options.min_relative_improvement > 0 && options.patience > 0 && (step + 1) % options.patience == 0) {
+      if (loss > best_window_loss * (1.0 - options.min_relative_improvement)) break;
+      best_window_loss = std::min(best_window_loss, loss);
+    }
+  }
+  detail::maps_from_unconstrained(u, maps, jac);
+  if (!F.anisotropic) for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0; }
+  if (!F.fresnel) for (std::size_t i = 0; i < n; ++i) maps.plane(fresnel_f0)[i] = 1.0f;
+  if (!F.normal_map) for (std::size_t i = 0; i < n; ++i) maps.plane(normal_x)[i] = maps.plane(normal_y)[i] = 0.0f;
+  result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
+  result.seconds = elapsed();
+  return result;
+}
+
+}  // namespace anisocap
