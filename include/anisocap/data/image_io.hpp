@@ -39,12 +39,15 @@ class io_error : public std::runtime_error {
  public:
   /// Message `path: problem`.
   io_error(const std::filesystem::path& path, const std::string& problem)
-      : std::runtime_error(path.string() + ": " + problem), path_(path) {}
+      : std::runtime_error(path.string() + ": " + problem), path_(path), problem_(problem) {}
   /// The file the problem is about.
   const std::filesystem::path& path() const noexcept { return path_; }
+  /// The message without the path.
+  const std::string& problem() const noexcept { return problem_; }
 
  private:
   std::filesystem::path path_;
+  std::string problem_;
 };
 
 // ---- sRGB transfer function --------------------------------------------------------------------

@@ -1,0 +1,193 @@
+#pragma once
+/// @file
+/// `capture.json`, the description of a capture (issue 2, item 5):
+///
+///     {"images": [{"file": "input_00.exr", "camera": [x, y, z], "light": [x, y, z], "intensity": 1.0}, ...]}
+///
+/// `intensity` is a number or [r, g, b]. Positions are in units of the material's longest side,
+/// origin at its centre, z up, the material in the plane z = 0 (MODEL.md 4). The reader is strict
+/// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
+/// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
+/// files are errors, each reported once with the file, the image index and the problem.
+#include <charconv>
+#include <cmath>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "anisocap/core/image.hpp"
+#include "anisocap/core/json.hpp"
+#include "anisocap/data/image_io.hpp"
+#include "anisocap/render/capture.hpp"
+
+namespace anisocap {
+
+namespace detail {
+
+/// Describes image `index` for messages: `images[3] ("input_03.exr")`.
+inline std::string capture_entry_name(std::size_t index, const std::string& file) {
+  std::string s = "images[" + std::to_string(index) + "]";
+  if (!file.empty()) s += " (\"" + file + "\")";
+  return s;
+}
+
+/// Checks one image's configuration; throws io_error about `path` naming the entry and the problem.
+inline void check_capture_image(const capture_image& im, std::size_t index, const std::filesystem::path& path) {
+  const std::string where = capture_entry_name(index, im.file);
+  auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
+  if (im.file.empty()) fail("\"file\" is empty");
+  const std::string ext = lower_extension(std::filesystem::path(im.file));
+  if (ext != ".exr" && ext != ".png") fail("\"file\" must name an .exr (linear) or .png (sRGB) image");
+  static constexpr const char* axis[] = {"x", "y", "z"};
+  for (int k = 0; k < 3; ++k) {
+    if (!std::isfinite(im.camera[k])) fail(std::string("camera ") + axis[k] + " is not finite");
+    if (!std::isfinite(im.light[k])) fail(std::string("light ") + axis[k] + " is not finite");
+    if (!std::isfinite(im.intensity[k])) fail("intensity is not finite");
+    if (!(im.intensity[k] > 0)) fail("intensity must be > 0 (got " + std::to_string(im.intensity[k]) + ")");
+  }
+  if (!(im.camera[2] > 0))
+    fail("camera z = " + std::to_string(im.camera[2]) +
+         " is at or below the material plane z = 0; the camera must see the material from above");
+  // A light below the plane is allowed: it lights nothing (MODEL.md 4, max(0, n.l)).
+}
+
+/// Checks every image and that no file is used twice.
+inline void check_capture(const capture& c, const std::filesystem::path& path) {
+  if (c.images.empty()) throw io_error(path, "\"images\" is empty; a capture needs at least one image");
+  for (std::size_t i = 0; i < c.images.size(); ++i) check_capture_image(c.images[i], i, path);
+  for (std::size_t i = 0; i < c.images.size(); ++i) {
+    const auto a = std::filesystem::path(c.images[i].file).lexically_normal();
+    for (std::size_t j = 0; j < i; ++j) {
+      if (std::filesystem::path(c.images[j].file).lexically_normal() == a)
+        throw io_error(path, capture_entry_name(i, c.images[i].file) + ": duplicate file, already used by images[" +
+                                 std::to_string(j) + "]");
+    }
+  }
+}
+
+/// A float as the shortest decimal that reads back to the same float, so files show 0.1, not
+/// 0.100000001490116.
+inline json::value float_to_json(float f) {
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof buf, f);
+  double d = 0;
+  std::from_chars(buf, r.ptr, d);
+  return json::value(d);
+}
+
+}  // namespace detail
+
+/// Parses the text of a capture description; `path` names it in errors (io_error, or
+/// json::parse_error with line and column for malformed JSON). Does not read the images.
+inline capture parse_capture(std::string_view text, const std::filesystem::path& path) {
+  const json::value root = json::parse(text, path.string());
+  if (!root.is_object()) throw io_error(path, std::string("expected a JSON object at the top, got ") + json::kind_name(root.kind()));
+  for (const auto& [key, v] : root.as_object())
+    if (key != "images") throw io_error(path, "unknown field \"" + key + "\" at the top level (expected only \"images\")");
+  const json::value* images = root.as_object().find("images");
+  if (!images) throw io_error(path, "missing field \"images\"");
+  if (!images->is_array()) throw io_error(path, std::string("\"images\" must be an array, got ") + json::kind_name(images->kind()));
+  capture result;
+  const json::array& list = images->as_array();
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const json::value& entry = list[i];
+    if (!entry.is_object()) throw io_error(path, detail::capture_entry_name(i, "") + ": expected an object, got " + json::kind_name(entry.kind()));
+    const json::object& o = entry.as_object();
+    capture_image im;
+    const json::value* file = o.find("file");
+    if (file && file->is_string()) im.file = file->as_string();
+    const std::string where = detail::capture_entry_name(i, im.file);
+    auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
+    for (const auto& [key, v] : o)
+      if (key != "file" && key != "camera" && key != "light" && key != "intensity")
+        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\")");
+    for (const char* key : {"file", "camera", "light", "intensity"})
+      if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
+    if (!file->is_string()) fail(std::string("\"file\" must be a string, got ") + json::kind_name(file->kind()));
+    // One number as a float, refusing values that do not fit (they would become infinite).
+    auto to_float = [&](const json::value& v, const std::string& field) {
+      if (!v.is_number()) fail("\"" + field + "\" must hold numbers, got " + json::kind_name(v.kind()));
+      const float f = float(v.as_number());
+      if (!std::isfinite(f)) fail("\"" + field + "\" value " + v.dump() + " is not finite as a 32-bit float");
+      return f;
+    };
+    auto to_vec3 = [&](const json::value& v, const std::string& field) {
+      if (!v.is_array()) fail("\"" + field + "\" must be an array [x, y, z], got " + json::kind_name(v.kind()));
+      const json::array& a = v.as_array();
+      if (a.size() != 3) fail("\"" + field + "\" must have 3 elements, got " + std::to_string(a.size()));
+      return vec3f{to_float(a[0], field), to_float(a[1], field), to_float(a[2], field)};
+    };
+    im.camera = to_vec3(o.at("camera"), "camera");
+    im.light = to_vec3(o.at("light"), "light");
+    const json::value& intensity = o.at("intensity");
+    if (intensity.is_number()) {
+      const float f = to_float(intensity, "intensity");
+      im.intensity = {f, f, f};
+    } else if (intensity.is_array()) {
+      im.intensity = to_vec3(intensity, "intensity");
+    } else {
+      fail(std::string("\"intensity\" must be a number or [r, g, b], got ") + json::kind_name(intensity.kind()));
+    }
+    detail::check_capture_image(im, i, path);
+    result.images.push_back(std::move(im));
+  }
+  detail::check_capture(result, path);
+  return result;
+}
+
+/// Reads and validates `capture.json` (see the file comment); throws an error naming the file.
+inline capture read_capture(const std::filesystem::path& path) {
+  const std::vector<unsigned char> bytes = read_file_bytes(path);
+  return parse_capture(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()), path);
+}
+
+/// The JSON text of a capture (2-space indentation; intensity as one number when r = g = b).
+/// Validates first, so a written file always reads back; throws io_error naming `path`.
+inline std::string capture_to_json(const capture& c, const std::filesystem::path& path = "capture.json") {
+  detail::check_capture(c, path);
+  json::array images;
+  for (const capture_image& im : c.images) {
+    auto vec = [](const vec3f& v) {
+      return json::value(json::array{detail::float_to_json(v[0]), detail::float_to_json(v[1]), detail::float_to_json(v[2])});
+    };
+    const bool grey = im.intensity[0] == im.intensity[1] && im.intensity[1] == im.intensity[2];
+    images.push_back(json::object{{"file", im.file},
+                                  {"camera", vec(im.camera)},
+                                  {"light", vec(im.light)},
+                                  {"intensity", grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity)}});
+  }
+  return json::value(json::object{{"images", std::move(images)}}).dump(2) + "\n";
+}
+
+/// Writes `capture.json` atomically (temporary file, then rename); validates first.
+inline void write_capture(const capture& c, const std::filesystem::path& path) {
+  write_file_atomically(path, capture_to_json(c, path));
+}
+
+/// Loads the capture's photographs, file names taken relative to `capture_dir` (the folder of
+/// capture.json), as 3-channel linear images. Every image is checked for finite, non-negative
+/// pixels and for the size of the first; errors name the file and the image index.
+inline std::vector<image> load_capture_images(const capture& c, const std::filesystem::path& capture_dir) {
+  detail::check_capture(c, capture_dir / "capture.json");
+  std::vector<image> images;
+  images.reserve(c.images.size());
+  for (std::size_t i = 0; i < c.images.size(); ++i) {
+    const std::filesystem::path file = capture_dir / c.images[i].file;
+    image img;
+    try {
+      img = read_image(file);
+      validate_pixels(img, file);
+    } catch (const io_error& e) {
+      throw io_error(e.path(), e.problem() + " (capture image " + std::to_string(i) + ")");
+    }
+    if (!images.empty() && (img.width() != images[0].width() || img.height() != images[0].height()))
+      throw io_error(file, "image " + std::to_string(i) + " is " + std::to_string(img.width()) + "x" + std::to_string(img.height()) +
+                               " but image 0 (" + c.images[0].file + ") is " + std::to_string(images[0].width()) + "x" +
+                               std::to_string(images[0].height()) + "; all capture images must have the same size");
+    images.push_back(std::move(img));
+  }
+  return images;
+}
+
+}  // namespace anisocap
