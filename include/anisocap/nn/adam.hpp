@@ -1,0 +1,148 @@
+#pragma once
+/// @file
+/// Adam (Kingma and Ba 2015) with a learning-rate schedule: the optimiser of every training and
+/// fine-tuning stage (MODEL.md 7 and 8: estimator 5e-5, auto-encoder 1e-3, fine-tuning 7.5e-4,
+/// refinement 1e-4). The update is PyTorch's torch.optim.Adam (bias corrections folded into the
+/// step size and epsilon added after the corrected square root), so settings carry over.
+#include <cmath>
+#include <cstddef>
+#include <stdexcept>
+#include <vector>
+
+#include "anisocap/core/memory.hpp"
+#include "anisocap/core/simd.hpp"
+#include "anisocap/nn/parameter.hpp"
+
+namespace anisocap::nn {
+
+/// Learning rate as a function of the optimiser's step number (0 for the first step).
+class learning_rate_schedule {
+ public:
+  /// The same rate at every step.
+  static learning_rate_schedule constant(double rate) { return {rate, 1, 1.0, kind::constant}; }
+  /// rate * factor^floor(step / every): the rate drops by `factor` every `every` steps.
+  static learning_rate_schedule step_decay(double rate, long every, double factor) {
+    if (every <= 0) throw std::invalid_argument("learning_rate_schedule::step_decay: every must be positive");
+    return {rate, every, factor, kind::step};
+  }
+  /// rate * factor^(step / every): a smooth decay by `factor` per `every` steps.
+  static learning_rate_schedule exponential_decay(double rate, double factor, long every = 1) {
+    if (every <= 0) throw std::invalid_argument("learning_rate_schedule::exponential_decay: every must be positive");
+    return {rate, every, factor, kind::exponential};
+  }
+
+  /// The learning rate of step `step` (counted from 0).
+  double operator()(long step) const {
+    switch (kind_) {
+      case kind::constant: return rate_;
+      case kind::step: return rate_ * std::pow(factor_, double(step / every_));
+      case kind::exponential: return rate_ * std::pow(factor_, double(step) / double(every_));
+    }
+    return rate_;
+  }
+
+ private:
+  enum class kind { constant, step, exponential };
+  learning_rate_schedule(double rate, long every, double factor, kind k)
+      : rate_(rate), every_(every), factor_(factor), kind_(k) {}
+  double rate_;
+  long every_;
+  double factor_;
+  kind kind_;
+};
+
+/// Adam over a set of parameters. State (first and second moments, step count) is kept per
+/// parameter and allocated when the parameter is added, so `step()` allocates nothing. Frozen
+/// parameters are skipped entirely: their values, moments and step counts stay as they are.
+template <class T = float>
+class basic_adam {
+ public:
+  double beta1 = 0.9;    ///< decay of the first-moment average
+  double beta2 = 0.999;  ///< decay of the second-moment average
+  double epsilon = 1e-8;  ///< added to the corrected root of the second moment
+  learning_rate_schedule schedule;  ///< learning rate per step
+
+  explicit basic_adam(learning_rate_schedule s = learning_rate_schedule::constant(1e-3), double b1 = 0.9,
+                      double b2 = 0.999, double eps = 1e-8)
+      : beta1(b1), beta2(b2), epsilon(eps), schedule(s) {}
+
+  /// Adds one parameter (it must outlive the optimiser).
+  void add(basic_parameter<T>& p) { states_.push_back(state{&p, aligned_buffer<T>(p.size()), aligned_buffer<T>(p.size()), 0}); }
+
+  /// Adds every parameter a layer or network visits with for_each_parameter.
+  template <class Layer>
+  void add_parameters(Layer& layer) {
+    layer.for_each_parameter([this](basic_parameter<T>& p) { add(p); });
+  }
+
+  /// One update of every parameter that is not frozen, with the schedule's rate for this step;
+  /// then zeroes their gradients (backward passes accumulate).
+  void step() {
+    const double rate = schedule(steps_);
+    for (auto& s : states_) {
+      if (s.parameter->frozen) continue;
+      if (s.parameter->size() != s.m.size())
+        throw std::logic_error("adam: parameter '" + s.parameter->name + "' changed size after it was added");
+      ++s.steps;
+      const double correction1 = 1 - std::pow(beta1, double(s.steps));
+      const double correction2 = 1 - std::pow(beta2, double(s.steps));
+      update(*s.parameter, s.m.data(), s.v.data(), T(rate / correction1), T(1 / std::sqrt(correction2)));
+      s.parameter->zero_grad();
+    }
+    ++steps_;
+  }
+
+  /// Zeroes the gradients of every added parameter.
+  void zero_grad() {
+    for (auto& s : states_) s.parameter->zero_grad();
+  }
+
+  /// Number of step() calls so far.
+  long steps() const noexcept { return steps_; }
+  /// The learning rate the next step will use.
+  double learning_rate() const { return schedule(steps_); }
+
+ private:
+  struct state {
+    basic_parameter<T>* parameter;
+    aligned_buffer<T> m, v;
+    long steps;
+  };
+
+  /// m = b1 m + (1 - b1) g;  v = b2 v + (1 - b2) g^2;  p -= step_size m / (sqrt(v) / sqrt(1 - b2^t) + eps).
+  void update(basic_parameter<T>& p, T* m, T* v, T step_size, T inverse_root_correction2) const {
+    using B = simd::batch<T>;
+    constexpr std::size_t W = B::size;
+    const T b1 = T(beta1), b2 = T(beta2), c1 = T(1 - beta1), c2 = T(1 - beta2), eps = T(epsilon);
+    auto kernel = [&](T* value, const T* grad, T* mm, T* vv) {
+      const B g = B::load_unaligned(grad);
+      const B m1 = b1 * B::load_unaligned(mm) + c1 * g;
+      const B v1 = b2 * B::load_unaligned(vv) + c2 * (g * g);
+      m1.store_unaligned(mm);
+      v1.store_unaligned(vv);
+      (B::load_unaligned(value) - step_size * m1 / (xsimd::sqrt(v1) * inverse_root_correction2 + eps)).store_unaligned(value);
+    };
+    const std::size_t n = p.size();
+    const std::size_t body = n / W * W;
+    T* value = p.value.data();
+    const T* grad = p.grad.data();
+#pragma omp parallel for schedule(static) if (n >= (std::size_t(1) << 16))
+    for (std::ptrdiff_t i = 0; i < std::ptrdiff_t(body); i += W) kernel(value + i, grad + i, m + i, v + i);
+    if (body < n) {
+      // The tail through padded registers: the same arithmetic as the body.
+      alignas(simd::alignment) T pv[W] = {}, pg[W] = {}, pm[W] = {}, pw[W] = {};
+      const std::size_t r = n - body;
+      for (std::size_t i = 0; i < r; ++i) { pv[i] = value[body + i]; pg[i] = grad[body + i]; pm[i] = m[body + i]; pw[i] = v[body + i]; }
+      kernel(pv, pg, pm, pw);
+      for (std::size_t i = 0; i < r; ++i) { value[body + i] = pv[i]; m[body + i] = pm[i]; v[body + i] = pw[i]; }
+    }
+  }
+
+  std::vector<state> states_;
+  long steps_ = 0;
+};
+
+/// Adam for float networks.
+using adam = basic_adam<float>;
+
+}  // namespace anisocap::nn

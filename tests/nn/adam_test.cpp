@@ -1,0 +1,100 @@
+// Adam (nn/adam.hpp) against a hand-computed update, its schedules, frozen parameters, and
+// convergence on a small least-squares problem through the tape and a linear layer.
+#include <doctest/doctest.h>
+
+#include <cmath>
+
+#include "anisocap/nn/adam.hpp"
+#include "anisocap/nn/layers.hpp"
+#include "layer_check.hpp"
+
+using namespace anisocap;
+
+TEST_CASE("adam: two steps against the formula") {
+  // 19 values: more than one SIMD register, so the body and the tail are both checked.
+  nn::basic_parameter<double> p("p", {19});
+  nn::random_generator g(41);
+  std::vector<double> value(19), m(19, 0), v(19, 0);
+  for (int i = 0; i < 19; ++i) value[i] = p.value[i] = g.symmetric_uniform();
+  nn::basic_adam<double> adam(nn::learning_rate_schedule::constant(0.01), 0.8, 0.95, 1e-6);
+  adam.add(p);
+  for (int t = 1; t <= 2; ++t) {
+    for (int i = 0; i < 19; ++i) p.grad[i] = g.symmetric_uniform() * 3;
+    for (int i = 0; i < 19; ++i) {
+      const double grad = p.grad[i];
+      m[i] = 0.8 * m[i] + 0.2 * grad;
+      v[i] = 0.95 * v[i] + 0.05 * grad * grad;
+      const double mhat = m[i] / (1 - std::pow(0.8, t)), vhat = v[i] / (1 - std::pow(0.95, t));
+      value[i] -= 0.01 * mhat / (std::sqrt(vhat) + 1e-6);
+    }
+    adam.step();
+    for (int i = 0; i < 19; ++i) {
+      CHECK(p.value[i] == doctest::Approx(value[i]).epsilon(1e-12));
+      CHECK(p.grad[i] == 0.0);
+    }
+  }
+  CHECK(adam.steps() == 2);
+}
+
+TEST_CASE("adam: frozen parameters are skipped; schedules") {
+  nn::parameter a("a", {3}), b("b", {3});
+  a.value[0] = b.value[0] = 1;
+  a.grad[0] = b.grad[0] = 1;
+  b.frozen = true;
+  nn::adam adam(nn::learning_rate_schedule::constant(0.1));
+  adam.add(a);
+  adam.add(b);
+  adam.step();
+  CHECK(a.value[0] == doctest::Approx(0.9f));
+  CHECK(b.value[0] == 1.0f);
+  CHECK(b.grad[0] == 1.0f);  // untouched
+
+  auto s = nn::learning_rate_schedule::step_decay(1.0, 10, 0.5);
+  CHECK(s(0) == 1.0);
+  CHECK(s(9) == 1.0);
+  CHECK(s(10) == 0.5);
+  CHECK(s(25) == 0.25);
+  auto e = nn::learning_rate_schedule::exponential_decay(2.0, 0.5, 4);
+  CHECK(e(0) == 2.0);
+  CHECK(e(2) == doctest::Approx(2.0 * std::sqrt(0.5)));
+  CHECK(e(8) == doctest::Approx(0.5));
+}
+
+TEST_CASE("adam: converges on least squares through the tape") {
+  // Fit y = A x + c with a linear layer: the optimum is exact, so the loss must go to ~0.
+  nn::random_generator g(42);
+  auto x = test_nn::random_tensor<5, float>(g, 1, 8, 8);
+  float a[2][5], c[2] = {0.3f, -0.7f};
+  for (auto& row : a)
+    for (auto& e : row) e = float(g.symmetric_uniform());
+  tensor<2> y(1, 8, 8);
+  for (int r = 0; r < 8; ++r)
+    for (int i = 0; i < 8; ++i)
+      for (int o = 0; o < 2; ++o) {
+        float s = c[o];
+        for (int k = 0; k < 5; ++k) s += a[o][k] * x(0, r, i, k);
+        y(0, r, i, o) = s;
+      }
+  nn::linear<5, 2> fc("fc", 9);
+  nn::adam adam(nn::learning_rate_schedule::exponential_decay(0.05, 0.1, 1000));
+  adam.add_parameters(fc);
+  ad::tape t;
+  double loss = 0, first = 0;
+  for (int step = 0; step < 600; ++step) {
+    t.clear();
+    auto out = fc(t, t.leaf(x));
+    loss = 0;
+    for (std::size_t i = 0; i < out.value.size(); ++i) {
+      const float d = out.value.data()[i] - y.data()[i];
+      out.grad.data()[i] = d / 64;
+      loss += 0.5 * double(d) * d / 64;
+    }
+    if (step == 0) first = loss;
+    t.backward();
+    adam.step();
+  }
+  CHECK(first > 0.1);
+  CHECK(loss < 1e-6);
+  for (int k = 0; k < 5; ++k) CHECK(fc.weight.value[k] == doctest::Approx(a[0][k]).epsilon(1e-3));
+  CHECK(fc.bias.value[1] == doctest::Approx(c[1]).epsilon(1e-3));
+}
