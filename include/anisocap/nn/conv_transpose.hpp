@@ -1,0 +1,121 @@
+#pragma once
+/// @file
+/// 4x4 stride-2 padding-1 transposed convolution (output 2H x 2W), the up-sampling layer of the
+/// auto-encoder's decoder (MODEL.md 7, after Gao 2019). Same semantics as PyTorch's
+/// ConvTranspose2d(Cin, Cout, 4, stride=2, padding=1): out[2i-1+kh][2j-1+kw] += in[i][j] W[kh][kw].
+///
+/// Weight layout [4][4][Cin][Cout] (kh, kw, in, out), bias [Cout]. Each output parity is a 2x2
+/// convolution over the input, so the forward pass runs through the same register-blocked kernel
+/// as a convolution, at the same speed; its input gradient is a 4x4 stride-2 convolution.
+#include "anisocap/nn/conv.hpp"
+
+namespace anisocap::nn {
+
+/// Output height (or width) of a 4x4 stride-2 pad-1 transposed convolution: twice the input.
+constexpr int conv_transpose2d_output_size(int n) { return 2 * n; }
+
+/// Forward transposed convolution; out must be batch x 2H x 2W; bias may be null.
+template <int Cin, int Cout, class T>
+void conv_transpose2d_forward(const tensor<Cin, T>& in, const T* weight, const std::type_identity_t<T>* bias, tensor<Cout, T>& out) {
+  namespace dc = detail::conv;
+  dc::require_shape(out, in.batch(), 2 * in.height(), 2 * in.width(), "conv_transpose2d_forward", "output");
+  if (out.empty()) return;
+  const auto [w, b] = dc::padded_weights<16, Cin, Cout>(weight, bias);
+  const auto a = dc::padded(in, 1, 1, in.height() + 2, in.width() + 2, Cin, 0);
+  dc::transposed_core<Cin, Cout>(a, w, b, out, false);
+}
+
+/// Gradient for the input, ACCUMULATED into grad_in (batch x H x W; grad_out is batch x 2H x 2W).
+template <int Cin, int Cout, class T>
+void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, tensor<Cin, T>& grad_in) {
+  namespace dc = detail::conv;
+  const int H = grad_in.height(), W = grad_in.width();
+  dc::require_shape(grad_out, grad_in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward_input", "output gradient");
+  if (grad_in.empty()) return;
+  // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
+  // output gradient with the transposed kernel (in <-> out).
+  constexpr int ldi = dc::padded_channels<T>(Cin);
+  T* wt = dc::scratch<T>(1, std::size_t(16) * Cout * ldi);
+  dc::transpose_weights(weight, 16, Cin, Cout, ldi, false, wt);
+  const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
+  dc::conv_core<Cout, Cin, 4, 2>(a, wt, nullptr, grad_in, true);
+}
+
+/// Gradients for the weights [4][4][Cin][Cout] and bias [Cout] (null: skipped), ACCUMULATED.
+template <int Cin, int Cout, class T>
+void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cout, T>& grad_out,
+                                      std::type_identity_t<T>* grad_weight, std::type_identity_t<T>* grad_bias) {
+  namespace dc = detail::conv;
+  const int H = in.height(), W = in.width();
+  dc::require_shape(grad_out, in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward_weight", "output gradient");
+  if (in.empty()) return;
+  if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
+  if (!grad_weight) return;
+  constexpr int ldg = dc::padded_channels<T>(Cout);
+  // gW[kh][kw] = sum over input pixels (i, j) of in[i][j] (x) grad_out[2i-1+kh][2j-1+kw].
+  const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2);
+  dc::weight_pass<T> ps;
+  ps.a = in.data();
+  ps.a_batch = in.batch_stride();
+  ps.a_row = in.row_stride();
+  ps.a_col = Cin;
+  ps.g = g.data;
+  ps.g_batch = g.batch_stride;
+  ps.g_row = 2 * g.row_stride;
+  ps.g_col = 2 * ldg;
+  ps.batch = in.batch();
+  ps.rows = H;
+  ps.cols = W;
+  ps.taps = 16;
+  for (int kh = 0; kh < 4; ++kh)
+    for (int kw = 0; kw < 4; ++kw) ps.g_tap[kh * 4 + kw] = kh * g.row_stride + kw * ldg;
+  dc::run_weight<dc::vectors_per_tile<T>(Cout)>(ps, Cin, Cout, grad_weight);
+}
+
+/// A 4x4 stride-2 transposed convolution layer (weights [4][4][Cin][Cout] named
+/// name+".weight", bias name+".bias"), with the gradient rules of conv2d.
+template <int Cin, int Cout, class T = float>
+class conv_transpose2d {
+ public:
+  basic_parameter<T> weight;  ///< [4][4][Cin][Cout]
+  basic_parameter<T> bias;    ///< [Cout]; empty when built without bias
+
+  /// Zero-initialised parameters (initialisation is the network's job).
+  explicit conv_transpose2d(std::string name, bool with_bias = true)
+      : weight(name + ".weight", {4, 4, Cin, Cout}), has_bias_(with_bias) {
+    if (with_bias) bias = basic_parameter<T>(name + ".bias", {Cout});
+  }
+
+  /// True when the layer has a bias.
+  bool has_bias() const noexcept { return has_bias_; }
+
+  /// y = conv_transpose(x) (+ bias), recorded on t.
+  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x) {
+    const bool weight_grad = weight.trainable();
+    const bool bias_grad = has_bias_ && bias.trainable();
+    ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), 2 * x.value.height(), 2 * x.value.width(),
+                                                       x.requires_grad || weight_grad || bias_grad);
+    conv_transpose2d_forward<Cin, Cout>(x.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr, y.value);
+    if (y.requires_grad) {
+      t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, grad_out = y.grad, weight_grad,
+                bias_grad]() mutable {
+        if (input_grad) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight.value.data(), grad_in);
+        conv_transpose2d_backward_weight<Cin, Cout>(input, grad_out, weight_grad ? weight.grad.data() : nullptr,
+                                                    bias_grad ? bias.grad.data() : nullptr);
+      });
+    }
+    return y;
+  }
+
+  /// Calls f(basic_parameter<T>&) for the weight, then the bias if any.
+  template <class F>
+  void for_each_parameter(F&& f) {
+    f(weight);
+    if (has_bias_) f(bias);
+  }
+
+ private:
+  bool has_bias_;
+};
+
+}  // namespace anisocap::nn

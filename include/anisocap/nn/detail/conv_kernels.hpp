@@ -1,0 +1,390 @@
+#pragma once
+/// @file
+/// Register-blocked microkernels shared by convolution and transposed convolution (MODEL.md 7:
+/// every layer of the estimator and the auto-encoder is one of them, so they carry the run time).
+///
+/// All passes are direct convolutions on NHWC data written as small GEMMs:
+/// - `run_forward`: out[pixel][co] (+)= sum over taps t and channels ci of
+///   A[pixel + tap_t][ci] * W[t][ci][co]. A tile of NX pixels of one row times NV SIMD registers of
+///   output channels stays in registers while the loop runs over taps and ci; weights are vector
+///   loads, inputs broadcasts. Forward convolution, both backward-input passes and the four
+///   parity sub-convolutions of a transposed convolution are all of this form.
+/// - `run_weight`: gW[t][ci][co] += sum over pixels of A[pixel + a_tap_t][ci] * G[pixel + g_tap_t][co].
+///   A block of CIB input channels times NV registers of output channels stays in registers while
+///   the loop runs over pixels.
+/// Borders are handled by copying the input into a zero-padded scratch once per call, so the
+/// inner loops never test bounds.
+#include <algorithm>
+#include <cstddef>
+#include <cstring>
+#include <omp.h>
+
+#include "anisocap/core/memory.hpp"
+#include "anisocap/core/simd.hpp"
+#include "anisocap/core/tensor.hpp"
+
+namespace anisocap::nn::detail::conv {
+
+/// SIMD lanes of T.
+template <class T>
+inline constexpr int lanes = int(simd::width<T>);
+
+/// Accumulator registers a tile may use: 24 of the 32 AVX-512 registers, 12 of the 16 AVX2 ones
+/// (the rest hold weights and the broadcast input).
+template <class T>
+inline constexpr int accumulator_budget = (sizeof(T) * simd::width<T> >= 64) ? 24 : 12;
+
+/// Channels rounded up to whole registers.
+template <class T>
+constexpr int padded_channels(int c) { return (c + lanes<T> - 1) / lanes<T> * lanes<T>; }
+
+/// Registers of output channels per tile for C output channels: 4, 2 or 1, dividing the count.
+template <class T>
+constexpr int vectors_per_tile(int c) {
+  const int n = padded_channels<T>(c) / lanes<T>;
+  if (accumulator_budget<T> >= 24 && n % 4 == 0) return 4;
+  if (n % 2 == 0) return 2;
+  return 1;
+}
+
+/// Per-thread scratch memory that grows to the largest size asked and is then reused, so steady
+/// training steps allocate nothing. Slots separate buffers alive at the same time.
+template <class T>
+inline T* scratch(int slot, std::size_t n) {
+  thread_local aligned_buffer<T> buffers[4];
+  if (buffers[slot].size() < n) buffers[slot] = aligned_buffer<T>(n + n / 8 + 64);
+  return buffers[slot].data();
+}
+
+using simd::batch;
+
+/// Loads n < lanes values (the rest zero).
+template <class T>
+inline batch<T> load_partial(const T* p, int n) {
+  alignas(simd::alignment) T b[lanes<T>] = {};
+  for (int i = 0; i < n; ++i) b[i] = p[i];
+  return batch<T>::load_aligned(b);
+}
+/// Stores the first n < lanes values.
+template <class T>
+inline void store_partial(T* p, const batch<T>& v, int n) {
+  alignas(simd::alignment) T b[lanes<T>];
+  v.store_aligned(b);
+  for (int i = 0; i < n; ++i) p[i] = b[i];
+}
+
+// ---- forward-type pass ------------------------------------------------------------------------
+
+/// One pass of `run_forward`: a grid batch x rows x cols of output pixels, where pixel (b, r, c)
+/// reads A at a + b*a_batch + r*a_row + c*ACOL and writes out at o + b*o_batch + r*o_row + c*o_col.
+template <class T>
+struct forward_pass {
+  const T* a = nullptr;
+  std::ptrdiff_t a_batch = 0, a_row = 0;
+  T* o = nullptr;
+  std::ptrdiff_t o_batch = 0, o_row = 0, o_col = 0;
+  int batch = 0, rows = 0, cols = 0;
+  int taps = 0;
+  std::ptrdiff_t a_tap[16] = {};  ///< offset of each tap in A
+  const T* w_tap[16] = {};        ///< [ci][co] slice of each tap, row stride ldw
+};
+
+/// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
+/// `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
+template <int NX, int NV, int ACOL, class T>
+inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int ci0, int ci1,
+                         std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
+                         const T* bias, int init) {
+  constexpr int W = lanes<T>;
+  batch<T> acc[NX][NV];
+  for (int p = 0; p < NX; ++p)
+    for (int v = 0; v < NV; ++v) {
+      if (init == 2) {
+        const T* src = out + p * o_col + v * W;
+        acc[p][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<T>::load_unaligned(src);
+      } else if (init == 1) {
+        acc[p][v] = batch<T>::load_unaligned(bias + v * W);
+      } else {
+        acc[p][v] = batch<T>(T(0));
+      }
+    }
+  for (int t = 0; t < taps; ++t) {
+    const T* a = a_tap[t];
+    const T* w = w_tap[t] + ci0 * ldw;
+    for (int ci = ci0; ci < ci1; ++ci, w += ldw) {
+      batch<T> wv[NV];
+      for (int v = 0; v < NV; ++v) wv[v] = batch<T>::load_unaligned(w + v * W);
+      for (int p = 0; p < NX; ++p) {
+        const batch<T> x(a[p * ACOL + ci]);
+        for (int v = 0; v < NV; ++v) acc[p][v] = xsimd::fma(x, wv[v], acc[p][v]);
+      }
+    }
+  }
+  for (int p = 0; p < NX; ++p)
+    for (int v = 0; v < NV; ++v) {
+      T* dst = out + p * o_col + v * W;
+      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[p][v], last_lanes);
+      else acc[p][v].store_unaligned(dst);
+    }
+}
+
+/// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels (weights padded
+/// to ldw >= Cb columns, a multiple of the SIMD width); bias: ldw values or null; accumulate: add
+/// onto out instead of overwriting it. Two tile widths (NX1, NX2) are tried per pass and the one
+/// that leaves fewer single-pixel tails is used (narrow layers such as 8 x 8 need NX = 4).
+template <int NV, int ACOL, class T>
+void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, std::ptrdiff_t ldw,
+                 const T* bias, bool accumulate) {
+  constexpr int W = lanes<T>;
+  constexpr int NX1 = std::max(1, accumulator_budget<T> / NV);
+  constexpr int NX2 = std::max(1, 2 * NX1 / 3);
+  const int block = NV * W;
+  const int coblocks = (Cb + block - 1) / block;
+  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
+  // Inputs channel chunk so that a chunk of weights (taps x ci x block) stays in L2.
+  int ci_chunk = Ca;
+  {
+    const std::size_t bytes = std::size_t(passes[0].taps) * block * sizeof(T);
+    ci_chunk = int(std::max<std::size_t>(16, (std::size_t(192) << 10) / bytes));
+    ci_chunk = std::min(ci_chunk, Ca);
+  }
+  // Tile width per pass.
+  int nx[4], tiles_per_row[4], tails[4];
+  long long tiles_in[4], chunks_in[4];
+  const int threads = omp_get_max_threads();
+  long long total_tiles = 0;
+  for (int i = 0; i < npasses; ++i) {
+    const int c = passes[i].cols;
+    const int t1 = c % NX1, t2 = c % NX2;
+    nx[i] = (t2 < t1) ? NX2 : NX1;
+    tiles_per_row[i] = c / nx[i];
+    tails[i] = c % nx[i];
+    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * (tiles_per_row[i] + tails[i]);
+    total_tiles += tiles_in[i];
+  }
+  // Tiles per work item: enough for weight reuse, small enough to feed every thread.
+  long long chunk = 16;
+  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 4LL * threads) chunk /= 2;
+  long long items = 0, first_item[5];
+  for (int i = 0; i < npasses; ++i) {
+    first_item[i] = items;
+    chunks_in[i] = (tiles_in[i] + chunk - 1) / chunk;
+    items += chunks_in[i] * coblocks;
+  }
+  first_item[npasses] = items;
+
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && total_tiles * Ca * Cb > (1 << 16))
+  for (long long item = 0; item < items; ++item) {
+    int pi = 0;
+    while (item >= first_item[pi + 1]) ++pi;
+    const forward_pass<T>& ps = passes[pi];
+    const long long local = item - first_item[pi];
+    const long long ch = local / coblocks;
+    const int cb = int(local % coblocks);
+    const int co0 = cb * block;
+    const int per_row = tiles_per_row[pi] + tails[pi];
+    const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
+    const T* w_tap[16];
+    for (int t = 0; t < ps.taps; ++t) w_tap[t] = ps.w_tap[t] + co0;
+    const T* bias_block = bias ? bias + co0 : nullptr;
+    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+    for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
+      const int c1 = std::min(Ca, c0 + ci_chunk);
+      const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
+      for (long long tile = t0; tile < t1; ++tile) {
+        const long long row = tile / per_row;
+        const int k = int(tile % per_row);
+        const int b = int(row / ps.rows), r = int(row % ps.rows);
+        const int x = k < tiles_per_row[pi] ? k * nx[pi] : tiles_per_row[pi] * nx[pi] + (k - tiles_per_row[pi]);
+        const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL;
+        T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
+        const T* a_tap[16];
+        for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
+        if (k >= tiles_per_row[pi])
+          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
+        else if (nx[pi] == NX1)
+          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
+        else
+          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
+      }
+    }
+  }
+}
+
+// ---- weight-gradient pass ---------------------------------------------------------------------
+
+/// gW[tap][ci][co] += sum over pixels (b, r, c) of A[a + b*a_batch + r*a_row + c*a_col + a_tap][ci]
+/// * G[g + b*g_batch + r*g_row + c*g_col + g_tap][co]. G rows hold at least ldg >= Cb readable
+/// values per pixel (channel-padded with zeros when Cb is not a multiple of the SIMD width).
+template <class T>
+struct weight_pass {
+  const T* a = nullptr;
+  std::ptrdiff_t a_batch = 0, a_row = 0, a_col = 0;
+  const T* g = nullptr;
+  std::ptrdiff_t g_batch = 0, g_row = 0, g_col = 0;
+  int batch = 0, rows = 0, cols = 0;
+  int taps = 0;
+  std::ptrdiff_t a_tap[16] = {}, g_tap[16] = {};
+};
+
+/// CIB input channels x NV registers of output channels, accumulated over `nrows` rows of `cols`
+/// pixels; gw points at [ci0][co0] of one tap (row stride ldw = Cb).
+template <int CIB, int NV, class T>
+inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrows, std::ptrdiff_t a_off,
+                        std::ptrdiff_t g_off, int cols, std::ptrdiff_t a_col, std::ptrdiff_t g_col, T* gw,
+                        std::ptrdiff_t ldw, int last_lanes) {
+  constexpr int W = lanes<T>;
+  batch<T> acc[CIB][NV];
+  for (int i = 0; i < CIB; ++i)
+    for (int v = 0; v < NV; ++v) {
+      const T* src = gw + i * ldw + v * W;
+      acc[i][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<T>::load_unaligned(src);
+    }
+  for (int r = 0; r < nrows; ++r) {
+    const T* a = a_rows[r] + a_off;
+    const T* g = g_rows[r] + g_off;
+    for (int c = 0; c < cols; ++c, a += a_col, g += g_col) {
+      batch<T> gv[NV];
+      for (int v = 0; v < NV; ++v) gv[v] = batch<T>::load_unaligned(g + v * W);
+      for (int i = 0; i < CIB; ++i) {
+        const batch<T> x(a[i]);
+        for (int v = 0; v < NV; ++v) acc[i][v] = xsimd::fma(x, gv[v], acc[i][v]);
+      }
+    }
+  }
+  for (int i = 0; i < CIB; ++i)
+    for (int v = 0; v < NV; ++v) {
+      T* dst = gw + i * ldw + v * W;
+      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[i][v], last_lanes);
+      else acc[i][v].store_unaligned(dst);
+    }
+}
+
+/// Accumulates a weight gradient gw [taps][Ca][Cb] over one pass on all threads. Each thread owns
+/// a fixed set of (output-channel block, tap, input-channel block) items, so no reduction is needed
+/// and the result does not depend on the number of threads.
+template <int NV, class T>
+void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
+  constexpr int W = lanes<T>;
+  // Input channels per register block: CIB x NV accumulators, NV loads and CIB broadcasts per pixel.
+  constexpr int CIB = NV == 4 ? 4 : (accumulator_budget<T> / NV >= 8 ? 8 : 4);
+  const int block = NV * W;
+  const int coblocks = (Cb + block - 1) / block;
+  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
+  const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
+  const int ci_items = ciblocks + ci_rest;
+  const long long items = (long long)coblocks * ps.taps * ci_items;
+  const int rows_total = ps.batch * ps.rows;
+  const int chunk_rows = std::max(1, 1024 / std::max(1, ps.cols));
+  const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
+#pragma omp parallel if (items > 1 && work > double(1 << 16))
+  {
+    const int nt = omp_get_num_threads(), id = omp_get_thread_num();
+    const long long i0 = items * id / nt, i1 = items * (id + 1) / nt;
+    const T* a_rows[1024];
+    const T* g_rows[1024];
+    for (int r0 = 0; r0 < rows_total && i0 < i1; r0 += chunk_rows) {
+      const int nr = std::min(chunk_rows, rows_total - r0);
+      for (int r = 0; r < nr; ++r) {
+        const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
+        a_rows[r] = ps.a + b * ps.a_batch + y * ps.a_row;
+        g_rows[r] = ps.g + b * ps.g_batch + y * ps.g_row;
+      }
+      for (long long it = i0; it < i1; ++it) {
+        const int cb = int(it / (ps.taps * ci_items));
+        const int rest = int(it % (ps.taps * ci_items));
+        const int t = rest / ci_items, ck = rest % ci_items;
+        const int co0 = cb * block;
+        const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+        if (ck < ciblocks) {
+          const int ci0 = ck * CIB;
+          weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, ps.cols, ps.a_col, ps.g_col,
+                               gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+        } else {
+          const int ci0 = ciblocks * CIB + (ck - ciblocks);
+          weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, ps.cols, ps.a_col, ps.g_col,
+                             gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+        }
+      }
+    }
+  }
+}
+
+// ---- data movement ----------------------------------------------------------------------------
+
+/// Copies x into a zero-padded dense buffer [B][Hp][Wp][ldc]: x(b, y, x) lands at
+/// (b, y + top, x + left); rows/columns of x beyond the buffer are dropped; channels C..ldc are 0.
+template <int C, class T>
+void pad_copy(const tensor<C, T>& x, int top, int left, int Hp, int Wp, int ldc, T* dst) {
+  const int B = x.batch();
+  const std::ptrdiff_t row = std::ptrdiff_t(Wp) * ldc;
+#pragma omp parallel for schedule(static) if (std::size_t(B) * Hp * Wp * ldc > (1u << 16))
+  for (int by = 0; by < B * Hp; ++by) {
+    const int b = by / Hp, yp = by % Hp, y = yp - top;
+    T* d = dst + std::ptrdiff_t(by) * row;
+    if (y < 0 || y >= x.height()) {
+      std::memset(static_cast<void*>(d), 0, sizeof(T) * row);
+      continue;
+    }
+    const int x0 = std::max(0, left), x1 = std::min(Wp, x.width() + left);  // padded columns with data
+    if (x0 > 0) std::memset(static_cast<void*>(d), 0, sizeof(T) * std::ptrdiff_t(x0) * ldc);
+    const T* s = x.pixel(b, y, x0 - left);
+    if (ldc == C) {
+      std::memcpy(static_cast<void*>(d + std::ptrdiff_t(x0) * C), s, sizeof(T) * std::ptrdiff_t(x1 - x0) * C);
+    } else {
+      for (int xx = x0; xx < x1; ++xx) {
+        T* dp = d + std::ptrdiff_t(xx) * ldc;
+        std::memcpy(static_cast<void*>(dp), s + std::ptrdiff_t(xx - x0) * C, sizeof(T) * C);
+        std::memset(static_cast<void*>(dp + C), 0, sizeof(T) * (ldc - C));
+      }
+    }
+    if (x1 < Wp) std::memset(static_cast<void*>(d + std::ptrdiff_t(x1) * ldc), 0, sizeof(T) * std::ptrdiff_t(Wp - x1) * ldc);
+  }
+}
+
+/// Weights [taps][Ci][Co] -> [taps][Ci][ldo] with zero columns Co..ldo (whole registers).
+template <class T>
+void pad_weights(const T* w, int taps, int Ci, int Co, int ldo, T* dst) {
+  for (std::ptrdiff_t r = 0; r < std::ptrdiff_t(taps) * Ci; ++r) {
+    std::memcpy(static_cast<void*>(dst + r * ldo), w + r * Co, sizeof(T) * Co);
+    std::memset(static_cast<void*>(dst + r * ldo + Co), 0, sizeof(T) * (ldo - Co));
+  }
+}
+
+/// Weights [taps][Ci][Co] -> [taps'][Co][ldi] (transposed per tap, zero columns Ci..ldi), with
+/// taps' = taps-1-t when `flip` (the 180-degree rotation a stride-1 backward-input pass needs).
+template <class T>
+void transpose_weights(const T* w, int taps, int Ci, int Co, int ldi, bool flip, T* dst) {
+  constexpr int B = 16;
+  const int cib = (Ci + B - 1) / B, cob = (Co + B - 1) / B;
+#pragma omp parallel for schedule(static) if (std::size_t(taps) * Ci * Co > (1u << 16))
+  for (long long job = 0; job < (long long)taps * cob; ++job) {
+    const int t = int(job / cob), bo = int(job % cob);
+    const int td = flip ? taps - 1 - t : t;
+    const T* s = w + std::ptrdiff_t(t) * Ci * Co;
+    T* d = dst + std::ptrdiff_t(td) * Co * ldi;
+    const int o0 = bo * B, o1 = std::min(Co, o0 + B);
+    for (int bi = 0; bi < cib; ++bi) {
+      const int i0 = bi * B, i1 = std::min(Ci, i0 + B);
+      for (int o = o0; o < o1; ++o)
+        for (int i = i0; i < i1; ++i) d[std::ptrdiff_t(o) * ldi + i] = s[std::ptrdiff_t(i) * Co + o];
+    }
+    for (int o = o0; o < o1; ++o)
+      for (int i = Ci; i < ldi; ++i) d[std::ptrdiff_t(o) * ldi + i] = T(0);
+  }
+}
+
+/// grad_bias[c] += sum over pixels of g[c].
+template <int C, class T>
+void bias_gradient(const tensor<C, T>& g, T* grad_bias) {
+  alignas(simd::alignment) T sum[padded_channels<T>(C)] = {};
+  for (int b = 0; b < g.batch(); ++b)
+    for (int y = 0; y < g.height(); ++y) {
+      const T* p = g.pixel(b, y, 0);
+      for (int x = 0; x < g.width(); ++x, p += C)
+        for (int c = 0; c < C; ++c) sum[c] += p[c];
+    }
+  for (int c = 0; c < C; ++c) grad_bias[c] += sum[c];
+}
+
+}  // namespace anisocap::nn::detail::conv

@@ -1,0 +1,135 @@
+// Transposed convolution (4x4, stride 2, padding 1): forward and backward passes against naive
+// loops (float) and gradients against central finite differences (double).
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "anisocap/nn/conv_transpose.hpp"
+#include "reference.hpp"
+#include "support/gradient_check.hpp"
+
+using namespace anisocap;
+using anisocap::testing::fill_random;
+using anisocap::testing::max_difference;
+
+namespace {
+
+template <int Cin, int Cout>
+void check_against_reference(int B, int H, int W, unsigned seed) {
+  std::mt19937 rng(seed);
+  tensor<Cin> in(B, H, W);
+  fill_random(in, rng);
+  std::vector<float> w(static_cast<std::size_t>(16 * Cin * Cout)), bias(Cout);
+  fill_random(w.data(), w.size(), rng);
+  fill_random(bias.data(), bias.size(), rng);
+  const double tol = 1e-5 * std::sqrt(double(16 * std::max(Cin, Cout)));
+
+  tensor<Cout> out(B, 2 * H, 2 * W);
+  nn::conv_transpose2d_forward<Cin, Cout>(in, w.data(), bias.data(), out);
+  tensor<Cout, double> ref(B, 2 * H, 2 * W);
+  testing::naive_conv_transpose(in, w.data(), bias.data(), ref);
+  auto [d, m] = max_difference(out, ref);
+  CHECK(d <= tol * (1 + m));
+
+  // The transposed convolution is the adjoint of the 4x4 stride-2 convolution with the same
+  // weights read as [kh][kw][out][in]; its backward passes are checked through that identity's
+  // naive loops: gin[i][j][ci] = sum gout[2i-1+kh][2j-1+kw][co] w[kh][kw][ci][co].
+  tensor<Cout> gout(B, 2 * H, 2 * W);
+  fill_random(gout, rng);
+  std::vector<float> wt(w.size());
+  for (int t = 0; t < 16; ++t)
+    for (int ci = 0; ci < Cin; ++ci)
+      for (int co = 0; co < Cout; ++co) wt[(t * Cout + co) * Cin + ci] = w[(t * Cin + ci) * Cout + co];
+  tensor<Cin> gin(B, H, W);
+  fill_random(gin, rng);
+  const tensor<Cin> gin0 = gin.clone();
+  nn::conv_transpose2d_backward_input<Cin, Cout>(gout, w.data(), gin);
+  tensor<Cin, double> gref(B, H, W);
+  testing::naive_conv(gout, wt.data(), static_cast<const float*>(nullptr), gref, 4, 2, 1);
+  for (int b = 0; b < B; ++b)
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x)
+        for (int c = 0; c < Cin; ++c) gref(b, y, x, c) += gin0(b, y, x, c);
+  std::tie(d, m) = max_difference(gin, gref);
+  CHECK(d <= tol * (1 + m));
+
+  // gW[kh][kw][ci][co] = sum in[i][j][ci] gout[2i-1+kh][2j-1+kw][co]: the conv weight gradient
+  // with input gout and output gradient in, transposed.
+  std::vector<float> gw(w.size(), 0.5f), gb(Cout, 0.25f);
+  nn::conv_transpose2d_backward_weight<Cin, Cout>(in, gout, gw.data(), gb.data());
+  std::vector<double> gwt_ref, unused;
+  testing::naive_conv_backward_weight(gout, in, gwt_ref, unused, 4, 2, 1);
+  double dw = 0, mw = 0;
+  for (int t = 0; t < 16; ++t)
+    for (int ci = 0; ci < Cin; ++ci)
+      for (int co = 0; co < Cout; ++co) {
+        const double r = gwt_ref[(t * Cout + co) * Cin + ci];
+        dw = std::max(dw, std::abs(gw[(t * Cin + ci) * Cout + co] - 0.5 - r));
+        mw = std::max(mw, std::abs(r));
+      }
+  CHECK(dw <= 1e-5 * std::sqrt(double(B * H * W)) * (1 + mw));
+  double db = 0;
+  for (int co = 0; co < Cout; ++co) {
+    double s = 0;
+    for (int b = 0; b < B; ++b)
+      for (int y = 0; y < 2 * H; ++y)
+        for (int x = 0; x < 2 * W; ++x) s += gout(b, y, x, co);
+    db = std::max(db, std::abs(gb[co] - 0.25 - s));
+  }
+  CHECK(db <= 1e-4 * std::sqrt(double(B * H * W)));
+}
+
+template <int Cin, int Cout>
+void check_gradients(int B, int H, int W, int samples, unsigned seed) {
+  std::mt19937 rng(seed);
+  tensor<Cin, double> in(B, H, W);
+  fill_random(in, rng);
+  std::vector<double> w(static_cast<std::size_t>(16 * Cin * Cout)), bias(Cout);
+  fill_random(w.data(), w.size(), rng);
+  fill_random(bias.data(), bias.size(), rng);
+  tensor<Cout, double> r(B, 2 * H, 2 * W), out(B, 2 * H, 2 * W);
+  fill_random(r, rng);
+  auto loss = [&]() {
+    nn::conv_transpose2d_forward<Cin, Cout>(in, w.data(), bias.data(), out);
+    double s = 0;
+    for (std::size_t i = 0; i < out.size(); ++i) s += out.data()[i] * r.data()[i];
+    return s;
+  };
+  tensor<Cin, double> gin(B, H, W);
+  nn::conv_transpose2d_backward_input<Cin, Cout>(r, w.data(), gin);
+  std::vector<double> gw(w.size(), 0.0), gb(Cout, 0.0);
+  nn::conv_transpose2d_backward_weight<Cin, Cout>(in, r, gw.data(), gb.data());
+  // The loss is linear in each argument, so central differences are exact up to rounding: a large
+  // step keeps the rounding error far below the tolerance.
+  const double step = 1e-3;
+  auto check = [&](double* x, std::size_t n, const double* analytic) {
+    double worst = 0;
+    if (samples == 0) {
+      worst = testing::check_gradient<double>(loss, x, n, analytic, step).max_rel_error;
+    } else {
+      for (int k = 0; k < samples; ++k) {
+        const std::size_t i = rng() % n;
+        worst = std::max(worst, testing::check_gradient<double>(loss, x + i, 1, analytic + i, step).max_rel_error);
+      }
+    }
+    return worst;
+  };
+  CHECK(check(in.data(), in.size(), gin.data()) < 1e-7);
+  CHECK(check(w.data(), w.size(), gw.data()) < 1e-7);
+  CHECK(check(bias.data(), bias.size(), gb.data()) < 1e-7);
+}
+
+}  // namespace
+
+TEST_CASE("conv_transpose2d matches the naive loops") {
+  check_against_reference<3, 5>(2, 7, 9, 21);
+  check_against_reference<64, 32>(2, 5, 7, 22);   // SIMD path
+  check_against_reference<64, 12>(1, 6, 31, 23);  // 12 outputs: padded register, wide rows
+}
+
+TEST_CASE("conv_transpose2d gradients match central differences") {
+  check_gradients<3, 5>(2, 3, 5, 0, 31);
+  check_gradients<32, 64>(1, 3, 4, 40, 32);  // SIMD path
+}

@@ -1,0 +1,141 @@
+// The conv2d / conv_transpose2d layers on the tape: recorded gradients equal the functions',
+// frozen parameters get no gradient, inputs that need none get none, no-grad mode records nothing.
+#include <doctest/doctest.h>
+
+#include <random>
+#include <vector>
+
+#include "anisocap/nn/conv_transpose.hpp"
+#include "reference.hpp"
+
+using namespace anisocap;
+using anisocap::testing::fill_random;
+
+namespace {
+
+template <class Layer>
+void randomise(Layer& layer, std::mt19937& rng) {
+  layer.for_each_parameter([&](nn::parameter& p) { fill_random(p.value.data(), p.size(), rng); });
+}
+
+bool all_zero(const nn::parameter& p) {
+  for (float g : p.grad)
+    if (g != 0.0f) return false;
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("conv2d layer records its backward and honours frozen parameters") {
+  std::mt19937 rng(41);
+  nn::conv2d<3, 5, 4, 2, 1> layer("enc0");
+  CHECK(layer.weight.name == "enc0.weight");
+  CHECK(layer.bias.name == "enc0.bias");
+  CHECK(layer.weight.shape == std::vector<int>{4, 4, 3, 5});
+  randomise(layer, rng);
+  tensor<3> input(2, 7, 9);
+  fill_random(input, rng);
+
+  SUBCASE("everything trainable: gradients equal the backward functions'") {
+    ad::tape t;
+    auto x = t.leaf(input, true);
+    auto y = layer(t, x);
+    REQUIRE(y.requires_grad);
+    CHECK(y.value.height() == 3);
+    CHECK(y.value.width() == 4);
+    fill_random(y.grad, rng);
+    t.backward();
+    tensor<3> gin(2, 7, 9);
+    nn::conv2d_backward_input<3, 5, 4, 2, 1>(y.grad, layer.weight.value.data(), gin);
+    std::vector<float> gw(layer.weight.size(), 0.0f), gb(5, 0.0f);
+    nn::conv2d_backward_weight<3, 5, 4, 2, 1>(input, y.grad, gw.data(), gb.data());
+    for (std::size_t i = 0; i < gin.size(); ++i) CHECK(x.grad.data()[i] == gin.data()[i]);
+    for (std::size_t i = 0; i < gw.size(); ++i) CHECK(layer.weight.grad[i] == gw[i]);
+    for (int i = 0; i < 5; ++i) CHECK(layer.bias.grad[i] == gb[i]);
+  }
+
+  SUBCASE("frozen weight, input without gradient: only the bias gradient") {
+    layer.weight.frozen = true;
+    ad::tape t;
+    auto x = t.leaf(input, false);
+    auto y = layer(t, x);
+    REQUIRE(y.requires_grad);  // the bias still trains
+    fill_random(y.grad, rng);
+    t.backward();
+    CHECK(x.grad.empty());
+    CHECK(all_zero(layer.weight));
+    CHECK_FALSE(all_zero(layer.bias));
+  }
+
+  SUBCASE("all frozen and input without gradient: nothing recorded") {
+    layer.weight.frozen = true;
+    layer.bias.frozen = true;
+    ad::tape t;
+    auto x = t.leaf(input, false);
+    auto y = layer(t, x);
+    CHECK_FALSE(y.requires_grad);
+    CHECK(t.size() == 0);
+  }
+
+  SUBCASE("all frozen, input needs a gradient: input gradient only") {
+    layer.weight.frozen = true;
+    layer.bias.frozen = true;
+    ad::tape t;
+    auto x = t.leaf(input, true);
+    auto y = layer(t, x);
+    REQUIRE(y.requires_grad);
+    fill_random(y.grad, rng);
+    t.backward();
+    double s = 0;
+    for (std::size_t i = 0; i < x.grad.size(); ++i) s += std::abs(x.grad.data()[i]);
+    CHECK(s > 0);
+    CHECK(all_zero(layer.weight));
+    CHECK(all_zero(layer.bias));
+  }
+
+  SUBCASE("no-grad mode records nothing") {
+    ad::tape t;
+    ad::tape::no_grad_guard guard(t);
+    auto x = t.leaf(input, true);
+    auto y = layer(t, x);
+    CHECK_FALSE(y.requires_grad);
+    CHECK(t.size() == 0);
+  }
+}
+
+TEST_CASE("conv_transpose2d layer records its backward and honours frozen parameters") {
+  std::mt19937 rng(42);
+  nn::conv_transpose2d<3, 5> layer("dec0", false);
+  CHECK_FALSE(layer.has_bias());
+  int count = 0;
+  layer.for_each_parameter([&](nn::parameter&) { ++count; });
+  CHECK(count == 1);
+  randomise(layer, rng);
+  tensor<3> input(2, 3, 5);
+  fill_random(input, rng);
+  {
+    ad::tape t;
+    auto x = t.leaf(input, true);
+    auto y = layer(t, x);
+    CHECK(y.value.height() == 6);
+    CHECK(y.value.width() == 10);
+    fill_random(y.grad, rng);
+    t.backward();
+    tensor<3> gin(2, 3, 5);
+    nn::conv_transpose2d_backward_input<3, 5>(y.grad, layer.weight.value.data(), gin);
+    std::vector<float> gw(layer.weight.size(), 0.0f);
+    nn::conv_transpose2d_backward_weight<3, 5>(input, y.grad, gw.data(), static_cast<float*>(nullptr));
+    for (std::size_t i = 0; i < gin.size(); ++i) CHECK(x.grad.data()[i] == gin.data()[i]);
+    for (std::size_t i = 0; i < gw.size(); ++i) CHECK(layer.weight.grad[i] == gw[i]);
+  }
+  {
+    layer.weight.zero_grad();
+    layer.weight.frozen = true;
+    ad::tape t;
+    auto x = t.leaf(input, true);
+    auto y = layer(t, x);
+    fill_random(y.grad, rng);
+    t.backward();
+    CHECK(all_zero(layer.weight));
+  }
+}
