@@ -2,7 +2,9 @@
 // (through a tiny PNG writer below, since stb cannot write 16-bit), validation and atomic writes.
 #include <doctest/doctest.h>
 
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <cstdint>
 #include <fstream>
 #include <limits>
@@ -358,4 +360,67 @@ TEST_CASE("file_transaction: nothing appears before commit, discarded temporarie
   const auto bytes = anisocap::read_file_bytes(dir / "a.txt");
   CHECK(std::string(bytes.begin(), bytes.end()) == "new");
   CHECK(dir.entries() == std::vector<std::string>{"a.txt"});
+}
+
+TEST_CASE("EXR: tiled files are reassembled from their tiles") {
+  test_folder dir;
+  const int w = 13, h = 10, tile = 8, tiles_x = 2, tiles_y = 2;
+  auto value = [](int c, int x, int y) { return float(c * 500 + y * 20 + x); };  // < 2048: exact in half
+  std::vector<std::vector<float>> buffers;  // [tile * 3 + channel], tile-size stride
+  std::vector<EXRTile> tiles(tiles_x * tiles_y);
+  std::vector<std::array<float*, 3>> pointers(tiles.size());
+  buffers.reserve(tiles.size() * 3);
+  for (int ty = 0; ty < tiles_y; ++ty)
+    for (int tx = 0; tx < tiles_x; ++tx) {
+      const std::size_t t = std::size_t(ty * tiles_x + tx);
+      std::memset(&tiles[t], 0, sizeof(EXRTile));
+      tiles[t].offset_x = tx;
+      tiles[t].offset_y = ty;
+      tiles[t].width = std::min(tile, w - tx * tile);
+      tiles[t].height = std::min(tile, h - ty * tile);
+      for (int c = 0; c < 3; ++c) {
+        buffers.emplace_back(std::size_t(tile * tile), 0.0f);
+        for (int j = 0; j < tiles[t].height; ++j)
+          for (int i = 0; i < tiles[t].width; ++i)
+            buffers.back()[std::size_t(j * tile + i)] = value(2 - c, tx * tile + i, ty * tile + j);  // B, G, R
+        pointers[t][std::size_t(c)] = buffers.back().data();
+      }
+      tiles[t].images = reinterpret_cast<unsigned char**>(pointers[t].data());
+    }
+  EXRHeader header;
+  InitEXRHeader(&header);
+  EXRImage exr;
+  InitEXRImage(&exr);
+  EXRChannelInfo info[3];
+  std::memset(info, 0, sizeof info);
+  std::strcpy(info[0].name, "B");
+  std::strcpy(info[1].name, "G");
+  std::strcpy(info[2].name, "R");
+  int types[3] = {TINYEXR_PIXELTYPE_FLOAT, TINYEXR_PIXELTYPE_FLOAT, TINYEXR_PIXELTYPE_FLOAT};
+  int requested[3] = {TINYEXR_PIXELTYPE_HALF, TINYEXR_PIXELTYPE_HALF, TINYEXR_PIXELTYPE_HALF};
+  header.num_channels = 3;
+  header.channels = info;
+  header.pixel_types = types;
+  header.requested_pixel_types = requested;
+  header.compression_type = TINYEXR_COMPRESSIONTYPE_ZIP;
+  header.tiled = 1;
+  header.tile_size_x = tile;
+  header.tile_size_y = tile;
+  header.tile_level_mode = TINYEXR_TILE_ONE_LEVEL;
+  header.tile_rounding_mode = TINYEXR_TILE_ROUND_DOWN;
+  header.data_window = {0, 0, w - 1, h - 1};
+  header.display_window = {0, 0, w - 1, h - 1};
+  exr.num_channels = 3;
+  exr.width = w;
+  exr.height = h;
+  exr.tiles = tiles.data();
+  exr.num_tiles = int(tiles.size());
+  const char* error = nullptr;
+  REQUIRE(SaveEXRImageToFile(&exr, &header, (dir / "tiled.exr").c_str(), &error) == TINYEXR_SUCCESS);
+  const image img = anisocap::read_exr(dir / "tiled.exr");
+  REQUIRE(img.width() == w);
+  REQUIRE(img.height() == h);
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) REQUIRE(img.at(c, x, y) == value(c, x, y));
 }
