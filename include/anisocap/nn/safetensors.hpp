@@ -1,0 +1,348 @@
+#pragma once
+/// @file
+/// Weight files in the safetensors format (Hugging Face), so PyTorch reads what anisocap writes and
+/// the other way round: an 8-byte little-endian header length N, N bytes of JSON
+/// `{"name": {"dtype": "F32", "shape": [...], "data_offsets": [begin, end]}, ...,
+/// "__metadata__": {"key": "value"}}` (padded with spaces to a multiple of 8), then the raw
+/// little-endian tensor data, offsets relative to its start.
+///
+/// Reading is strict, as the reference implementation is: the tensors must tile the data region
+/// exactly (no gaps, no overlap, nothing after the last), each tensor's byte count must match its
+/// dtype and shape, and any problem throws safetensors_error naming the file and the problem.
+/// Writing goes to a temporary name and is renamed into place, so a crash never leaves half a file.
+#include <algorithm>
+#include <bit>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <system_error>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "anisocap/core/json.hpp"
+#include "anisocap/nn/parameter.hpp"
+
+namespace anisocap::nn {
+
+static_assert(std::endian::native == std::endian::little, "safetensors I/O assumes a little-endian machine");
+
+/// A malformed, truncated or incompatible safetensors file; the message starts with the file name.
+class safetensors_error : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Size in bytes of one element of a safetensors dtype ("F32", "F64", "I64", ...); 0 if unknown.
+inline std::size_t safetensors_dtype_size(std::string_view dtype) noexcept {
+  static constexpr std::pair<std::string_view, std::size_t> sizes[] = {
+      {"BOOL", 1}, {"U8", 1},  {"I8", 1},  {"F8_E5M2", 1}, {"F8_E4M3", 1}, {"I16", 2}, {"U16", 2}, {"F16", 2},
+      {"BF16", 2}, {"I32", 4}, {"U32", 4}, {"F32", 4},     {"I64", 8},     {"U64", 8}, {"F64", 8}};
+  for (const auto& [name, size] : sizes)
+    if (name == dtype) return size;
+  return 0;
+}
+
+/// The safetensors dtype of a C++ element type (float: "F32", double: "F64").
+template <class T>
+constexpr const char* safetensors_dtype() {
+  if constexpr (std::is_same_v<T, float>) return "F32";
+  else if constexpr (std::is_same_v<T, double>) return "F64";
+  else if constexpr (std::is_same_v<T, std::int64_t>) return "I64";
+  else if constexpr (std::is_same_v<T, std::int32_t>) return "I32";
+  else static_assert(sizeof(T) == 0, "no safetensors dtype for this type");
+}
+
+/// The contents of a safetensors file: named tensors (raw bytes, in file order) and metadata.
+class safetensors_file {
+ public:
+  /// One tensor: dtype, shape (outermost first) and its bytes [begin, end) in the data region.
+  struct entry {
+    std::string name;
+    std::string dtype;
+    std::vector<std::int64_t> shape;
+    std::size_t begin = 0, end = 0;
+    /// Number of elements (1 for a scalar of shape []).
+    std::size_t count() const noexcept {
+      std::size_t n = 1;
+      for (auto d : shape) n *= std::size_t(d);
+      return n;
+    }
+  };
+
+  /// The `__metadata__` string pairs, in file order.
+  std::vector<std::pair<std::string, std::string>> metadata;
+
+  /// Appends a tensor (its bytes are copied). Throws std::invalid_argument for a repeated or
+  /// reserved name, an unknown dtype, or a byte count that does not match dtype and shape.
+  void add(std::string name, std::string dtype, std::vector<std::int64_t> shape, const void* data, std::size_t bytes) {
+    if (name.empty() || name == "__metadata__") throw std::invalid_argument("safetensors: invalid tensor name '" + name + "'");
+    if (find(name)) throw std::invalid_argument("safetensors: tensor '" + name + "' added twice");
+    const std::size_t element = safetensors_dtype_size(dtype);
+    if (!element) throw std::invalid_argument("safetensors: unknown dtype '" + dtype + "'");
+    entry e{std::move(name), std::move(dtype), std::move(shape), data_.size(), data_.size() + bytes};
+    for (auto d : e.shape)
+      if (d < 0) throw std::invalid_argument("safetensors: negative dimension in tensor '" + e.name + "'");
+    if (e.count() * element != bytes)
+      throw std::invalid_argument("safetensors: tensor '" + e.name + "' has " + std::to_string(bytes) +
+                                  " bytes, its dtype and shape need " + std::to_string(e.count() * element));
+    const auto* p = static_cast<const std::byte*>(data);
+    data_.insert(data_.end(), p, p + bytes);
+    entries_.push_back(std::move(e));
+  }
+
+  /// Appends a tensor of float, double, int32 or int64 values.
+  template <class T>
+  void add(std::string name, std::vector<std::int64_t> shape, const T* data, std::size_t count) {
+    add(std::move(name), safetensors_dtype<T>(), std::move(shape), data, count * sizeof(T));
+  }
+
+  /// The tensor called `name`, or nullptr.
+  const entry* find(std::string_view name) const noexcept {
+    for (const auto& e : entries_)
+      if (e.name == name) return &e;
+    return nullptr;
+  }
+  /// All tensors in file order.
+  const std::vector<entry>& entries() const noexcept { return entries_; }
+  /// The raw little-endian bytes of a tensor.
+  std::span<const std::byte> bytes(const entry& e) const noexcept { return {data_.data() + e.begin, e.end - e.begin}; }
+  /// The whole data region.
+  std::span<const std::byte> data() const noexcept { return data_; }
+
+  /// Builds from parsed entries and the data region (used by read_safetensors).
+  safetensors_file(std::vector<entry> entries, std::vector<std::byte> data,
+                   std::vector<std::pair<std::string, std::string>> meta)
+      : metadata(std::move(meta)), entries_(std::move(entries)), data_(std::move(data)) {}
+  safetensors_file() = default;
+
+ private:
+  std::vector<entry> entries_;
+  std::vector<std::byte> data_;
+};
+
+namespace detail {
+
+/// Header size above which a file is rejected before allocating (the reference library's limit).
+inline constexpr std::uint64_t safetensors_max_header = 100'000'000;
+
+[[noreturn]] inline void safetensors_fail(const std::filesystem::path& file, const std::string& problem) {
+  throw safetensors_error(file.string() + ": " + problem);
+}
+
+/// A non-negative integer below 2^53 from a JSON number, or a clear error.
+inline std::uint64_t safetensors_integer(const std::filesystem::path& file, const json::value& v, const std::string& what) {
+  if (!v.is_number()) safetensors_fail(file, what + " is a " + json::kind_name(v.kind()) + ", expected an integer");
+  const double d = v.as_number();
+  if (!(d >= 0) || d != double(std::uint64_t(d)) || d > 9007199254740992.0)
+    safetensors_fail(file, what + " is not a non-negative integer");
+  return std::uint64_t(d);
+}
+
+inline std::string shape_string(const std::vector<std::int64_t>& shape) {
+  std::string s = "[";
+  for (std::size_t i = 0; i < shape.size(); ++i) s += (i ? ", " : "") + std::to_string(shape[i]);
+  return s + "]";
+}
+
+}  // namespace detail
+
+/// Reads and validates a safetensors file. Throws safetensors_error "file: problem" for a missing
+/// or unreadable file, truncation, a header length beyond the file, bad JSON, an unknown dtype,
+/// offsets out of range or not tiling the data, or a byte count that disagrees with dtype and shape.
+inline safetensors_file read_safetensors(const std::filesystem::path& file) {
+  using detail::safetensors_fail;
+  std::ifstream in(file, std::ios::binary | std::ios::ate);
+  if (!in) safetensors_fail(file, "cannot open the file");
+  const std::uint64_t file_size = std::uint64_t(in.tellg());
+  in.seekg(0);
+  if (file_size < 8) safetensors_fail(file, "truncated: " + std::to_string(file_size) + " bytes, fewer than the 8-byte header length");
+  unsigned char length_bytes[8];
+  in.read(reinterpret_cast<char*>(length_bytes), 8);
+  std::uint64_t header_length = 0;
+  for (int i = 7; i >= 0; --i) header_length = header_length << 8 | length_bytes[i];
+  if (header_length > detail::safetensors_max_header)
+    safetensors_fail(file, "header length " + std::to_string(header_length) + " exceeds the 100 MB limit (not a safetensors file?)");
+  if (header_length > file_size - 8)
+    safetensors_fail(file, "header length " + std::to_string(header_length) + " exceeds the " +
+                               std::to_string(file_size - 8) + " bytes after it (truncated?)");
+  std::string header(header_length, '\0');
+  in.read(header.data(), std::streamsize(header_length));
+  std::vector<std::byte> data(file_size - 8 - header_length);
+  in.read(reinterpret_cast<char*>(data.data()), std::streamsize(data.size()));
+  if (!in) safetensors_fail(file, "read error");
+
+  json::value root;
+  try {
+    root = json::parse(header, file.string() + " (header)");
+  } catch (const json::parse_error& e) {
+    safetensors_fail(file, std::string("bad JSON header: ") + e.what());
+  }
+  if (!root.is_object()) safetensors_fail(file, std::string("the header is a JSON ") + json::kind_name(root.kind()) + ", expected an object");
+
+  std::vector<safetensors_file::entry> entries;
+  std::vector<std::pair<std::string, std::string>> metadata;
+  for (const auto& [name, v] : root.as_object()) {
+    if (name == "__metadata__") {
+      if (!v.is_object()) safetensors_fail(file, "__metadata__ is not an object");
+      for (const auto& [key, text] : v.as_object()) {
+        if (!text.is_string()) safetensors_fail(file, "__metadata__ value '" + key + "' is not a string");
+        metadata.emplace_back(key, text.as_string());
+      }
+      continue;
+    }
+    const std::string where = "tensor '" + name + "'";
+    if (!v.is_object()) safetensors_fail(file, where + " is not a JSON object");
+    const auto& o = v.as_object();
+    for (const char* key : {"dtype", "shape", "data_offsets"})
+      if (!o.contains(key)) safetensors_fail(file, where + " has no \"" + key + "\"");
+    if (o.size() != 3) safetensors_fail(file, where + " has keys other than dtype, shape and data_offsets");
+    safetensors_file::entry e;
+    e.name = name;
+    if (!o.at("dtype").is_string()) safetensors_fail(file, where + ": dtype is not a string");
+    e.dtype = o.at("dtype").as_string();
+    const std::size_t element = safetensors_dtype_size(e.dtype);
+    if (!element) safetensors_fail(file, where + " has unknown dtype '" + e.dtype + "'");
+    if (!o.at("shape").is_array()) safetensors_fail(file, where + ": shape is not an array");
+    for (const auto& d : o.at("shape").as_array())
+      e.shape.push_back(std::int64_t(detail::safetensors_integer(file, d, where + ": a dimension")));
+    if (!o.at("data_offsets").is_array() || o.at("data_offsets").as_array().size() != 2)
+      safetensors_fail(file, where + ": data_offsets is not an array of two integers");
+    e.begin = detail::safetensors_integer(file, o.at("data_offsets").as_array()[0], where + ": data_offsets[0]");
+    e.end = detail::safetensors_integer(file, o.at("data_offsets").as_array()[1], where + ": data_offsets[1]");
+    if (e.begin > e.end) safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] are reversed");
+    if (e.end > data.size())
+      safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
+                                 "] out of range: the data region has " + std::to_string(data.size()) + " bytes (truncated?)");
+    // Overflow-safe count * element == end - begin.
+    std::size_t count = 1;
+    bool overflow = false;
+    for (auto d : e.shape) {
+      if (d != 0 && count > (std::size_t(-1) / element) / std::size_t(d)) overflow = true;
+      count *= std::size_t(d);
+    }
+    if (overflow || count * element != e.end - e.begin)
+      safetensors_fail(file, where + ": " + std::to_string(e.end - e.begin) + " bytes of data, but dtype " + e.dtype +
+                                 " and shape " + detail::shape_string(e.shape) + " need " +
+                                 (overflow ? std::string("more than 2^64") : std::to_string(count * element)));
+    entries.push_back(std::move(e));
+  }
+  // The tensors must tile the data region: sorted by offset, each starts where the previous ends.
+  std::vector<const safetensors_file::entry*> by_offset;
+  for (const auto& e : entries) by_offset.push_back(&e);
+  std::sort(by_offset.begin(), by_offset.end(), [](auto* a, auto* b) { return a->begin != b->begin ? a->begin < b->begin : a->end < b->end; });
+  std::size_t position = 0;
+  for (auto* e : by_offset) {
+    if (e->begin != position)
+      safetensors_fail(file, "tensor '" + e->name + "' starts at data byte " + std::to_string(e->begin) + ", expected " +
+                                 std::to_string(position) + (e->begin < position ? " (overlapping tensors)" : " (a gap)"));
+    position = e->end;
+  }
+  if (position != data.size())
+    safetensors_fail(file, std::to_string(data.size() - position) + " bytes of data after the last tensor");
+  return safetensors_file(std::move(entries), std::move(data), std::move(metadata));
+}
+
+/// Writes a safetensors file (metadata first, then the tensors in their order), through a temporary
+/// file renamed into place. Throws safetensors_error naming the file when it cannot be written.
+inline void write_safetensors(const std::filesystem::path& file, const safetensors_file& contents) {
+  json::object header;
+  if (!contents.metadata.empty()) {
+    json::object meta;
+    for (const auto& [k, v] : contents.metadata) meta.insert_or_assign(k, json::value(v));
+    header.insert_or_assign("__metadata__", json::value(std::move(meta)));
+  }
+  for (const auto& e : contents.entries()) {
+    json::array shape;
+    for (auto d : e.shape) shape.emplace_back(static_cast<long long>(d));
+    header.insert_or_assign(e.name, json::value(json::object{{"dtype", json::value(e.dtype)},
+                                                             {"shape", json::value(std::move(shape))},
+                                                             {"data_offsets", json::value(json::array{json::value(e.begin), json::value(e.end)})}}));
+  }
+  std::string text = json::value(std::move(header)).dump();
+  text.resize((text.size() + 7) / 8 * 8, ' ');  // the data region starts 8-byte aligned, as the reference writer does
+  unsigned char length_bytes[8];
+  for (int i = 0; i < 8; ++i) length_bytes[i] = static_cast<unsigned char>(std::uint64_t(text.size()) >> (8 * i));
+
+  std::filesystem::path temporary = file;
+  temporary += ".tmp";
+  {
+    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+    if (!out) detail::safetensors_fail(file, "cannot create " + temporary.string());
+    out.write(reinterpret_cast<const char*>(length_bytes), 8);
+    out.write(text.data(), std::streamsize(text.size()));
+    out.write(reinterpret_cast<const char*>(contents.data().data()), std::streamsize(contents.data().size()));
+    out.flush();
+    if (!out) {
+      out.close();
+      std::error_code ignored;
+      std::filesystem::remove(temporary, ignored);
+      detail::safetensors_fail(file, "write error");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(temporary, file, ec);
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(temporary, ignored);
+    detail::safetensors_fail(file, "cannot rename the temporary file into place: " + ec.message());
+  }
+}
+
+namespace detail {
+template <class Network, class F>
+void visit_weights(Network& net, F&& f) {
+  net.for_each_parameter(f);
+  if constexpr (requires { net.for_each_buffer(f); }) net.for_each_buffer(f);
+}
+}  // namespace detail
+
+/// Saves every parameter of a layer or network (for_each_parameter, then for_each_buffer where the
+/// network has one, e.g. batch-norm running statistics) under its name, with its logical shape.
+template <class Network>
+void save_weights(const std::filesystem::path& file, Network& net,
+                  std::vector<std::pair<std::string, std::string>> metadata = {}) {
+  safetensors_file contents;
+  contents.metadata = std::move(metadata);
+  detail::visit_weights(net, [&](auto& p) {
+    using T = std::remove_cvref_t<decltype(p.value[0])>;
+    std::vector<std::int64_t> shape(p.shape.begin(), p.shape.end());
+    try {
+      contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
+    } catch (const std::invalid_argument& e) {
+      detail::safetensors_fail(file, e.what());
+    }
+  });
+  write_safetensors(file, contents);
+}
+
+/// Loads every parameter (and buffer) of a network from a file by name. All tensors are checked
+/// first (present, dtype matching the parameter's type, same shape), so a failed load changes
+/// nothing; tensors in the file that the network does not have are ignored.
+template <class Network>
+void load_weights(const std::filesystem::path& file, Network& net) {
+  const safetensors_file contents = read_safetensors(file);
+  detail::visit_weights(net, [&](auto& p) {
+    using T = std::remove_cvref_t<decltype(p.value[0])>;
+    const auto* e = contents.find(p.name);
+    if (!e) detail::safetensors_fail(file, "missing tensor '" + p.name + "'");
+    if (e->dtype != safetensors_dtype<T>())
+      detail::safetensors_fail(file, "tensor '" + p.name + "' has dtype " + e->dtype + ", expected " + safetensors_dtype<T>());
+    const std::vector<std::int64_t> expected(p.shape.begin(), p.shape.end());
+    if (e->shape != expected)
+      detail::safetensors_fail(file, "tensor '" + p.name + "' has shape " + detail::shape_string(e->shape) + ", expected " +
+                                         detail::shape_string(expected));
+  });
+  detail::visit_weights(net, [&](auto& p) {
+    const auto bytes = contents.bytes(*contents.find(p.name));
+    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
+  });
+}
+
+}  // namespace anisocap::nn

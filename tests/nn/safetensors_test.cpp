@@ -1,0 +1,269 @@
+// Weight files (nn/safetensors.hpp): bit-identical round trips, strict validation with errors that
+// name the file and the problem, and an exchange with PyTorch in both directions when
+// /usr/bin/python3 has torch (tests/nn/safetensors_torch_check.py; skipped otherwise).
+#include <doctest/doctest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <sys/wait.h>
+#include <unistd.h>
+#include <vector>
+
+#include "anisocap/nn/layers.hpp"
+#include "anisocap/nn/safetensors.hpp"
+#include "layer_check.hpp"
+
+using namespace anisocap;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path scratch_directory() { return fs::temp_directory_path() / ("anisocap_safetensors_test_" + std::to_string(::getpid())); }
+
+/// Removes this process's scratch files when the test program exits.
+struct scratch_cleanup {
+  ~scratch_cleanup() {
+    std::error_code ignored;
+    fs::remove_all(scratch_directory(), ignored);
+  }
+} cleanup_at_exit;
+
+fs::path scratch(const std::string& name) {
+  fs::create_directories(scratch_directory());
+  return scratch_directory() / name;
+}
+
+std::string read_all(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+void write_all(const fs::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), std::streamsize(bytes.size()));
+}
+
+/// A file with the given header text and `data_bytes` zero bytes of data.
+std::string raw_file(const std::string& header, std::size_t data_bytes, std::uint64_t length_override = 0) {
+  std::uint64_t n = length_override ? length_override : header.size();
+  std::string s(8, '\0');
+  for (int i = 0; i < 8; ++i) s[i] = char((n >> (8 * i)) & 0xff);
+  return s + header + std::string(data_bytes, '\0');
+}
+
+/// The message of the safetensors_error that reading `bytes` as a file throws ("" if none).
+std::string read_error(const std::string& bytes) {
+  const fs::path p = scratch("corrupt.safetensors");
+  write_all(p, bytes);
+  try {
+    nn::read_safetensors(p);
+  } catch (const nn::safetensors_error& e) {
+    std::string m = e.what();
+    CHECK(m.find(p.string()) == 0);  // every message starts with the file's name
+    return m;
+  }
+  return "";
+}
+
+struct small_network {
+  nn::linear<5, 3> fc{"fc", 1};
+  nn::batch_norm<3> bn{"bn"};
+  template <class F> void for_each_parameter(F&& f) { fc.for_each_parameter(f); bn.for_each_parameter(f); }
+  template <class F> void for_each_buffer(F&& f) { bn.for_each_buffer(f); }
+};
+
+bool contains(const std::string& haystack, const std::string& needle) { return haystack.find(needle) != std::string::npos; }
+
+}  // namespace
+
+TEST_CASE("safetensors: round trip is bit-identical") {
+  nn::random_generator g(51);
+  small_network a;
+  nn::uniform_init(a.bn.running_mean, 1.0, 5);
+  nn::uniform_init(a.bn.bias, 1.0, 6);
+  const fs::path p = scratch("net.safetensors");
+  nn::save_weights(p, a, {{"format", "pt"}, {"note", "quote \" and ü"}});
+  small_network b{nn::linear<5, 3>{"fc", 99}, nn::batch_norm<3>{"bn"}};
+  CHECK(b.fc.weight.value[0] != a.fc.weight.value[0]);
+  nn::load_weights(p, b);
+  auto same = [](const nn::parameter& x, const nn::parameter& y) {
+    return x.size() == y.size() && std::memcmp(x.value.data(), y.value.data(), x.size() * sizeof(float)) == 0;
+  };
+  CHECK(same(a.fc.weight, b.fc.weight));
+  CHECK(same(a.fc.bias, b.fc.bias));
+  CHECK(same(a.bn.bias, b.bn.bias));
+  CHECK(same(a.bn.running_mean, b.bn.running_mean));
+  CHECK(same(a.bn.running_var, b.bn.running_var));
+
+  auto file = nn::read_safetensors(p);
+  REQUIRE(file.metadata.size() == 2);
+  CHECK(file.metadata[1].second == "quote \" and ü");
+  const auto* w = file.find("fc.weight");
+  REQUIRE(w != nullptr);
+  CHECK(w->dtype == "F32");
+  CHECK(w->shape == std::vector<std::int64_t>{3, 5});
+  // Layout: 8-byte length, header padded to 8 bytes, data; writing what was read gives the same bytes.
+  const std::string bytes = read_all(p);
+  std::uint64_t n = 0;
+  for (int i = 7; i >= 0; --i) n = n << 8 | (unsigned char)bytes[i];
+  CHECK(n % 8 == 0);
+  CHECK(8 + n + file.data().size() == bytes.size());
+  const fs::path q = scratch("copy.safetensors");
+  nn::write_safetensors(q, file);
+  CHECK(read_all(q) == bytes);
+
+  // Other dtypes and a scalar survive too.
+  nn::safetensors_file f;
+  const double d[3] = {1.0 / 3, -2.5e-300, 7};
+  const std::int64_t steps = 12345678901234;
+  f.add<double>("d", {3}, d, 3);
+  f.add<std::int64_t>("steps", {}, &steps, 1);
+  nn::write_safetensors(q, f);
+  auto r = nn::read_safetensors(q);
+  REQUIRE(r.find("steps") != nullptr);
+  CHECK(r.find("steps")->shape.empty());
+  CHECK(std::memcmp(r.bytes(*r.find("d")).data(), d, sizeof d) == 0);
+  CHECK(std::memcmp(r.bytes(*r.find("steps")).data(), &steps, 8) == 0);
+  CHECK_THROWS_AS(f.add<double>("d", {3}, d, 3), std::invalid_argument);
+  CHECK_THROWS_AS(f.add<double>("e", {4}, d, 3), std::invalid_argument);
+}
+
+TEST_CASE("safetensors: corrupted and truncated files give clear errors") {
+  const std::string good_header = R"({"w":{"dtype":"F32","shape":[2,2],"data_offsets":[0,16]}})";
+  CHECK(read_error(raw_file(good_header, 16)) == "");  // the reference for the cases below
+
+  CHECK(contains(read_error(raw_file(good_header, 12)), "out of range"));                   // truncated data
+  CHECK(contains(read_error(raw_file(good_header, 12)), "truncated"));
+  CHECK(contains(read_error(std::string("\x10\0\0", 3)), "fewer than the 8-byte header length"));
+  CHECK(contains(read_error(raw_file(good_header, 16, 5000)), "exceeds"));                   // length beyond the file
+  CHECK(contains(read_error(raw_file(good_header, 16, std::uint64_t(1) << 40)), "100 MB"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,2],)", 16)), "bad JSON"));
+  CHECK(contains(read_error(raw_file(R"([1, 2])", 0)), "expected an object"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F33","shape":[2,2],"data_offsets":[0,16]}})", 16)), "unknown dtype 'F33'"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,2],"data_offsets":[0,400]}})", 16)), "out of range"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,3],"data_offsets":[0,16]}})", 16)), "need 24"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,-2],"data_offsets":[0,16]}})", 16)), "non-negative"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,2]}})", 16)), "no \"data_offsets\""));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,2],"data_offsets":[16,0]}})", 16)), "reversed"));
+  CHECK(contains(read_error(raw_file(good_header, 20)), "4 bytes of data after the last tensor"));
+  CHECK(contains(read_error(raw_file(R"({"a":{"dtype":"F32","shape":[2],"data_offsets":[0,8]},"b":{"dtype":"F32","shape":[2],"data_offsets":[4,12]}})", 12)), "overlapping"));
+  CHECK(contains(read_error(raw_file(R"({"a":{"dtype":"F32","shape":[1],"data_offsets":[4,8]}})", 8)), "a gap"));
+  CHECK(contains(read_error(raw_file(R"({"w":{"dtype":"F32","shape":[2,2],"data_offsets":[0,16]},"__metadata__":{"k":1}})", 16)), "not a string"));
+
+  // A real file cut short, and one that does not exist.
+  small_network net;
+  const fs::path p = scratch("cut.safetensors");
+  nn::save_weights(p, net);
+  std::string bytes = read_all(p);
+  CHECK(contains(read_error(bytes.substr(0, bytes.size() - 1)), "truncated"));
+  CHECK(contains(read_error(bytes.substr(0, 40)), "exceeds"));
+  CHECK_THROWS_WITH_AS(nn::read_safetensors(scratch("absent.safetensors")),
+                       doctest::Contains("cannot open"), nn::safetensors_error);
+}
+
+TEST_CASE("safetensors: loading checks names, dtypes and shapes, and changes nothing on failure") {
+  small_network net;
+  const float original = net.fc.weight.value[0];
+  const fs::path p = scratch("partial.safetensors");
+  auto expect_load_error = [&](const nn::safetensors_file& f, const std::string& problem) {
+    nn::write_safetensors(p, f);
+    CHECK_THROWS_WITH_AS(nn::load_weights(p, net), doctest::Contains(problem.c_str()), nn::safetensors_error);
+    CHECK(net.fc.weight.value[0] == original);
+  };
+  std::vector<float> w(15, 0.5f), b(3, 0.5f);
+  std::vector<double> wd(15, 0.5);
+  nn::safetensors_file f;
+  f.add<float>("fc.weight", {3, 5}, w.data(), 15);
+  f.add<float>("fc.bias", {3}, b.data(), 3);
+  f.add<float>("bn.weight", {3}, b.data(), 3);
+  f.add<float>("bn.bias", {3}, b.data(), 3);
+  f.add<float>("bn.running_mean", {3}, b.data(), 3);
+  expect_load_error(f, "missing tensor 'bn.running_var'");
+
+  nn::safetensors_file wrong_dtype;
+  wrong_dtype.add<double>("fc.weight", {3, 5}, wd.data(), 15);
+  expect_load_error(wrong_dtype, "tensor 'fc.weight' has dtype F64, expected F32");
+
+  nn::safetensors_file wrong_shape;
+  wrong_shape.add<float>("fc.weight", {5, 3}, w.data(), 15);
+  expect_load_error(wrong_shape, "tensor 'fc.weight' has shape [5, 3], expected [3, 5]");
+
+  f.add<float>("bn.running_var", {3}, b.data(), 3);
+  f.add<float>("extra", {3}, b.data(), 3);  // ignored
+  nn::write_safetensors(p, f);
+  nn::load_weights(p, net);
+  CHECK(net.fc.weight.value[0] == 0.5f);
+}
+
+TEST_CASE("safetensors: exchange with PyTorch") {
+  const std::string script = std::string(ANISOCAP_SOURCE_DIR) + "/tests/nn/safetensors_torch_check.py";
+  const fs::path from_torch = scratch("from_torch.safetensors"), to_torch = scratch("to_torch.safetensors");
+  const std::string python = "/usr/bin/python3";
+  if (!fs::exists(python)) {
+    MESSAGE("skipped: no " << python);
+    return;
+  }
+  const int status = std::system((python + " " + script + " write " + from_torch.string()).c_str());
+  REQUIRE(WIFEXITED(status));
+  if (WEXITSTATUS(status) == 77) {
+    MESSAGE("skipped: torch is not available to " << python);
+    return;
+  }
+  REQUIRE(WEXITSTATUS(status) == 0);
+
+  // PyTorch -> anisocap: the values the script wrote are fixed formulas.
+  auto file = nn::read_safetensors(from_torch);
+  const auto* a = file.find("a");
+  REQUIRE(a != nullptr);
+  CHECK(a->dtype == "F32");
+  CHECK(a->shape == std::vector<std::int64_t>{3, 4});
+  std::vector<float> av(12);
+  std::memcpy(av.data(), file.bytes(*a).data(), 48);
+  for (int i = 0; i < 12; ++i) CHECK(av[i] == float(i) * 0.5f - 1.0f);
+  const auto* steps = file.find("bn.num_batches_tracked");
+  REQUIRE(steps != nullptr);
+  CHECK(steps->dtype == "I64");
+  CHECK(steps->shape.empty());
+  // A torch.nn.Linear(5, 3) state loads into nn::linear<5, 3> (same weight layout) and gives the
+  // output torch computed.
+  nn::linear<5, 3> fc("fc");
+  nn::load_weights(from_torch, fc);
+  const auto* in = file.find("fc.input");
+  const auto* out = file.find("fc.output");
+  REQUIRE(in != nullptr);
+  REQUIRE(out != nullptr);
+  tensor<5> x(2, 1, 1);
+  std::memcpy(x.data(), file.bytes(*in).data(), 40);
+  ad::tape t;
+  auto y = fc(t, t.leaf(x));
+  std::vector<float> expected(6);
+  std::memcpy(expected.data(), file.bytes(*out).data(), 24);
+  for (int i = 0; i < 6; ++i) CHECK(y.value.data()[i] == doctest::Approx(expected[i]).epsilon(1e-5));
+
+  // anisocap -> PyTorch: the script loads our linear and batch-norm weights into torch modules and
+  // compares torch's outputs with ours (NHWC here, NCHW there).
+  small_network net;
+  nn::uniform_init(net.bn.weight, 1.0, 3);
+  nn::uniform_init(net.bn.bias, 1.0, 4);
+  nn::uniform_init(net.bn.running_mean, 1.0, 5);
+  for (auto& v : net.bn.running_var.value) v = 2.0f;
+  net.bn.training = false;
+  nn::random_generator g(52);
+  auto xin = test_nn::random_tensor<5, float>(g, 2, 3, 4);
+  ad::tape t2;
+  auto h = net.fc(t2, t2.leaf(xin));
+  auto z = net.bn(t2, h);
+  nn::safetensors_file f;
+  net.for_each_parameter([&](nn::parameter& p) { f.add<float>(p.name, {p.shape.begin(), p.shape.end()}, p.value.data(), p.size()); });
+  net.for_each_buffer([&](nn::parameter& p) { f.add<float>(p.name, {p.shape.begin(), p.shape.end()}, p.value.data(), p.size()); });
+  f.add<float>("input_nhwc", {2, 3, 4, 5}, xin.data(), xin.size());
+  f.add<float>("fc_output_nhwc", {2, 3, 4, 3}, h.value.data(), h.value.size());
+  f.add<float>("bn_output_nhwc", {2, 3, 4, 3}, z.value.data(), z.value.size());
+  nn::write_safetensors(to_torch, f);
+  const int back = std::system((python + " " + script + " read " + to_torch.string()).c_str());
+  REQUIRE(WIFEXITED(back));
+  CHECK(WEXITSTATUS(back) == 0);
+}
