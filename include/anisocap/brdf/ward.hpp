@@ -126,3 +126,24 @@ std::array<T, 3> ward_evaluate(const ward_parameters<T>& p, const std::array<S, 
 }
 
 }  // namespace anisocap
+
+namespace anisocap {
+
+/// Calls `fn.template operator()<F>()` with F the compile-time twin of the runtime feature set `f`:
+/// how a program picks a specialised kernel at run time. Each combination is one instantiation.
+template <class Fn>
+decltype(auto) with_features(const brdf_features& f, Fn&& fn) {
+  const int code = int(f.anisotropic) * 4 + int(f.fresnel) * 2 + int(f.normal_map);
+  switch (code) {
+    case 0: return fn.template operator()<brdf_features{false, false, false}>();
+    case 1: return fn.template operator()<brdf_features{false, false, true}>();
+    case 2: return fn.template operator()<brdf_features{false, true, false}>();
+    case 3: return fn.template operator()<brdf_features{false, true, true}>();
+    case 4: return fn.template operator()<brdf_features{true, false, false}>();
+    case 5: return fn.template operator()<brdf_features{true, false, true}>();
+    case 6: return fn.template operator()<brdf_features{true, true, false}>();
+    default: return fn.template operator()<brdf_features{true, true, true}>();
+  }
+}
+
+}  // namespace anisocap

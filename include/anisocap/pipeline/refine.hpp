@@ -179,3 +179,42 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
 }
 
 }  // namespace anisocap
+
+namespace anisocap {
+
+/// A first guess for a standalone refine from the photographs alone: the diffuse albedo of each
+/// texel is the smallest value of B / (cos(theta_l) I / (pi r^2)) over the images that light it
+/// (the image where the specular lobe adds least), clamped to [0.02, 0.95]; the other parameters
+/// start at mid-range values (a'_s 0.3, sigma 0.15, F0 0.5, flat normal, alpha 0).
+inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {}) {
+  if (photos.empty() || photos.size() != cap.images.size())
+    throw std::invalid_argument("initial_guess: need one photograph per configuration");
+  const int w = photos[0].width(), h = photos[0].height();
+  material_maps maps(w, h);
+  const float start[parameter_count] = {0.5f, 0.5f, 0.5f, 0.3f, 0.3f, 0.3f, 0.15f, 0.15f, 0.5f, 0.0f, 0.0f, 0.0f};
+  maps.fill(start);
+  tile_placement tp = placement;
+  if (tp.full_width == 0) tp = {w, h, 0, 0};
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const auto p = texel_position(tp.x0 + x, tp.y0 + y, tp.full_width, tp.full_height);
+      float best[3] = {1e30f, 1e30f, 1e30f};
+      for (std::size_t k = 0; k < cap.images.size(); ++k) {
+        const auto& im = cap.images[k];
+        const float lx = im.light[0] - p[0], ly = im.light[1] - p[1], lz = im.light[2];
+        const float r2 = std::max(lx * lx + ly * ly + lz * lz, 1e-6f);
+        const float cos_l = lz / std::sqrt(r2);
+        if (cos_l < 0.05f || im.camera[2] <= 0) continue;
+        for (int c = 0; c < 3; ++c) {
+          const float irradiance = cos_l * im.intensity[c] / (std::numbers::pi_v<float> * r2);
+          best[c] = std::min(best[c], photos[k].at(c, x, y) / irradiance);
+        }
+      }
+      for (int c = 0; c < 3; ++c)
+        if (best[c] < 1e29f) maps.at(diffuse_r + c, x, y) = std::clamp(best[c], 0.02f, 0.95f);
+    }
+  return maps;
+}
+
+}  // namespace anisocap

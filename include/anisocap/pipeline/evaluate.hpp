@@ -1,0 +1,67 @@
+#pragma once
+/// @file
+/// Error metrics between an estimated and a true map set, as in the paper's Table 1 (MODEL.md 9):
+/// mean squared error per parameter in the original ranges.
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+
+#include "anisocap/brdf/material_maps.hpp"
+
+namespace anisocap {
+
+/// Per-parameter mean squared errors.
+struct parameter_errors {
+  double diffuse = 0;    ///< a_d, mean over texels and RGB
+  double specular = 0;   ///< a'_s, mean over texels and RGB
+  double normal = 0;     ///< n_s, mean over texels and the 3 components of the unit normal
+  double lobes = 0;      ///< sigma, mean over texels and (sx, sy)
+  double rotation = 0;   ///< alpha, difference taken modulo pi (alpha is pi-periodic), all texels
+  /// alpha modulo pi over texels whose true lobes differ (max/min >= 1.25) only: where sx ~ sy,
+  /// alpha has no visible effect and any value is right. NaN when no texel qualifies.
+  double rotation_anisotropic = 0;
+  double fresnel = 0;    ///< F0
+};
+
+/// alpha1 - alpha2 wrapped into [-pi/2, pi/2].
+inline double rotation_difference(double a, double b) {
+  const double d = a - b;
+  return d - std::numbers::pi * std::nearbyint(d / std::numbers::pi);
+}
+
+/// MSE per parameter between `estimate` and `truth` (same size).
+inline parameter_errors compare_maps(const material_maps& estimate, const material_maps& truth) {
+  if (estimate.width() != truth.width() || estimate.height() != truth.height())
+    throw std::invalid_argument("compare_maps: the map sets differ in size (" + std::to_string(estimate.width()) + "x" +
+                                std::to_string(estimate.height()) + " against " + std::to_string(truth.width()) + "x" +
+                                std::to_string(truth.height()) + ")");
+  parameter_errors e;
+  const std::size_t n = truth.texel_count();
+  auto sq = [](double x) { return x * x; };
+  std::size_t aniso = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) {
+      e.diffuse += sq(estimate.plane(diffuse_r + c)[i] - truth.plane(diffuse_r + c)[i]);
+      e.specular += sq(estimate.plane(specular_r + c)[i] - truth.plane(specular_r + c)[i]);
+    }
+    auto nz = [&](const material_maps& m) {
+      return std::sqrt(std::max(0.0, 1.0 - sq(m.plane(normal_x)[i]) - sq(m.plane(normal_y)[i])));
+    };
+    e.normal += sq(estimate.plane(normal_x)[i] - truth.plane(normal_x)[i]) +
+                sq(estimate.plane(normal_y)[i] - truth.plane(normal_y)[i]) + sq(nz(estimate) - nz(truth));
+    e.lobes += sq(estimate.plane(lobe_x)[i] - truth.plane(lobe_x)[i]) + sq(estimate.plane(lobe_y)[i] - truth.plane(lobe_y)[i]);
+    const double r = sq(rotation_difference(estimate.plane(rotation)[i], truth.plane(rotation)[i]));
+    e.rotation += r;
+    const double sx = truth.plane(lobe_x)[i], sy = truth.plane(lobe_y)[i];
+    if (std::max(sx, sy) >= 1.25 * std::min(sx, sy)) { e.rotation_anisotropic += r; ++aniso; }
+    e.fresnel += sq(estimate.plane(fresnel_f0)[i] - truth.plane(fresnel_f0)[i]);
+  }
+  const double dn = double(n);
+  e.diffuse /= 3 * dn; e.specular /= 3 * dn; e.normal /= 3 * dn; e.lobes /= 2 * dn;
+  e.rotation /= dn; e.fresnel /= dn;
+  e.rotation_anisotropic = aniso ? e.rotation_anisotropic / double(aniso) : std::nan("");
+  return e;
+}
+
+}  // namespace anisocap
