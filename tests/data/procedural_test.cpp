@@ -1,0 +1,266 @@
+// Tests for data/procedural.hpp: determinism, valid ranges, the weave structure (which thread is
+// on top, rotation along the thread, normals across it), metals, and variety over seeds.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <numbers>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+#include "anisocap/data/procedural.hpp"
+
+using namespace anisocap;
+
+namespace {
+
+bool identical(const material_maps& a, const material_maps& b) {
+  return a.width() == b.width() && a.height() == b.height() &&
+         std::memcmp(a.data(), b.data(), a.plane_stride() * parameter_count * sizeof(float)) == 0;
+}
+
+/// Distance between two rotations modulo pi (alpha is pi-periodic), in [0, pi/2].
+double angle_distance(double a, double b) {
+  double d = std::fmod(std::abs(a - b), std::numbers::pi);
+  return std::min(d, std::numbers::pi - d);
+}
+
+double mean_plane(const material_maps& m, int k) {
+  double sum = 0;
+  for (int y = 0; y < m.height(); ++y)
+    for (int x = 0; x < m.width(); ++x) sum += m.at(k, x, y);
+  return sum / double(m.texel_count());
+}
+
+long long floor_mod(long long a, long long m) { return ((a % m) + m) % m; }
+
+/// The weaves restated from their textile definitions (independently of the generator's code):
+/// true where the warp is on top at crossing (i = weft index along the warp, j = warp index).
+bool expected_warp_on_top(const procedural_parameters& p, long long i, long long j) {
+  switch (p.kind) {
+    case material_kind::plain_weave: return (i + j) % 2 == 0;  // checkerboard
+    case material_kind::basket_weave: return (floor_mod(i, 4) < 2) == (floor_mod(j, 4) < 2);  // 2x2 blocks
+    case material_kind::twill:  // warp floats over `over` of `period`, shifted by one per warp thread
+      return floor_mod(i + p.pattern_step * j, p.pattern_period) < p.pattern_over;
+    case material_kind::satin: {  // exactly one tie point per warp thread and repeat
+      const bool tie = floor_mod(i - p.pattern_step * j, p.pattern_period) == 0;
+      return p.weft_faced ? tie : !tie;
+    }
+    default: return true;
+  }
+}
+
+}  // namespace
+
+TEST_CASE("the same seed gives the same maps; different seeds differ") {
+  for (std::uint64_t seed : {0ULL, 1ULL, 12345ULL}) {
+    const material_maps a = generate_material(seed, 67, 45), b = generate_material(seed, 67, 45);
+    CHECK(identical(a, b));
+    CHECK_FALSE(identical(a, generate_material(seed + 1, 67, 45)));
+  }
+  // Forcing the kind keeps the kind forced, for every seed.
+  for (int k = 0; k < material_kind_count; ++k) {
+    procedural_options options;
+    options.kind = static_cast<material_kind>(k);
+    CHECK(draw_procedural_parameters(99, options).kind == *options.kind);
+  }
+}
+
+TEST_CASE("every plane stays in its valid range, for hundreds of seeds and odd sizes") {
+  const int sizes[][2] = {{37, 53}, {1, 1}, {64, 5}};
+  for (auto [w, h] : sizes) {
+    for (std::uint64_t seed = 0; seed < 300; ++seed) {
+      const material_maps m = generate_material(seed * 7919 + 3, w, h);
+      REQUIRE(m.width() == w);
+      REQUIRE(m.height() == h);
+      int bad = 0;  // counted, not asserted per value: millions of assertions would dominate the run time
+      for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+          for (int k = 0; k < parameter_count; ++k) bad += !std::isfinite(m.at(k, x, y));
+          for (int k = diffuse_r; k <= specular_b; ++k) bad += !(m.at(k, x, y) >= 0.0f && m.at(k, x, y) <= 1.0f);
+          bad += !(m.at(lobe_x, x, y) >= 0.02f && m.at(lobe_x, x, y) <= 1.0f);
+          bad += !(m.at(lobe_y, x, y) >= 0.02f && m.at(lobe_y, x, y) <= 1.0f);
+          bad += !(m.at(fresnel_f0, x, y) > 0.0f && m.at(fresnel_f0, x, y) <= 1.0f);
+          const float nx = m.at(normal_x, x, y), ny = m.at(normal_y, x, y);
+          bad += !(nx * nx + ny * ny < 1.0f);
+          bad += !(std::abs(m.at(rotation, x, y)) <= float(std::numbers::pi / 2));
+        }
+      }
+      INFO("seed ", seed * 7919 + 3, ", size ", w, " x ", h);
+      CHECK(bad == 0);
+    }
+  }
+  CHECK_THROWS_AS(generate_material(1, 0, 5), std::invalid_argument);
+  procedural_options bad;
+  bad.min_thread_pitch = 10;
+  bad.max_thread_pitch = 5;
+  CHECK_THROWS_AS(generate_material(1, 8, 8, bad), std::invalid_argument);
+}
+
+TEST_CASE("weaves: the top thread follows the weave, the rotation follows the top thread") {
+  const material_kind kinds[] = {material_kind::plain_weave, material_kind::basket_weave, material_kind::twill,
+                                 material_kind::satin};
+  for (material_kind kind : kinds) {
+    for (std::uint64_t seed = 0; seed < 20; ++seed) {
+      procedural_options options;
+      options.kind = kind;
+      procedural_parameters p = draw_procedural_parameters(seed, options);
+      p.waviness = 0;  // straight threads: crossing (i, j) is centred at ((i + 1/2) pw, (j + 1/2) pv)
+      const double c = std::cos(p.rotation), s = std::sin(p.rotation);
+      const double warp_alpha = p.rotation + p.twist, weft_alpha = p.rotation + std::numbers::pi / 2 + p.twist;
+      int agree = 0, total = 0;
+      for (long long i = -6; i < 6; ++i) {
+        for (long long j = -6; j < 6; ++j) {
+          const double u = (double(i) + 0.5) * p.weft_pitch, v = (double(j) + 0.5) * p.warp_pitch;
+          const auto texel = procedural_sample(p, c * u - s * v, s * u + c * v);
+          const bool warp = expected_warp_on_top(p, i, j);
+          agree += angle_distance(texel[rotation], warp ? warp_alpha : weft_alpha) < 1e-4;
+          ++total;
+          // Fibres run along the thread: the lobe is narrow along it (sigma_x) and wide across.
+          CHECK(texel[lobe_y] > 1.3f * texel[lobe_x]);
+        }
+      }
+      INFO(material_kind_name(kind), " seed ", seed);
+      CHECK(agree == total);
+    }
+  }
+}
+
+TEST_CASE("plain weave: neighbouring crossings alternate the rotation by pi/2, even with wavy threads") {
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    procedural_options options;
+    options.kind = material_kind::plain_weave;
+    const procedural_parameters p = draw_procedural_parameters(seed, options);
+    const double c = std::cos(p.rotation), s = std::sin(p.rotation);
+    random_generator rng(seed);
+    int alternate = 0, repeat = 0;
+    const int samples = 400;
+    for (int k = 0; k < samples; ++k) {
+      const double X = rng.uniform(-200, 200), Y = rng.uniform(-200, 200);
+      const double a0 = procedural_sample(p, X, Y)[rotation];
+      const double a1 = procedural_sample(p, X + c * p.weft_pitch, Y + s * p.weft_pitch)[rotation];
+      const double a2 = procedural_sample(p, X + 2 * c * p.weft_pitch, Y + 2 * s * p.weft_pitch)[rotation];
+      alternate += std::abs(angle_distance(a0, a1) - std::numbers::pi / 2) < 0.01;
+      repeat += angle_distance(a0, a2) < 0.01;
+    }
+    INFO("seed ", seed);
+    // Not every pair: a point may sit in the gap between threads, or the waviness may shift a cell.
+    CHECK(alternate > samples * 6 / 10);
+    CHECK(repeat > samples * 6 / 10);
+  }
+}
+
+TEST_CASE("weaves: the normal tilts across the thread like a cylinder") {
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    procedural_options options;
+    options.kind = material_kind::plain_weave;
+    procedural_parameters p = draw_procedural_parameters(seed, options);
+    p.waviness = 0;
+    const double c = std::cos(p.rotation), s = std::sin(p.rotation);
+    // Crossing (0, 0) has the warp on top: it runs along u, so its normal leans towards +-v.
+    const double u = 0.5 * p.weft_pitch;
+    for (double side : {-1.0, 1.0}) {
+      const double v = (0.5 + side * 0.3) * p.warp_pitch;
+      const auto texel = procedural_sample(p, c * u - s * v, s * u + c * v);
+      const double towards_v = -s * texel[normal_x] + c * texel[normal_y];
+      const double towards_u = c * texel[normal_x] + s * texel[normal_y];
+      CHECK(towards_v * side > 0.1);
+      CHECK(std::abs(towards_u) < 0.05);
+    }
+  }
+}
+
+TEST_CASE("weaves are anisotropic on most texels; satin shows mostly one family") {
+  for (std::uint64_t seed = 0; seed < 40; ++seed) {
+    const procedural_parameters p = draw_procedural_parameters(seed);
+    if (!is_weave(p.kind)) continue;
+    const material_maps m = generate_material(p, 96, 80);
+    int anisotropic = 0;
+    for (int y = 0; y < m.height(); ++y)
+      for (int x = 0; x < m.width(); ++x) anisotropic += m.at(lobe_y, x, y) > 1.3f * m.at(lobe_x, x, y);
+    CHECK(anisotropic > int(m.texel_count()) * 9 / 10);
+  }
+  procedural_options options;
+  options.kind = material_kind::satin;
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    const procedural_parameters p = draw_procedural_parameters(seed, options);
+    const material_maps m = generate_material(p, 128, 128);
+    const double face = p.rotation + p.twist + (p.weft_faced ? std::numbers::pi / 2 : 0.0);
+    int on_face = 0;
+    for (int y = 0; y < m.height(); ++y)
+      for (int x = 0; x < m.width(); ++x) on_face += angle_distance(m.at(rotation, x, y), face) < 1e-3;
+    CHECK(on_face > int(m.texel_count()) * 6 / 10);
+  }
+}
+
+TEST_CASE("metals: dark diffuse, high F0, narrow lobe along the brushing direction") {
+  for (material_kind kind : {material_kind::brushed_metal, material_kind::spun_metal}) {
+    for (std::uint64_t seed = 0; seed < 8; ++seed) {
+      procedural_options options;
+      options.kind = kind;
+      const procedural_parameters p = draw_procedural_parameters(seed, options);
+      const material_maps m = generate_material(p, 64, 48);
+      CHECK(mean_plane(m, diffuse_g) < 0.08);
+      CHECK(mean_plane(m, fresnel_f0) > 0.4);
+      CHECK(mean_plane(m, specular_g) > 0.3);
+      CHECK(mean_plane(m, lobe_y) > 2.0 * mean_plane(m, lobe_x));
+      if (kind == material_kind::brushed_metal) {
+        double worst = 0;
+        for (int y = 0; y < m.height(); ++y)
+          for (int x = 0; x < m.width(); ++x) worst = std::max(worst, angle_distance(m.at(rotation, x, y), p.rotation));
+        CHECK(worst < 0.05);  // follows the brushing direction within a few degrees
+      } else {
+        // Tangent to circles around the centre: perpendicular to the radius at the corners.
+        const double X = 0.5 - 32, Y = 24 - 0.5;
+        const double radial = std::atan2(Y - p.centre[1], X - p.centre[0]);
+        CHECK(std::abs(angle_distance(m.at(rotation, 0, 0), radial) - std::numbers::pi / 2) < 1e-3);
+      }
+      // Scratches: the normal varies across the brushing direction.
+      double spread = 0;
+      for (int y = 0; y < m.height(); ++y)
+        for (int x = 0; x < m.width(); ++x) spread += std::abs(m.at(normal_x, x, y)) + std::abs(m.at(normal_y, x, y));
+      CHECK(spread / double(m.texel_count()) > 0.005);
+    }
+  }
+}
+
+TEST_CASE("variety: 40 seeds give many kinds, colours and looks") {
+  std::set<int> kinds;
+  std::set<std::string> descriptions;
+  double min_luminance = 1, max_luminance = 0, min_chroma = 1, max_chroma = 0;
+  std::set<int> dominant;
+  for (std::uint64_t seed = 0; seed < 40; ++seed) {
+    const procedural_parameters p = draw_procedural_parameters(seed);
+    kinds.insert(int(p.kind));
+    descriptions.insert(describe(p));
+    const material_maps m = generate_material(p, 48, 48);
+    const double r = mean_plane(m, diffuse_r), g = mean_plane(m, diffuse_g), b = mean_plane(m, diffuse_b);
+    const double luminance = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    min_luminance = std::min(min_luminance, luminance);
+    max_luminance = std::max(max_luminance, luminance);
+    const double chroma = (std::max({r, g, b}) - std::min({r, g, b})) / std::max(1e-6, std::max({r, g, b}));
+    min_chroma = std::min(min_chroma, chroma);
+    max_chroma = std::max(max_chroma, chroma);
+    if (chroma > 0.25) dominant.insert(r >= g && r >= b ? 0 : g >= b ? 1 : 2);
+  }
+  CHECK(kinds.size() >= 6);
+  CHECK(descriptions.size() == 40);
+  CHECK(max_luminance - min_luminance > 0.3);
+  CHECK(max_chroma - min_chroma > 0.5);
+  CHECK(dominant.size() == 3);  // reddish, greenish and bluish materials all occur
+
+  // Over many seeds every kind occurs, none dominates.
+  int counts[material_kind_count] = {};
+  for (std::uint64_t seed = 0; seed < 2000; ++seed) ++counts[int(kind_for_seed(seed))];
+  for (int c : counts) {
+    CHECK(c > 2000 / 25);
+    CHECK(c < 2000 / 4);
+  }
+  for (int k = 0; k < material_kind_count; ++k) {
+    const auto kind = static_cast<material_kind>(k);
+    CHECK(material_kind_from_name(material_kind_name(kind)) == kind);
+  }
+  CHECK_FALSE(material_kind_from_name("linen").has_value());
+}
