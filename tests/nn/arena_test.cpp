@@ -1,4 +1,4 @@
-// The arena test (issue 3): a small fixed-size network trained with Adam allocates nothing after
+// The arena test (issue 3): a small fixed-size network (convolutions included) trained with Adam allocates nothing after
 // its first step, neither through the library's aligned allocator nor through operator new (this
 // file replaces the global operator new to count every heap allocation of the program).
 #include <doctest/doctest.h>
@@ -8,8 +8,7 @@
 #include <new>
 #include <vector>
 
-#include "anisocap/nn/adam.hpp"
-#include "anisocap/nn/layers.hpp"
+#include "anisocap/nn/nn.hpp"  // the umbrella: it must compile on its own
 #include "layer_check.hpp"
 
 namespace {
@@ -28,31 +27,40 @@ using namespace anisocap;
 
 namespace {
 
-/// Uses every layer of nn/layers.hpp: images of sets of 2, per-pixel FC, instance norm, leaky ReLU,
-/// a global-feature track (spatial mean, FC, bias broadcast), max over images, concat, upsampling,
-/// batch norm, SELU, tanh.
+/// Uses every layer of the engine: a 3x3 convolution, per-pixel FC, instance norm, leaky ReLU, a
+/// global-feature track (spatial mean, FC, bias broadcast), max over images (sets of 2), concat,
+/// a transposed convolution beside nearest upsampling + FC, add, batch norm, SELU, tanh.
 struct small_network {
-  nn::linear<4, 16> fc_in{"fc_in", 1};
+  nn::conv2d<4, 8, 3, 1, 1> conv_in{"conv_in"};
+  nn::linear<8, 16> fc_in{"fc_in", 1};
   nn::instance_norm<16> norm{"norm"};
   nn::linear<16, 16> fc_global{"fc_global", 2};
+  nn::conv_transpose2d<32, 8> up_conv{"up_conv"};
   nn::linear<32, 8> fc_mix{"fc_mix", 3};
   nn::batch_norm<8> bn{"bn"};
   nn::linear<8, 3> fc_out{"fc_out", 4};
 
+  small_network() {
+    nn::he_uniform(conv_in.weight, 9 * 4, 5);
+    nn::he_uniform(up_conv.weight, 4 * 32, 6);
+  }
+
   ad::variable<3> operator()(ad::tape& t, const ad::variable<4>& x) {
-    auto h = nn::leaky_relu(t, norm(t, fc_in(t, x)), 0.2f);
+    auto h = nn::leaky_relu(t, norm(t, fc_in(t, conv_in(t, x))), 0.2f);
     auto global = fc_global(t, nn::spatial_mean(t, h));
     h = nn::add_channel_bias(t, h, global);
     auto fused = nn::max_over_images(t, h, 2);
-    auto up = nn::upsample_nearest2x(t, nn::concat(t, fused, nn::add(t, fused, fused)));
-    auto m = nn::selu(t, bn(t, fc_mix(t, up)));
-    return nn::tanh(t, fc_out(t, m));
+    auto cat = nn::concat(t, fused, nn::add(t, fused, fused));
+    auto up = nn::add(t, up_conv(t, cat), fc_mix(t, nn::upsample_nearest2x(t, cat)));
+    return nn::tanh(t, fc_out(t, nn::selu(t, bn(t, up))));
   }
   template <class F>
   void for_each_parameter(F&& f) {
+    conv_in.for_each_parameter(f);
     fc_in.for_each_parameter(f);
     norm.for_each_parameter(f);
     fc_global.for_each_parameter(f);
+    up_conv.for_each_parameter(f);
     fc_mix.for_each_parameter(f);
     bn.for_each_parameter(f);
     fc_out.for_each_parameter(f);
