@@ -135,6 +135,11 @@ TEST_CASE("json: strictness") {
   CHECK(json::parse(std::string(200, '[') + std::string(200, ']')).is_array());
 }
 
+TEST_CASE("json: a leading UTF-8 byte order mark is ignored, one elsewhere is not") {
+  CHECK(json::parse("\xEF\xBB\xBF{\"a\": 1}").as_object().at("a").as_number() == 1);
+  CHECK(std::string(parse_failure("[\xEF\xBB\xBF]").what()).find("expected a value") != std::string::npos);
+}
+
 TEST_CASE("json: object editing") {
   json::object o;
   o["b"] = 1;

@@ -310,6 +310,8 @@ class parser {
   parser(std::string_view text, std::string_view source) : text_(text), source_(source) {}
 
   value parse_document() {
+    // RFC 8259 lets parsers ignore a UTF-8 byte order mark, which some editors write.
+    if (text_.substr(0, 3) == "\xEF\xBB\xBF") pos_ = 3;
     skip_whitespace();
     value v = parse_value(0);
     skip_whitespace();
@@ -555,6 +557,7 @@ class parser {
 
 /// Parses one JSON text (the whole of `text`, surrounding whitespace allowed). `source_name`
 /// (usually the file's path) prefixes every error: throws parse_error `source:line:column: problem`.
+/// A leading UTF-8 byte order mark is skipped (columns still count it).
 inline value parse(std::string_view text, std::string_view source_name = "<json>") {
   return detail::parser(text, source_name).parse_document();
 }

@@ -87,7 +87,8 @@ inline std::vector<unsigned char> read_file_bytes(const std::filesystem::path& p
 /// the target's folder; `commit` renames them all onto their targets; files staged but not
 /// committed are removed by the destructor. Nothing appears under a target name before `commit`,
 /// so a failure while producing any file (bad data, full disk) leaves every target untouched.
-/// Each rename is atomic (same folder), so a reader never sees a partial file.
+/// Each rename is atomic (same folder), so a reader never sees a partial file; renames into one
+/// folder practically never fail, but if one did, the files renamed before it would stay replaced.
 class file_transaction {
  public:
   file_transaction() = default;
