@@ -145,3 +145,26 @@ TEST_CASE("hashes and value noise are deterministic, bounded and smooth") {
   // Lattice points take the hashed value.
   CHECK(value_noise(5, 3.0, -2.0) == hash_uniform(5, 3, -2));
 }
+
+TEST_CASE("lattice hashes are uniform and neighbours uncorrelated") {
+  // Value noise and per-thread variation rely on hash_uniform over neighbouring integers.
+  int bins[16] = {};
+  double sum_xy = 0, sum_x = 0, sum_x2 = 0;
+  int n = 0;
+  for (int a = -100; a < 100; ++a) {
+    for (int b = -100; b < 100; ++b) {
+      const double x = hash_uniform(42, a, b), right = hash_uniform(42, a + 1, b), up = hash_uniform(42, a, b + 1);
+      ++bins[int(x * 16)];
+      sum_x += x;
+      sum_x2 += x * x;
+      sum_xy += x * (right + up) / 2;
+      ++n;
+    }
+  }
+  double chi2 = 0;
+  for (int c : bins) chi2 += (c - n / 16.0) * (c - n / 16.0) / (n / 16.0);
+  CHECK(chi2 < 37.7);  // 15 degrees of freedom, p = 0.001
+  const double mean = sum_x / n, variance = sum_x2 / n - mean * mean;
+  const double correlation = (sum_xy / n - mean * mean) / variance;
+  CHECK(std::abs(correlation) < 0.02);
+}

@@ -396,9 +396,15 @@ inline double jitter(std::uint64_t seed, std::int64_t thread, std::int64_t which
   return 1.0 + amount * (2.0 * hash_uniform(seed, thread, which) - 1.0);
 }
 
+/// What every texel of one material shares, computed once per map rather than per texel.
+struct texel_context {
+  double c, s;  ///< cos and sin of the rotation
+  explicit texel_context(const procedural_parameters& p) : c(std::cos(p.rotation)), s(std::sin(p.rotation)) {}
+};
+
 /// A woven texel at (X, Y) texels from the image centre, Y up.
-inline texel_values weave_texel(const procedural_parameters& p, double X, double Y) {
-  const double c = std::cos(p.rotation), s = std::sin(p.rotation);
+inline texel_values weave_texel(const procedural_parameters& p, const texel_context& context, double X, double Y) {
+  const double c = context.c, s = context.s;
   // Threads are not perfectly straight: displace the lattice by smooth noise of ~12 pitches.
   const double pitch = 0.5 * (p.warp_pitch + p.weft_pitch);
   const double f = 1.0 / (12.0 * pitch);
@@ -433,7 +439,8 @@ inline texel_values weave_texel(const procedural_parameters& p, double X, double
     shade *= 0.55;  // the thread below lies in shadow between its neighbours
   }
   const double tilt_across = (gap ? 0.5 : 1.0) * p.bump * std::clamp(across, -1.0, 1.0);
-  shade *= 1.0 - 0.3 * std::pow(std::abs(across), 4.0);  // cylinder edges turn away
+  const double across2 = across * across;
+  shade *= 1.0 - 0.3 * across2 * across2;  // cylinder edges turn away
 
   // Per-thread and along-thread variation.
   const double along_texels = warp_seen ? u : v, across_texels = warp_seen ? v : u;
@@ -509,16 +516,16 @@ inline double scratch_tilt(const procedural_parameters& p, double along, double 
 }
 
 /// A brushed or spun metal texel.
-inline texel_values metal_texel(const procedural_parameters& p, double X, double Y) {
+inline texel_values metal_texel(const procedural_parameters& p, const texel_context& context, double X, double Y) {
   double direction, along, across;
   if (p.kind == material_kind::spun_metal) {
     const double dx = X - p.centre[0], dy = Y - p.centre[1];
-    const double radius = std::sqrt(dx * dx + dy * dy);
-    direction = std::atan2(dy, dx) + std::numbers::pi / 2;  // tangent to the circles
+    const double radius = std::sqrt(dx * dx + dy * dy), azimuth = std::atan2(dy, dx);
+    direction = azimuth + std::numbers::pi / 2;  // tangent to the circles
     across = radius;
-    along = radius * (std::atan2(dy, dx) + std::numbers::pi);  // arc length (seam at the -x ray)
+    along = radius * (azimuth + std::numbers::pi);  // arc length (seam at the -x ray)
   } else {
-    const double c = std::cos(p.rotation), s = std::sin(p.rotation);
+    const double c = context.c, s = context.s;
     // The brushing direction wanders by a degree or two over the plate.
     direction = p.rotation + 0.03 * (value_noise(salted(p.seed, salt_angle), X / 300.0, Y / 300.0) - 0.5);
     along = c * X + s * Y;
@@ -563,16 +570,21 @@ inline std::array<float, parameter_count> finish(const texel_values& t) {
   return out;
 }
 
+/// One texel of any kind, checked into range.
+inline std::array<float, parameter_count> sample(const procedural_parameters& p, const texel_context& context, double X,
+                                                 double Y) {
+  if (is_weave(p.kind)) return finish(weave_texel(p, context, X, Y));
+  if (p.kind == material_kind::crushed_velvet) return finish(velvet_texel(p, X, Y));
+  return finish(metal_texel(p, context, X, Y));
+}
+
 }  // namespace procedural_detail
 
 /// The material described by `p` at point (X, Y), in texels from the centre of the image, Y up
 /// (texel (x, y) of a W x H map has its centre at X = x + 0.5 - W/2, Y = H/2 - y - 0.5): the 12
 /// parameters in parameter_index order. For tests and tools that probe single points.
 inline std::array<float, parameter_count> procedural_sample(const procedural_parameters& p, double X, double Y) {
-  using namespace procedural_detail;
-  if (is_weave(p.kind)) return finish(weave_texel(p, X, Y));
-  if (p.kind == material_kind::crushed_velvet) return finish(velvet_texel(p, X, Y));
-  return finish(metal_texel(p, X, Y));
+  return procedural_detail::sample(p, procedural_detail::texel_context(p), X, Y);
 }
 
 /// The maps of the material described by `p`, width x height texels (any positive size).
@@ -584,11 +596,12 @@ inline material_maps generate_material(const procedural_parameters& p, int width
     throw std::invalid_argument("generate_material: size must be positive, got " + std::to_string(width) + " x " +
                                 std::to_string(height));
   material_maps maps(width, height);
+  const texel_context context(p);
 #pragma omp parallel for schedule(static) if (std::size_t(width) * std::size_t(height) >= 16384)
   for (int y = 0; y < height; ++y) {
     const double Y = 0.5 * height - (double(y) + 0.5);
     for (int x = 0; x < width; ++x) {
-      const auto values = procedural_sample(p, double(x) + 0.5 - 0.5 * width, Y);
+      const auto values = sample(p, context, double(x) + 0.5 - 0.5 * width, Y);
       for (int k = 0; k < parameter_count; ++k) maps.at(k, x, y) = values[std::size_t(k)];
     }
   }
