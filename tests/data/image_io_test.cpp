@@ -424,3 +424,29 @@ TEST_CASE("EXR: tiled files are reassembled from their tiles") {
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) REQUIRE(img.at(c, x, y) == value(c, x, y));
 }
+
+TEST_CASE("PNG preview codes equal rounding of the exactly encoded value") {
+  const int w = 256, h = 64;
+  image img(w, h, 3);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-0.1f, 1.2f);
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t i = 0; i < img.pixel_count(); ++i) img.plane(c)[i] = c == 0 ? float(i) / float(w * h) : u(rng);
+  for (auto encoding : {anisocap::png_encoding::srgb, anisocap::png_encoding::linear}) {
+    for (float stops : {0.0f, -1.5f}) {
+      const auto bytes = anisocap::encode_png(img, "codes.png", stops, encoding);
+      int x = 0, y = 0, n = 0;
+      std::unique_ptr<unsigned char, void (*)(void*)> codes(stbi_load_from_memory(bytes.data(), int(bytes.size()), &x, &y, &n, 3), &stbi_image_free);
+      REQUIRE(codes);
+      REQUIRE(x == w);
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < img.pixel_count(); ++i) {
+          const double v = std::clamp(double(img.plane(c)[i]) * std::exp2(double(stops)), 0.0, 1.0);
+          const double encoded = encoding == anisocap::png_encoding::srgb ? anisocap::linear_to_srgb(v) : v;
+          const long expected = std::lround(encoded * 255.0);
+          const double tie_distance = std::fabs(encoded * 255.0 - std::floor(encoded * 255.0) - 0.5);
+          if (tie_distance > 1e-9) REQUIRE(codes.get()[i * 3 + std::size_t(c)] == expected);
+        }
+    }
+  }
+}

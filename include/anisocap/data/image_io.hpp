@@ -432,15 +432,22 @@ inline std::vector<unsigned char> encode_png(const image& img, const std::filesy
   if (channels != 1 && channels != 3)
     throw io_error(path, "PNG preview takes 1 or 3 channels, the image has " + std::to_string(channels));
   const double scale = std::exp2(double(exposure_stops));
-  // 4096-entry table over [0,1] would lose dark sRGB codes; encode each value exactly instead.
+  // Code k covers encoded values [(k - 0.5)/255, (k + 0.5)/255); in linear terms its upper bound is
+  // bound[k] (the curve is monotonic), so a binary search over 255 bounds gives the same code as
+  // rounding the exactly encoded value, without a pow per pixel.
+  double bound[255];
+  for (int k = 0; k < 255; ++k) {
+    const double encoded = (k + 0.5) / 255.0;
+    bound[k] = encoding == png_encoding::srgb ? srgb_to_linear(encoded) : encoded;
+  }
   std::vector<unsigned char> pixels(img.pixel_count() * std::size_t(channels));
   for (int c = 0; c < channels; ++c) {
     const float* src = img.plane(c);
     for (std::size_t i = 0; i < img.pixel_count(); ++i) {
       double v = double(src[i]) * scale;
-      v = v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0;  // also maps NaN to 0
-      if (encoding == png_encoding::srgb) v = linear_to_srgb(v);
-      pixels[i * std::size_t(channels) + std::size_t(c)] = static_cast<unsigned char>(std::lround(v * 255.0));
+      v = v > 0.0 ? v : 0.0;  // also maps NaN to 0; above 1 lands on code 255
+      pixels[i * std::size_t(channels) + std::size_t(c)] =
+          static_cast<unsigned char>(std::upper_bound(bound, bound + 255, v) - bound);
     }
   }
   std::vector<unsigned char> bytes;
