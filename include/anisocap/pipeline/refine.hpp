@@ -54,7 +54,6 @@ struct refine_result {
 
 namespace detail {
 
-inline float sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
 inline float logit(float p) {
   p = std::min(std::max(p, 1e-5f), 1.0f - 1e-5f);
   return std::log(p / (1.0f - p));
@@ -62,30 +61,35 @@ inline float logit(float p) {
 inline constexpr float log_min_lobe = -9.210340371976184f;  // log(1e-4)
 
 /// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
-/// elementwise (the normal's 2x2 Jacobian is recomputed in the chain step).
+/// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
+/// are padded to a multiple of 16, so whole registers are always in bounds.
 inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian) {
+  using V = simd::batch<float>;
+  constexpr std::size_t L = simd::lanes_v<V>;
   const std::size_t n = maps.texel_count();
+  const std::ptrdiff_t blocks = std::ptrdiff_t((n + L - 1) / L);
 #pragma omp parallel for schedule(static)
-  for (std::ptrdiff_t ii = 0; ii < std::ptrdiff_t(n); ++ii) {
-    const std::size_t i = std::size_t(ii);
+  for (std::ptrdiff_t b = 0; b < blocks; ++b) {
+    const std::size_t i = std::size_t(b) * L;
     for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0}) {
-      const float s = sigmoid(u.plane(k)[i]);
-      maps.plane(k)[i] = s;
-      jacobian.plane(k)[i] = s * (1.0f - s);
+      const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
+      simd::store<V>(maps.plane(k) + i, s);
+      simd::store<V>(jacobian.plane(k) + i, s * (V(1) - s));
     }
     for (int k : {lobe_x, lobe_y}) {
-      const float s = sigmoid(u.plane(k)[i]);
-      const float sigma = std::exp(log_min_lobe * (1.0f - s));
-      maps.plane(k)[i] = sigma;
-      jacobian.plane(k)[i] = sigma * (-log_min_lobe) * s * (1.0f - s);
+      const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
+      const V sigma = simd::exp(V(log_min_lobe) * (V(1) - s));
+      simd::store<V>(maps.plane(k) + i, sigma);
+      simd::store<V>(jacobian.plane(k) + i, sigma * V(-log_min_lobe) * s * (V(1) - s));
     }
-    const float ux = u.plane(normal_x)[i], uy = u.plane(normal_y)[i];
-    const float k = 1.0f / std::sqrt(1.0f + ux * ux + uy * uy);
-    maps.plane(normal_x)[i] = ux * k;
-    maps.plane(normal_y)[i] = uy * k;
-    const float a = u.plane(rotation)[i];
-    maps.plane(rotation)[i] = a - std::numbers::pi_v<float> * std::nearbyint(a / std::numbers::pi_v<float>);
-    jacobian.plane(rotation)[i] = 1.0f;
+    const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
+    const V k = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy);
+    simd::store<V>(maps.plane(normal_x) + i, ux * k);
+    simd::store<V>(maps.plane(normal_y) + i, uy * k);
+    const V a = simd::load<V>(u.plane(rotation) + i);
+    const V pi(std::numbers::pi_v<float>);
+    simd::store<V>(maps.plane(rotation) + i, a - pi * xsimd::nearbyint(a / pi));
+    simd::store<V>(jacobian.plane(rotation) + i, V(1));
   }
 }
 
@@ -133,27 +137,33 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     if (!F.anisotropic) for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0; }
     const double loss = loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render);
     result.losses.push_back(loss);
-    // Adam on u (bias-corrected).
-    const float b1 = options.beta1, b2 = options.beta2;
-    const float c1 = 1.0f / (1.0f - std::pow(b1, float(step + 1))), c2 = 1.0f / (1.0f - std::pow(b2, float(step + 1)));
-    const float lr = options.learning_rate;
-    auto adam = [&](int k, std::size_t i, float g) {
-      float& a = m1.plane(k)[i];
-      float& b = m2.plane(k)[i];
-      a = b1 * a + (1 - b1) * g;
-      b = b2 * b + (1 - b2) * g * g;
-      u.plane(k)[i] -= lr * (a * c1) / (std::sqrt(b * c2) + options.epsilon);
+    // Adam on u (bias-corrected), SIMD over texels.
+    using V = simd::batch<float>;
+    constexpr std::size_t L = simd::lanes_v<V>;
+    const float c1 = 1.0f / (1.0f - std::pow(options.beta1, float(step + 1)));
+    const float c2 = 1.0f / (1.0f - std::pow(options.beta2, float(step + 1)));
+    const V b1(options.beta1), b2(options.beta2), lr_c1(options.learning_rate * c1), vc2(c2), eps(options.epsilon);
+    auto adam = [&](int k, std::size_t i, const V& g) {
+      float* a_ptr = m1.plane(k) + i;
+      float* b_ptr = m2.plane(k) + i;
+      const V a = b1 * simd::load<V>(a_ptr) + (V(1) - b1) * g;
+      const V b = b2 * simd::load<V>(b_ptr) + (V(1) - b2) * g * g;
+      simd::store<V>(a_ptr, a);
+      simd::store<V>(b_ptr, b);
+      float* u_ptr = u.plane(k) + i;
+      simd::store<V>(u_ptr, simd::load<V>(u_ptr) - lr_c1 * a / (simd::sqrt(b * vc2) + eps));
     };
+    const std::ptrdiff_t blocks = std::ptrdiff_t((n + L - 1) / L);
 #pragma omp parallel for schedule(static)
-    for (std::ptrdiff_t ii = 0; ii < std::ptrdiff_t(n); ++ii) {
-      const std::size_t i = std::size_t(ii);
-      for (int k : active) adam(k, i, grad.plane(k)[i] * jac.plane(k)[i]);
+    for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
+      const std::size_t i = std::size_t(bi) * L;
+      for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
       if constexpr (F.normal_map) {
-        const float ux = u.plane(normal_x)[i], uy = u.plane(normal_y)[i];
-        const float kk = 1.0f / std::sqrt(1.0f + ux * ux + uy * uy), k3 = kk * kk * kk;
-        const float gx = grad.plane(normal_x)[i], gy = grad.plane(normal_y)[i];
-        adam(normal_x, i, gx * k3 * (1 + uy * uy) - gy * ux * uy * k3);
-        adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (1 + ux * ux));
+        const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
+        const V kk = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy), k3 = kk * kk * kk;
+        const V gx = simd::load<V>(grad.plane(normal_x) + i), gy = simd::load<V>(grad.plane(normal_y) + i);
+        adam(normal_x, i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3);
+        adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux));
       }
     }
     result.steps = step + 1;
