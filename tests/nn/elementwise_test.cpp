@@ -110,3 +110,31 @@ TEST_CASE("max over the images of a set") {
         }
   CHECK_THROWS_AS(nn::max_over_images(t, xv, 4), std::invalid_argument);
 }
+
+TEST_CASE("layers read strided views (tiles) as they read dense tensors") {
+  nn::random_generator g(5);
+  auto big = random_tensor<5>(g, 4, 9, 11);
+  auto other = random_tensor<17>(g, 4, 5, 7);
+  const auto view = big.tile(2, 3, 5, 7);  // rows 11 pixels apart, 7 used
+  REQUIRE_FALSE(view.is_dense());
+  const auto dense = view.clone();
+  auto same = [](const auto& a, const auto& b) {
+    for (std::size_t i = 0; i < a.size(); ++i)
+      if (a.data()[i] != b.data()[i]) return false;
+    return a.size() == b.size();
+  };
+  ad::tape t;
+  CHECK(same(nn::leaky_relu(t, t.leaf(view), 0.1).value, nn::leaky_relu(t, t.leaf(dense), 0.1).value));
+  CHECK(same(nn::spatial_mean(t, t.leaf(view)).value, nn::spatial_mean(t, t.leaf(dense)).value));
+  CHECK(same(nn::max_over_images(t, t.leaf(view), 2).value, nn::max_over_images(t, t.leaf(dense), 2).value));
+  CHECK(same(nn::upsample_nearest2x(t, t.leaf(view)).value, nn::upsample_nearest2x(t, t.leaf(dense)).value));
+  CHECK(same(nn::concat(t, t.leaf(view), t.leaf(other)).value, nn::concat(t, t.leaf(dense), t.leaf(other)).value));
+  nn::instance_norm<5, double> norm("in");
+  CHECK(same(norm(t, t.leaf(view)).value, norm(t, t.leaf(dense)).value));
+  // Gradients flow into a view's own (dense) gradient tensor.
+  auto v = t.leaf(view, true);
+  auto y = nn::tanh(t, v);
+  y.grad.fill(1.0);
+  t.backward();
+  CHECK(v.grad(3, 4, 6, 2) == doctest::Approx(1 - std::pow(std::tanh(big(3, 6, 9, 2)), 2)).epsilon(1e-14));
+}
