@@ -46,8 +46,8 @@ ad::variable<C, T> leaky_relu(ad::tape& t, const ad::variable<C, T>& x, T slope)
 /// SELU constants (Klambauer et al. 2017), the same as PyTorch's.
 template <class T>
 struct selu_constants {
-  static constexpr T alpha = T(1.6732632423543772848170429916717);
-  static constexpr T scale = T(1.0507009873554804934193349852946);
+  static constexpr T alpha = T(1.6732632423543772848170429916717);  ///< negative-side saturation
+  static constexpr T scale = T(1.0507009873554804934193349852946);  ///< keeps unit variance through the layer
 };
 
 /// SELU: scale * x for x > 0, scale * alpha * (exp(x) - 1) otherwise.
