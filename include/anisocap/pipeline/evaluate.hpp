@@ -11,7 +11,10 @@
 
 namespace anisocap {
 
-/// Per-parameter mean squared errors.
+/// Per-parameter mean squared errors. The BRDF has two symmetries that leave every rendering
+/// unchanged: alpha -> alpha + pi, and (sx, sy, alpha) -> (sy, sx, alpha + pi/2). Errors are taken
+/// modulo both, like the paper's alpha modulo pi: per texel, the estimate is compared in whichever
+/// of its two equivalent forms has the smaller lobe + rotation error.
 struct parameter_errors {
   double diffuse = 0;    ///< a_d, mean over texels and RGB
   double specular = 0;   ///< a'_s, mean over texels and RGB
@@ -41,6 +44,7 @@ inline parameter_errors compare_maps(const material_maps& estimate, const materi
   auto sq = [](double x) { return x * x; };
   std::size_t aniso = 0;
   for (std::size_t i = 0; i < n; ++i) {
+    double r = 0;
     for (int c = 0; c < 3; ++c) {
       e.diffuse += sq(estimate.plane(diffuse_r + c)[i] - truth.plane(diffuse_r + c)[i]);
       e.specular += sq(estimate.plane(specular_r + c)[i] - truth.plane(specular_r + c)[i]);
@@ -50,8 +54,16 @@ inline parameter_errors compare_maps(const material_maps& estimate, const materi
     };
     e.normal += sq(estimate.plane(normal_x)[i] - truth.plane(normal_x)[i]) +
                 sq(estimate.plane(normal_y)[i] - truth.plane(normal_y)[i]) + sq(nz(estimate) - nz(truth));
-    e.lobes += sq(estimate.plane(lobe_x)[i] - truth.plane(lobe_x)[i]) + sq(estimate.plane(lobe_y)[i] - truth.plane(lobe_y)[i]);
-    const double r = sq(rotation_difference(estimate.plane(rotation)[i], truth.plane(rotation)[i]));
+    {
+      const double ex = estimate.plane(lobe_x)[i], ey = estimate.plane(lobe_y)[i], ea = estimate.plane(rotation)[i];
+      const double tx = truth.plane(lobe_x)[i], ty = truth.plane(lobe_y)[i], ta = truth.plane(rotation)[i];
+      const double lobes_as_is = sq(ex - tx) + sq(ey - ty), rot_as_is = sq(rotation_difference(ea, ta));
+      const double lobes_swapped = sq(ey - tx) + sq(ex - ty);
+      const double rot_swapped = sq(rotation_difference(ea + std::numbers::pi / 2, ta));
+      const bool swap = lobes_swapped + rot_swapped < lobes_as_is + rot_as_is;
+      e.lobes += swap ? lobes_swapped : lobes_as_is;
+      r = swap ? rot_swapped : rot_as_is;
+    }
     e.rotation += r;
     const double sx = truth.plane(lobe_x)[i], sy = truth.plane(lobe_y)[i];
     if (std::max(sx, sy) >= 1.25 * std::min(sx, sy)) { e.rotation_anisotropic += r; ++aniso; }
