@@ -12,6 +12,7 @@
 /// `Pad == same_padding` (stride 1 only) pads like PyTorch's padding='same': (K-1)/2 before,
 /// the rest after, so a 4x4 stride-1 'same' convolution pads 1 top/left and 2 bottom/right and
 /// keeps the size.
+#include <cstdint>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
@@ -74,29 +75,41 @@ padded_source<T> padded(const tensor<C, T>& x, int top, int left, int Hp, int Wp
   return {buffer, std::ptrdiff_t(Hp) * Wp * ldc, std::ptrdiff_t(Wp) * ldc};
 }
 
-/// Weights (and bias) with Cout padded to whole registers, or the originals when already whole.
+/// Output channels per register block of a pass with Cb output channels.
+template <class T, int Cb>
+inline constexpr int block_of = vectors_per_tile<T>(Cb) * lanes<T>;
+
+/// The forward weights as run_forward reads them: the caller's array when it is already one
+/// aligned block of whole registers, else packed into scratch (see pack_weights); with the bias
+/// padded to whole registers when needed.
 template <int Taps, int Ci, int Co, class T>
-std::pair<const T*, const T*> padded_weights(const T* w, const T* bias) {
-  constexpr int ld = padded_channels<T>(Co);
-  if constexpr (ld == Co) {
-    return {w, bias};
-  } else {
-    T* pw = scratch<T>(1, std::size_t(Taps) * Ci * ld);
-    pad_weights(w, Taps, Ci, Co, ld, pw);
-    T* pb = nullptr;
-    if (bias) {
-      pb = scratch<T>(3, ld);
-      for (int c = 0; c < ld; ++c) pb[c] = c < Co ? bias[c] : T(0);
-    }
-    return {pw, pb};
+std::pair<weight_layout<T>, const T*> forward_weights(const T* w, const T* bias) {
+  constexpr int block = block_of<T, Co>;
+  const T* b = bias;
+  if (bias && Co % block != 0) {
+    T* pb = scratch<T>(3, std::size_t(padded_channels<T>(Co)) + block);
+    for (int c = 0; c < padded_channels<T>(Co) + block; ++c) pb[c] = c < Co ? bias[c] : T(0);
+    b = pb;
   }
+  if (Co == block && reinterpret_cast<std::uintptr_t>(w) % simd::alignment == 0)
+    return {weight_layout<T>{w, Co, std::ptrdiff_t(Ci) * Co, block}, b};
+  T* packed = scratch<T>(1, std::size_t(Taps) * Ci * ((Co + block - 1) / block) * block);
+  return {pack_weights(w, Taps, Ci, Co, false, false, block, packed), b};
+}
+
+/// The kernel of an input-gradient pass: weights [Taps][Ci][Co] transposed to Co rows of Ci
+/// columns (rotated by 180 degrees when `flip`), packed in blocks of the input channels.
+template <int Taps, int Ci, int Co, class T>
+weight_layout<T> input_gradient_weights(const T* w, bool flip) {
+  constexpr int block = block_of<T, Ci>;
+  T* packed = scratch<T>(1, std::size_t(Taps) * Co * ((Ci + block - 1) / block) * block);
+  return pack_weights(w, Taps, Ci, Co, true, flip, block, packed);
 }
 
 /// Stride-S K x K convolution of a padded source into out (Ho x Wo taken from out).
-/// Weights [K*K][Ca][ldw], ldw = padded_channels(Cb).
 template <int Ca, int Cb, int K, int S, class T>
-void conv_core(const padded_source<T>& a, const T* w, const std::type_identity_t<T>* bias, tensor<Cb, T>& out, bool accumulate) {
-  constexpr int ldw = padded_channels<T>(Cb);
+void conv_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
+               tensor<Cb, T>& out, bool accumulate) {
   forward_pass<T> ps;
   ps.a = a.data;
   ps.a_batch = a.batch_stride;
@@ -112,17 +125,17 @@ void conv_core(const padded_source<T>& a, const T* w, const std::type_identity_t
   for (int kh = 0; kh < K; ++kh)
     for (int kw = 0; kw < K; ++kw) {
       ps.a_tap[kh * K + kw] = kh * a.row_stride + kw * Ca;
-      ps.w_tap[kh * K + kw] = w + std::ptrdiff_t(kh * K + kw) * Ca * ldw;
+      ps.w_tap[kh * K + kw] = (kh * K + kw) * w.tap_stride;
     }
-  run_forward<vectors_per_tile<T>(Cb), S * Ca>(&ps, 1, Ca, Cb, ldw, bias, accumulate);
+  run_forward<vectors_per_tile<T>(Cb), S * Ca>(&ps, 1, Ca, Cb, w, bias, accumulate);
 }
 
 /// 4x4 stride-2 pad-1 transposed convolution as four 2x2 convolutions, one per output parity.
 /// `a` is the input padded by one pixel above/left (rows ceil(Ho/2)+2, columns ceil(Wo/2)+2);
-/// out has any size Ho x Wo up to twice the input. Weights [16][Ca][ldw].
+/// out has any size Ho x Wo up to twice the input.
 template <int Ca, int Cb, class T>
-void transposed_core(const padded_source<T>& a, const T* w, const std::type_identity_t<T>* bias, tensor<Cb, T>& out, bool accumulate) {
-  constexpr int ldw = padded_channels<T>(Cb);
+void transposed_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
+                     tensor<Cb, T>& out, bool accumulate) {
   forward_pass<T> ps[4];
   int n = 0;
   for (int py = 0; py < 2; ++py)
@@ -147,13 +160,13 @@ void transposed_core(const padded_source<T>& a, const T* w, const std::type_iden
           if ((px + 1 - kw) % 2 != 0) continue;
           const int dy = (py + 1 - kh) / 2 + 1, dx = (px + 1 - kw) / 2 + 1;
           p.a_tap[p.taps] = dy * a.row_stride + dx * Ca;
-          p.w_tap[p.taps] = w + std::ptrdiff_t(kh * 4 + kw) * Ca * ldw;
+          p.w_tap[p.taps] = (kh * 4 + kw) * w.tap_stride;
           ++p.taps;
         }
       }
       ++n;
     }
-  if (n) run_forward<vectors_per_tile<T>(Cb), Ca>(ps, n, Ca, Cb, ldw, bias, accumulate);
+  if (n) run_forward<vectors_per_tile<T>(Cb), Ca>(ps, n, Ca, Cb, w, bias, accumulate);
 }
 
 }  // namespace detail::conv
@@ -167,7 +180,7 @@ void conv2d_forward(const tensor<Cin, T>& in, const T* weight, const std::type_i
   const int Ho = G::output_size(in.height()), Wo = G::output_size(in.width());
   dc::require_shape(out, in.batch(), Ho, Wo, "conv2d_forward", "output");
   if (out.empty()) return;
-  const auto [w, b] = dc::padded_weights<K * K, Cin, Cout>(weight, bias);
+  const auto [w, b] = dc::forward_weights<K * K, Cin, Cout>(weight, bias);
   const auto a = dc::padded(in, G::pad_before, G::pad_before, (Ho - 1) * Stride + K, (Wo - 1) * Stride + K, Cin, 0);
   dc::conv_core<Cin, Cout, K, Stride>(a, w, b, out, false);
 }
@@ -180,20 +193,17 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
   const int B = grad_in.batch(), H = grad_in.height(), W = grad_in.width();
   dc::require_shape(grad_out, B, G::output_size(H), G::output_size(W), "conv2d_backward_input", "output gradient");
   if (grad_in.empty() || grad_out.empty()) return;
-  constexpr int ldi = dc::padded_channels<T>(Cin);
   if constexpr (Stride == 1) {
     // A stride-1 convolution's input gradient is the convolution of the padded output gradient
     // with the kernel rotated by 180 degrees and transposed (in <-> out).
-    T* wt = dc::scratch<T>(1, std::size_t(K * K) * Cout * ldi);
-    dc::transpose_weights(weight, K * K, Cin, Cout, ldi, true, wt);
+    const auto wt = dc::input_gradient_weights<K * K, Cin, Cout>(weight, true);
     const int top = K - 1 - G::pad_before;
     const auto a = dc::padded(grad_out, top, top, H + K - 1, W + K - 1, Cout, 0);
     dc::conv_core<Cout, Cin, K, 1>(a, wt, nullptr, grad_in, true);
   } else if constexpr (Stride == 2 && K == 4 && G::pad_before == 1) {
     // The input gradient of a 4x4 stride-2 convolution is a transposed convolution of the output
     // gradient with the transposed kernel: four 2x2 sub-convolutions.
-    T* wt = dc::scratch<T>(1, std::size_t(K * K) * Cout * ldi);
-    dc::transpose_weights(weight, K * K, Cin, Cout, ldi, false, wt);
+    const auto wt = dc::input_gradient_weights<K * K, Cin, Cout>(weight, false);
     const int Hh = (H + 1) / 2, Wh = (W + 1) / 2;
     const auto a = dc::padded(grad_out, 1, 1, Hh + 2, Wh + 2, Cout, 0);
     dc::transposed_core<Cout, Cin>(a, wt, nullptr, grad_in, true);

@@ -20,7 +20,7 @@ void conv_transpose2d_forward(const tensor<Cin, T>& in, const T* weight, const s
   namespace dc = detail::conv;
   dc::require_shape(out, in.batch(), 2 * in.height(), 2 * in.width(), "conv_transpose2d_forward", "output");
   if (out.empty()) return;
-  const auto [w, b] = dc::padded_weights<16, Cin, Cout>(weight, bias);
+  const auto [w, b] = dc::forward_weights<16, Cin, Cout>(weight, bias);
   const auto a = dc::padded(in, 1, 1, in.height() + 2, in.width() + 2, Cin, 0);
   dc::transposed_core<Cin, Cout>(a, w, b, out, false);
 }
@@ -34,9 +34,7 @@ void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* w
   if (grad_in.empty()) return;
   // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
   // output gradient with the transposed kernel (in <-> out).
-  constexpr int ldi = dc::padded_channels<T>(Cin);
-  T* wt = dc::scratch<T>(1, std::size_t(16) * Cout * ldi);
-  dc::transpose_weights(weight, 16, Cin, Cout, ldi, false, wt);
+  const auto wt = dc::input_gradient_weights<16, Cin, Cout>(weight, false);
   const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
   dc::conv_core<Cout, Cin, 4, 2>(a, wt, nullptr, grad_in, true);
 }

@@ -86,7 +86,7 @@ struct forward_pass {
   int batch = 0, rows = 0, cols = 0;
   int taps = 0;
   std::ptrdiff_t a_tap[16] = {};  ///< offset of each tap in A
-  const T* w_tap[16] = {};        ///< [ci][co] slice of each tap, row stride ldw
+  std::ptrdiff_t w_tap[16] = {};  ///< offset of each tap's weights (weight_layout::tap_stride times its index)
 };
 
 /// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
@@ -128,12 +128,47 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
     }
 }
 
-/// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels (weights padded
-/// to ldw >= Cb columns, a multiple of the SIMD width); bias: ldw values or null; accumulate: add
-/// onto out instead of overwriting it. Two tile widths (NX1, NX2) are tried per pass and the one
-/// that leaves fewer single-pixel tails is used (narrow layers such as 8 x 8 need NX = 4).
+/// How the weights of a forward-type pass are laid out: tap t's [ci][co] slice of output-channel
+/// block cb starts at w + t * tap_stride + cb * block_stride, rows ld apart. Packed weights
+/// ([cb][tap][ci][block], see pack_weights) make every block one contiguous stream.
+template <class T>
+struct weight_layout {
+  const T* w = nullptr;
+  std::ptrdiff_t ld = 0, tap_stride = 0, block_stride = 0;
+};
+
+/// How one row of `cols` pixels is cut into register tiles: n_wide tiles of the wide width, then
+/// n_narrow of the narrow one, then single pixels. Chosen by a cost model (single pixels reload
+/// the weights for every pixel and run at about 40% of a tile's speed, narrow tiles at about 80%).
+struct row_plan {
+  int wide = 0, n_wide = 0, narrow = 0, n_narrow = 0, n_single = 0;
+  int tiles() const { return n_wide + n_narrow + n_single; }
+  /// First column and width of tile k.
+  std::pair<int, int> tile(int k) const {
+    if (k < n_wide) return {k * wide, wide};
+    k -= n_wide;
+    if (k < n_narrow) return {n_wide * wide + k * narrow, narrow};
+    k -= n_narrow;
+    return {n_wide * wide + n_narrow * narrow + k, 1};
+  }
+  static row_plan make(int cols, int wide, int narrow) {
+    row_plan best;
+    double best_cost = 1e300;
+    for (int a = cols / wide; a >= 0 && a >= cols / wide - 2; --a) {
+      const int rest = cols - a * wide;
+      const int b = rest / narrow, c = rest % narrow;
+      const double cost = a * wide * 1.0 + b * narrow * 1.25 + c * 2.5;
+      if (cost < best_cost) { best_cost = cost; best = row_plan{wide, a, narrow, b, c}; }
+    }
+    return best;
+  }
+};
+
+/// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels, in blocks of
+/// NV registers; bias: readable for whole blocks, or null; accumulate: add onto out instead of
+/// overwriting it.
 template <int NV, int ACOL, class T>
-void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, std::ptrdiff_t ldw,
+void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
                  const T* bias, bool accumulate) {
   constexpr int W = lanes<T>;
   constexpr int NX1 = std::max(1, accumulator_budget<T> / NV);
@@ -141,35 +176,29 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, std::ptrd
   const int block = NV * W;
   const int coblocks = (Cb + block - 1) / block;
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
-  // Inputs channel chunk so that a chunk of weights (taps x ci x block) stays in L2.
+  // Input-channel chunk so that a chunk of weights (taps x ci x block) stays in L2.
   int ci_chunk = Ca;
   {
     const std::size_t bytes = std::size_t(passes[0].taps) * block * sizeof(T);
-    ci_chunk = int(std::max<std::size_t>(16, (std::size_t(192) << 10) / bytes));
+    ci_chunk = int(std::max<std::size_t>(16, (std::size_t(256) << 10) / bytes));
     ci_chunk = std::min(ci_chunk, Ca);
   }
-  // Tile width per pass.
-  int nx[4], tiles_per_row[4], tails[4];
-  long long tiles_in[4], chunks_in[4];
+  row_plan plan[4];
+  long long tiles_in[4], first_item[5];
   const int threads = omp_get_max_threads();
   long long total_tiles = 0;
   for (int i = 0; i < npasses; ++i) {
-    const int c = passes[i].cols;
-    const int t1 = c % NX1, t2 = c % NX2;
-    nx[i] = (t2 < t1) ? NX2 : NX1;
-    tiles_per_row[i] = c / nx[i];
-    tails[i] = c % nx[i];
-    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * (tiles_per_row[i] + tails[i]);
+    plan[i] = row_plan::make(passes[i].cols, NX1, NX2);
+    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
     total_tiles += tiles_in[i];
   }
   // Tiles per work item: enough for weight reuse, small enough to feed every thread.
-  long long chunk = 16;
-  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 4LL * threads) chunk /= 2;
-  long long items = 0, first_item[5];
+  long long chunk = 32;
+  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 8LL * threads) chunk /= 2;
+  long long items = 0;
   for (int i = 0; i < npasses; ++i) {
     first_item[i] = items;
-    chunks_in[i] = (tiles_in[i] + chunk - 1) / chunk;
-    items += chunks_in[i] * coblocks;
+    items += (tiles_in[i] + chunk - 1) / chunk * coblocks;
   }
   first_item[npasses] = items;
 
@@ -178,14 +207,16 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, std::ptrd
     int pi = 0;
     while (item >= first_item[pi + 1]) ++pi;
     const forward_pass<T>& ps = passes[pi];
+    const row_plan& pl = plan[pi];
     const long long local = item - first_item[pi];
+    // Consecutive items share pixels and differ in output-channel block: the inputs stay cached.
     const long long ch = local / coblocks;
     const int cb = int(local % coblocks);
     const int co0 = cb * block;
-    const int per_row = tiles_per_row[pi] + tails[pi];
+    const int per_row = pl.tiles();
     const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
     const T* w_tap[16];
-    for (int t = 0; t < ps.taps; ++t) w_tap[t] = ps.w_tap[t] + co0;
+    for (int t = 0; t < ps.taps; ++t) w_tap[t] = wl.w + ps.w_tap[t] + cb * wl.block_stride;
     const T* bias_block = bias ? bias + co0 : nullptr;
     const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
     for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
@@ -193,19 +224,18 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, std::ptrd
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
         const long long row = tile / per_row;
-        const int k = int(tile % per_row);
+        const auto [x, nx] = pl.tile(int(tile % per_row));
         const int b = int(row / ps.rows), r = int(row % ps.rows);
-        const int x = k < tiles_per_row[pi] ? k * nx[pi] : tiles_per_row[pi] * nx[pi] + (k - tiles_per_row[pi]);
         const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL;
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
-        if (k >= tiles_per_row[pi])
-          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
-        else if (nx[pi] == NX1)
-          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
+        if (nx == NX1)
+          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
+        else if (nx == NX2)
+          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
         else
-          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, ldw, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
@@ -342,36 +372,44 @@ void pad_copy(const tensor<C, T>& x, int top, int left, int Hp, int Wp, int ldc,
   }
 }
 
-/// Weights [taps][Ci][Co] -> [taps][Ci][ldo] with zero columns Co..ldo (whole registers).
+/// Packs weights [taps][Ci][Co] for run_forward as [cb][tap][r][block]: blocks of `block` output
+/// columns, each one contiguous stream (no 4 KiB strides that thrash the TLB on wide layers), and
+/// 64-byte aligned. Plain: rows r = ci, columns co. `transpose`: rows r = co, columns ci (the
+/// kernel of an input-gradient pass). `flip`: tap t goes to taps-1-t (the 180-degree rotation of a
+/// stride-1 input-gradient pass). Columns beyond the matrix are zero.
 template <class T>
-void pad_weights(const T* w, int taps, int Ci, int Co, int ldo, T* dst) {
-  for (std::ptrdiff_t r = 0; r < std::ptrdiff_t(taps) * Ci; ++r) {
-    std::memcpy(static_cast<void*>(dst + r * ldo), w + r * Co, sizeof(T) * Co);
-    std::memset(static_cast<void*>(dst + r * ldo + Co), 0, sizeof(T) * (ldo - Co));
-  }
-}
-
-/// Weights [taps][Ci][Co] -> [taps'][Co][ldi] (transposed per tap, zero columns Ci..ldi), with
-/// taps' = taps-1-t when `flip` (the 180-degree rotation a stride-1 backward-input pass needs).
-template <class T>
-void transpose_weights(const T* w, int taps, int Ci, int Co, int ldi, bool flip, T* dst) {
-  constexpr int B = 16;
-  const int cib = (Ci + B - 1) / B, cob = (Co + B - 1) / B;
+weight_layout<T> pack_weights(const T* w, int taps, int Ci, int Co, bool transpose, bool flip, int block, T* dst) {
+  const int rows = transpose ? Co : Ci, cols = transpose ? Ci : Co;
+  const int blocks = (cols + block - 1) / block;
+  const std::ptrdiff_t tap_stride = std::ptrdiff_t(rows) * block;
 #pragma omp parallel for schedule(static) if (std::size_t(taps) * Ci * Co > (1u << 16))
-  for (long long job = 0; job < (long long)taps * cob; ++job) {
-    const int t = int(job / cob), bo = int(job % cob);
+  for (int job = 0; job < blocks * taps; ++job) {
+    const int cb = job / taps, t = job % taps;
     const int td = flip ? taps - 1 - t : t;
+    const int c0 = cb * block, n = std::min(block, cols - c0);
+    T* d = dst + (std::ptrdiff_t(cb) * taps + td) * tap_stride;
     const T* s = w + std::ptrdiff_t(t) * Ci * Co;
-    T* d = dst + std::ptrdiff_t(td) * Co * ldi;
-    const int o0 = bo * B, o1 = std::min(Co, o0 + B);
-    for (int bi = 0; bi < cib; ++bi) {
-      const int i0 = bi * B, i1 = std::min(Ci, i0 + B);
-      for (int o = o0; o < o1; ++o)
-        for (int i = i0; i < i1; ++i) d[std::ptrdiff_t(o) * ldi + i] = s[std::ptrdiff_t(i) * Co + o];
+    if (!transpose) {
+      for (int r = 0; r < rows; ++r) {
+        std::memcpy(static_cast<void*>(d + std::ptrdiff_t(r) * block), s + std::ptrdiff_t(r) * Co + c0, sizeof(T) * n);
+        std::memset(static_cast<void*>(d + std::ptrdiff_t(r) * block + n), 0, sizeof(T) * (block - n));
+      }
+    } else {
+      // d[r][j] = s[c0 + j][r], in panels of 64 rows so the written lines stay in L1.
+      for (int r0 = 0; r0 < rows; r0 += 64) {
+        const int r1 = std::min(rows, r0 + 64);
+        for (int j = 0; j < block; ++j) {
+          if (j < n) {
+            const T* src = s + std::ptrdiff_t(c0 + j) * Co;
+            for (int r = r0; r < r1; ++r) d[std::ptrdiff_t(r) * block + j] = src[r];
+          } else {
+            for (int r = r0; r < r1; ++r) d[std::ptrdiff_t(r) * block + j] = T(0);
+          }
+        }
+      }
     }
-    for (int o = o0; o < o1; ++o)
-      for (int i = Ci; i < ldi; ++i) d[std::ptrdiff_t(o) * ldi + i] = T(0);
   }
+  return {dst, block, tap_stride, std::ptrdiff_t(taps) * tap_stride};
 }
 
 /// grad_bias[c] += sum over pixels of g[c].
