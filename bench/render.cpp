@@ -54,6 +54,7 @@ void fused(benchmark::State& state) {
   material_maps grad(size, size);
   render_options options;
   options.cull_tolerance = float(state.range(1)) * 1e-4f;
+  options.flush_denormals = state.range(2) != 0;
   for (auto _ : state) benchmark::DoNotOptimize(loss_and_gradient<F, V>(maps, cap, targets, &grad, {}, options));
   state.counters["evals_per_second"] =
       benchmark::Counter(double(size) * size * images * double(state.iterations()), benchmark::Counter::kIsRate);
@@ -73,10 +74,14 @@ void render_only(benchmark::State& state) {
 }  // namespace
 
 using simd_v = simd::batch<float>;
-// Args: threads, culling tolerance in units of 1e-4 (0: off).
-BENCHMARK(fused<all_features, simd_v>)->Name("fused/full/simd")->Args({1, 0})->Args({2, 0})->Args({2, 10})->UseRealTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(fused<all_features, float>)->Name("fused/full/scalar")->Args({1, 0})->Args({2, 0})->UseRealTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(fused<specialised, simd_v>)->Name("fused/isotropic_nofresnel_flat/simd")->Args({1, 0})->Args({2, 0})->UseRealTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(fused<brdf_features{false, true, true}, simd_v>)->Name("fused/isotropic/simd")->Args({2, 0})->UseRealTime()->Unit(benchmark::kMillisecond);
+// Args: threads, culling tolerance in units of 1e-4 (0: off), flush denormals (1) or not (0).
+BENCHMARK(fused<all_features, simd_v>)->Name("fused/full/simd")->ArgNames({"threads", "cull", "ftz"})
+    ->Args({1, 0, 1})->Args({2, 0, 1})->Args({2, 0, 0})->Args({2, 10, 1})->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(fused<all_features, float>)->Name("fused/full/scalar")->ArgNames({"threads", "cull", "ftz"})
+    ->Args({1, 0, 1})->Args({2, 0, 1})->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(fused<specialised, simd_v>)->Name("fused/isotropic_nofresnel_flat/simd")->ArgNames({"threads", "cull", "ftz"})
+    ->Args({1, 0, 1})->Args({2, 0, 1})->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(fused<brdf_features{false, true, true}, simd_v>)->Name("fused/isotropic/simd")->ArgNames({"threads", "cull", "ftz"})
+    ->Args({2, 0, 1})->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(render_only<all_features, simd_v>)->Name("render/full/simd")->Args({2})->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK_MAIN();
