@@ -32,8 +32,8 @@ struct optimisation_progress {
 
 /// Options of `refine`.
 struct refine_options {
-  int steps = 500;                 ///< Adam steps (paper: 500)
-  float learning_rate = 1e-2f;     ///< in the unconstrained space u (see file comment)
+  int steps = 1000;                ///< Adam steps (the paper refines a network estimate with 500)
+  float learning_rate = 0.03f;     ///< in the unconstrained space u (see file comment)
   float beta1 = 0.9f, beta2 = 0.999f, epsilon = 1e-8f;
   render_options render{};         ///< culling etc. for the fused loss
   tile_placement placement{};      ///< where the maps lie in a larger material
