@@ -17,6 +17,7 @@
 #include <string>
 
 #include "anisocap/anisocap.hpp"
+#include "commands/train.hpp"
 
 namespace fs = std::filesystem;
 using namespace anisocap;
@@ -253,12 +254,17 @@ int main(int argc, char** argv) {
   demo_cmd->add_option("--size", demo_syn.width, "material size (square)")->capture_default_str();
   demo_cmd->add_option("--steps", cap.steps, "refine steps")->capture_default_str();
 
+  std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
+  commands::add_train_commands(app, actions);
+
   CLI11_PARSE(app, argc, argv);
   if (threads > 0) omp_set_num_threads(threads);
   try {
     if (*syn_cmd) synthesize(syn);
     if (*render_cmd) render_command(maps_dir, render_capture, render_out);
     if (*capture_cmd) capture_command(cap);
+    for (auto& [command, action] : actions)
+      if (*command) action();
     if (*demo_cmd) {
       demo_syn.height = demo_syn.width;
       const fs::path root = demo_syn.out;
