@@ -231,7 +231,7 @@ inline procedural_parameters draw_procedural_parameters(std::uint64_t seed, cons
   using namespace procedural_detail;
   if (!(options.min_thread_pitch >= 2.0) || !(options.max_thread_pitch >= options.min_thread_pitch))
     throw std::invalid_argument("generate_material: thread pitch range must satisfy 2 <= min <= max");
-  random_generator rng(seed);
+  random_generator rng(hash64(seed ^ 0x6d6174657269616cULL));  // salted: unrelated to a capture of the same seed
   procedural_parameters p;
   p.kind = options.kind ? *options.kind : kind_for_seed(seed);
   p.seed = hash64(seed);

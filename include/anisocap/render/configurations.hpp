@@ -199,6 +199,11 @@ inline capture_image independent_configuration(random_generator& rng, int width,
 
 namespace configuration_detail {
 
+/// The generator of one kind of set: the seed is salted per set, so that a material and its capture
+/// drawn from the same seed (as `anisocap synthesize` does) use unrelated streams, and set alpha
+/// and set beta of one seed are unrelated too.
+inline random_generator set_generator(std::uint64_t seed, std::uint64_t salt) { return random_generator(hash64(seed ^ salt)); }
+
 /// Appends an image and names it input_NN.exr by its position.
 inline void push(capture& c, capture_image image) {
   image.file = input_file_name(int(c.images.size()));
@@ -222,7 +227,7 @@ inline capture set_alpha(int image_count, std::uint64_t seed, int width, int hei
   if (image_count < 4)
     throw std::invalid_argument("set_alpha: needs at least 4 images (2 Fresnel + 2 independent), got " +
                                 std::to_string(image_count));
-  random_generator rng(seed);
+  random_generator rng = set_generator(seed, 0x616c706861ULL);
   capture c;
   c.images.reserve(std::size_t(image_count));
   for (int i = 0; i < 2; ++i) push(c, fresnel_configuration(rng, width, height));
@@ -239,7 +244,7 @@ inline capture set_beta(int image_count, std::uint64_t seed, int width, int heig
   using namespace configuration_detail;
   if (image_count < 1)
     throw std::invalid_argument("set_beta: needs at least 1 image, got " + std::to_string(image_count));
-  random_generator rng(seed);
+  random_generator rng = set_generator(seed, 0x62657461ULL);
   capture c;
   c.images.reserve(std::size_t(image_count));
   const int mirror = image_count / 2;
@@ -252,7 +257,7 @@ inline capture set_beta(int image_count, std::uint64_t seed, int width, int heig
 /// in that order.
 inline capture training_set(std::uint64_t seed, int width, int height) {
   using namespace configuration_detail;
-  random_generator rng(seed);
+  random_generator rng = set_generator(seed, 0x747261696eULL);
   capture c;
   push(c, fresnel_configuration(rng, width, height));
   push_pair(c, rng, width, height);
@@ -264,7 +269,7 @@ inline capture training_set(std::uint64_t seed, int width, int height) {
 /// 1 Fresnel, 1 independent, in that order.
 inline capture render_loss_set(std::uint64_t seed, int width, int height) {
   using namespace configuration_detail;
-  random_generator rng(seed);
+  random_generator rng = set_generator(seed, 0x72656e646572ULL);
   capture c;
   push_pair(c, rng, width, height);
   push(c, fresnel_configuration(rng, width, height));
