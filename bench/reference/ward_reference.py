@@ -95,38 +95,36 @@ def render(xp, maps, capture):
     height, width = sx.shape
     ax, ay, an = shading_frame(xp, maps["nx"], maps["ny"], maps["alpha"])
     px, py = texel_positions(xp, width, height, sx)
-    images = []
-    for im in capture:
-        cam = [float(c) for c in im["camera"]]
-        lig = [float(c) for c in im["light"]]
-        intensity = _as_array(xp, [float(c) for c in im["intensity"]], sx)
-        # directions from the texel (z = 0) to camera and light
-        vx, vy, vz = cam[0] - px, cam[1] - py, cam[2] + 0.0 * px
-        lx, ly, lz = lig[0] - px, lig[1] - py, lig[2] + 0.0 * px
-        r2 = lx * lx + ly * ly + lz * lz
-        vl, ll = xp.sqrt(vx * vx + vy * vy + vz * vz), xp.sqrt(r2)
-        v = (vx / vl, vy / vl, vz / vl)
-        l = (lx / ll, ly / ll, lz / ll)
-        # local frame coordinates
-        hx = _dot(l, ax) + _dot(v, ax)
-        hy = _dot(l, ay) + _dot(v, ay)
-        nl, nv = _dot(l, an), _dot(v, an)
-        hz_raw = nl + nv
-        hz = _clamp_min(xp, hz_raw, HZ_MIN)
-        hh = hx * hx + hy * hy + hz_raw * hz_raw  # h.h, |h| unclamped
-        # Schlick Fresnel at v.h' = v.h / |h| = (1 + v.l) / |h|
-        cos_vh = (1.0 + _dot(v, l)) / xp.sqrt(_clamp_min(xp, hh, 1e-30))
-        one_minus = _clamp_min(xp, 1.0 - cos_vh, 0.0)
-        fresnel = f0 + (1.0 - f0) * one_minus ** 5
-        # lobe as one exp(d - 4 log h_z) so narrow lobes and h_z -> 0 stay finite
-        d = -(hx * hx / (sx * sx) + hy * hy / (sy * sy)) / (hz * hz)
-        lobe = hh * xp.exp(d - 4.0 * xp.log(hz)) / (math.pi * sx * sy)
-        spec_scalar = fresnel / f0 * lobe  # (height, width)
-        f = diffuse / math.pi + specular * spec_scalar[..., None]
-        lit = (nl > 0) & (nv > 0)
-        shade = xp.where(lit, _clamp_min(xp, nl, 0.0) / r2, xp.zeros_like(r2))
-        images.append(f * (shade[..., None] * intensity))
-    return xp.stack(images)
+    # all images at once: configuration arrays (images, 1, 1) broadcast against texels (height, width)
+    cam = _as_array(xp, [[float(c) for c in im["camera"]] for im in capture], sx)[:, :, None, None]
+    lig = _as_array(xp, [[float(c) for c in im["light"]] for im in capture], sx)[:, :, None, None]
+    intensity = _as_array(xp, [[float(c) for c in im["intensity"]] for im in capture], sx)[:, None, None, :]
+    # directions from the texel (z = 0) to camera and light
+    vx, vy, vz = cam[:, 0] - px, cam[:, 1] - py, cam[:, 2] + 0.0 * px
+    lx, ly, lz = lig[:, 0] - px, lig[:, 1] - py, lig[:, 2] + 0.0 * px
+    r2 = lx * lx + ly * ly + lz * lz
+    vl, ll = xp.sqrt(vx * vx + vy * vy + vz * vz), xp.sqrt(r2)
+    v = (vx / vl, vy / vl, vz / vl)
+    l = (lx / ll, ly / ll, lz / ll)
+    # local frame coordinates
+    hx = _dot(l, ax) + _dot(v, ax)
+    hy = _dot(l, ay) + _dot(v, ay)
+    nl, nv = _dot(l, an), _dot(v, an)
+    hz_raw = nl + nv
+    hz = _clamp_min(xp, hz_raw, HZ_MIN)
+    hh = hx * hx + hy * hy + hz_raw * hz_raw  # h.h, |h| unclamped
+    # Schlick Fresnel at v.h' = v.h / |h| = (1 + v.l) / |h|
+    cos_vh = (1.0 + _dot(v, l)) / xp.sqrt(_clamp_min(xp, hh, 1e-30))
+    one_minus = _clamp_min(xp, 1.0 - cos_vh, 0.0)
+    fresnel = f0 + (1.0 - f0) * one_minus ** 5
+    # lobe as one exp(d - 4 log h_z) so narrow lobes and h_z -> 0 stay finite
+    d = -(hx * hx / (sx * sx) + hy * hy / (sy * sy)) / (hz * hz)
+    lobe = hh * xp.exp(d - 4.0 * xp.log(hz)) / (math.pi * sx * sy)
+    spec_scalar = fresnel / f0 * lobe  # (images, height, width)
+    f = diffuse / math.pi + specular * spec_scalar[..., None]
+    lit = (nl > 0) & (nv > 0)
+    shade = xp.where(lit, _clamp_min(xp, nl, 0.0) / r2, xp.zeros_like(r2))
+    return f * (shade[..., None] * intensity)
 
 
 def image_loss(xp, rendered, targets):
