@@ -286,9 +286,9 @@ inline image read_exr(const std::filesystem::path& path) {
   if (version.multipart) throw io_error(path, "multi-part EXR files are not supported; save one part");
   if (version.non_image) throw io_error(path, "deep EXR files are not supported");
   detail::exr_resources r;
-  if (ParseEXRHeaderFromMemory(&r.header, &version, bytes.data(), bytes.size(), &r.error) != TINYEXR_SUCCESS)
-    throw io_error(path, r.message("corrupt EXR header"));
-  r.header_loaded = true;
+  const int header_status = ParseEXRHeaderFromMemory(&r.header, &version, bytes.data(), bytes.size(), &r.error);
+  r.header_loaded = true;  // tinyexr fills the header even when parsing fails: free it either way
+  if (header_status != TINYEXR_SUCCESS) throw io_error(path, r.message("corrupt EXR header"));
   const int n = r.header.num_channels;
   for (int c = 0; c < n; ++c) {
     const EXRChannelInfo& ch = r.header.channels[c];
