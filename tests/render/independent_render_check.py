@@ -8,7 +8,7 @@ procedural material with the program, renders its truth map set with `anisocap r
 compares every pixel of every image (and the inputs that synthesize wrote) with the float64 render
 of bench/reference/ward_reference.py, which was written from MODEL.md alone; then the same under
 hand-made extreme configurations, and the image loss (MODEL.md 5) that `anisocap capture --steps 0`
-reports (relative difference). The error of a pixel channel is |cpp - ref| / max(ref, 1e-3); the
+reports (relative difference), and a hand-written map set at the clamps (MODEL.md 3 numerics). The error of a pixel channel is |cpp - ref| / max(ref, 1e-3); the
 program prints the maximum per case and exits 1 if any exceeds the tolerance (float32 against
 float64; about 4e-5 is what the program shows, the default tolerance is 5e-4). Exits 77 (CTest SKIP_RETURN_CODE) if numpy is
 missing.
@@ -45,7 +45,9 @@ CASES = [
 FLOOR = 1e-3
 
 # Hand-made configurations beyond what the samplers produce: grazing camera and light, a light
-# below the plane (must give zero; a camera below is rejected by the reader), a camera so low
+# below the plane (zero for these maps' moderate normals; MODEL.md 4 weights by n_s.l only, so a
+# shading normal tilted towards such a light is lit, in both implementations; a camera below the
+# plane is rejected by the capture reader), a camera so low
 # that tilted normals turn away from it (n.v <= 0 at some texels), a light just above the material
 # (large 1/r^2), a camera straight above, RGB intensities.
 EXTREME_CAPTURE = {"images": [
@@ -67,6 +69,26 @@ def run(cmd):
     if r.returncode != 0:
         print("FAILED:", " ".join(cmd), "\n", r.stdout)
         sys.exit(1)
+
+
+def write_edge_maps(folder):
+    """An 11 x 9 map set whose texels mix extreme values of every parameter."""
+    os.makedirs(folder, exist_ok=True)
+    rng = np.random.default_rng(5)
+    shape = (9, 11)
+    pick = lambda values: rng.choice(values, shape)  # noqa: E731
+    grey = lambda plane: np.stack([plane] * 3, axis=-1)  # noqa: E731
+    exr.write_rgb(os.path.join(folder, "diffuse.exr"), rng.random(shape + (3,)))
+    exr.write_rgb(os.path.join(folder, "specular.exr"), rng.random(shape + (3,)))
+    sigmas = [1e-6, 1e-5, 1e-3, 0.02, 0.3, 1.0]
+    sx, sy = pick(sigmas), pick(sigmas)
+    exr.write_rgb(os.path.join(folder, "lobes.exr"), np.stack([sx, sy, 0 * sx], axis=-1))
+    exr.write_rgb(os.path.join(folder, "fresnel.exr"), grey(pick([0.0, 1e-5, 1e-3, 0.5, 1.0])))
+    angle, radius = rng.uniform(0, 2 * np.pi, shape), pick([0.0, 0.3, 0.9, 0.999, 1.0])
+    nx, ny = radius * np.cos(angle), radius * np.sin(angle)
+    nz = np.sqrt(np.maximum(1 - nx * nx - ny * ny, 0))
+    exr.write_rgb(os.path.join(folder, "normal.exr"), np.stack([nx, ny, nz], axis=-1))
+    exr.write_rgb(os.path.join(folder, "rotation.exr"), grey(pick([-np.pi / 2, -1.0, 0.0, 0.5, np.pi / 2])))
 
 
 def compare(cpp_folder, ref, capture, tolerance, where):
@@ -132,6 +154,17 @@ def main():
         print(f"{w}x{h} truth of seed {seed} under {len(capture)} hand-made extreme configurations: "
               f"max relative error {err:.3g}; light below the plane gives zero: {zero}")
         worst = max(worst, err if zero else float("inf"))
+        # a hand-written map set at the clamps: sigma down to 1e-6, F0 = 0 and 1e-5, normals on the
+        # horizon (n_z clamped), alpha = +-pi/2 (written uncompressed by exr.py: the reader path too)
+        edge_maps = os.path.join(root, "edge_maps")
+        write_edge_maps(edge_maps)
+        run([program, "--threads", "2", "render", "--maps", edge_maps, "--capture",
+             os.path.join(d, "capture.json"), "-o", os.path.join(root, "edge_render")])
+        ref = ward.render(np, ward.read_map_set(edge_maps), capture)
+        err = compare(os.path.join(root, "edge_render"), ref, capture, tolerance, "edge maps")
+        print(f"11x9 map set at the clamps (sigma 1e-6, F0 0, normals on the horizon, alpha +-pi/2) under the "
+              f"hand-made configurations: max relative error {err:.3g}")
+        worst = max(worst, err)
         # the image loss (MODEL.md 5): `capture --steps 0 --init OTHER` reports the loss of OTHER's
         # maps (another material of the same size) against the first case's inputs.
         other = os.path.join(root, "other")
