@@ -3,10 +3,12 @@
 the format (8-byte little-endian header length, JSON header, raw little-endian data) is written
 and read here by hand with struct/json and torch tensors.
 
-  safetensors_torch_check.py write FILE   writes tensors of known values and a torch.nn.Linear
-  safetensors_torch_check.py read FILE    loads anisocap's linear and batch-norm weights into
-                                          torch modules and compares with anisocap's outputs
-Exit status 77 when torch is not available (the C++ test then skips), 1 on a mismatch.
+  safetensors_torch_check.py IN OUT   loads anisocap's linear and batch-norm weights from IN into
+                                      torch modules and compares with anisocap's outputs stored
+                                      there, then writes OUT: tensors of known values and a
+                                      torch.nn.Linear with its input and output
+One process does both directions (importing torch takes seconds). Exit status 77 when torch is
+not available (the C++ test then skips), 1 on a mismatch.
 """
 import json
 import struct
@@ -53,22 +55,22 @@ def read(path):
     return out
 
 
-def main():
-    mode, path = sys.argv[1], sys.argv[2]
+def write_torch_file(path):
     torch.manual_seed(0)
-    if mode == "write":
-        fc = torch.nn.Linear(5, 3)
-        bn = torch.nn.BatchNorm2d(3)
-        x = torch.randn(2, 5)
-        with torch.no_grad():
-            y = fc(x)
-        tensors = {"a": torch.arange(12, dtype=torch.float32).reshape(3, 4) * 0.5 - 1}
-        tensors.update({"fc." + k: v for k, v in fc.state_dict().items()})
-        tensors.update({"bn." + k: v for k, v in bn.state_dict().items()})  # includes I64 num_batches_tracked
-        tensors["fc.input"] = x
-        tensors["fc.output"] = y
-        write(path, tensors, {"format": "pt"})
-        return 0
+    fc = torch.nn.Linear(5, 3)
+    bn = torch.nn.BatchNorm2d(3)
+    x = torch.randn(2, 5)
+    with torch.no_grad():
+        y = fc(x)
+    tensors = {"a": torch.arange(12, dtype=torch.float32).reshape(3, 4) * 0.5 - 1}
+    tensors.update({"fc." + k: v for k, v in fc.state_dict().items()})
+    tensors.update({"bn." + k: v for k, v in bn.state_dict().items()})  # includes I64 num_batches_tracked
+    tensors["fc.input"] = x
+    tensors["fc.output"] = y
+    write(path, tensors, {"format": "pt"})
+
+
+def check_anisocap_file(path):
     t = read(path)
     fc = torch.nn.Linear(5, 3)
     fc.load_state_dict({"weight": t["fc.weight"], "bias": t["fc.bias"]})
@@ -81,8 +83,13 @@ def main():
     ok = torch.allclose(h, t["fc_output_nhwc"], rtol=1e-5, atol=1e-6) and torch.allclose(z, t["bn_output_nhwc"], rtol=1e-5, atol=1e-5)
     if not ok:
         print("mismatch: fc", (h - t["fc_output_nhwc"]).abs().max().item(), "bn", (z - t["bn_output_nhwc"]).abs().max().item())
+    return ok
+
+
+def main():
+    if not check_anisocap_file(sys.argv[1]):
         return 1
-    print("ok")
+    write_torch_file(sys.argv[2])
     return 0
 
 
