@@ -315,11 +315,12 @@ inline procedural_parameters draw_procedural_parameters(std::uint64_t seed, cons
     p.base_colour = varied_colour(rng, c);
     p.colour_names = {std::uint8_t(c), std::uint8_t(c), std::uint8_t(c)};
     p.feature_scale = log_uniform(rng, 24.0, 160.0);
-    p.turns = rng.uniform(0.5, 2.0);
-    p.f0[0] = p.f0[1] = log_uniform(rng, 0.03, 0.15);
-    p.specular_fraction[0] = p.specular_fraction[1] = rng.uniform(0.5, 1.0);
-    p.sigma_along[0] = p.sigma_along[1] = rng.uniform(0.08, 0.2);
-    p.sigma_across[0] = p.sigma_across[1] = std::min(1.0, p.sigma_along[0] * rng.uniform(2.0, 4.0));
+    p.turns = rng.uniform(0.3, 1.0);
+    p.f0[0] = p.f0[1] = log_uniform(rng, 0.02, 0.08);
+    p.specular_fraction[0] = p.specular_fraction[1] = rng.uniform(0.2, 0.6);
+    // A soft sheen rather than a sharp highlight: broad lobes, still twice as wide across the pile.
+    p.sigma_along[0] = p.sigma_along[1] = rng.uniform(0.15, 0.35);
+    p.sigma_across[0] = p.sigma_across[1] = std::min(1.0, p.sigma_along[0] * rng.uniform(2.0, 3.0));
     p.bump = rng.uniform(0.05, 0.25);
     p.property_jitter = rng.uniform(0.05, 0.15);
   } else {  // metals
@@ -475,9 +476,9 @@ inline texel_values weave_texel(const procedural_parameters& p, const texel_cont
 /// A crushed-velvet texel: the pile direction turns with smooth noise, and its shade follows it.
 inline texel_values velvet_texel(const procedural_parameters& p, double X, double Y) {
   const double f = 1.0 / p.feature_scale;
-  const double wander = fractal_noise(salted(p.seed, salt_angle), X * f, Y * f, 3);
+  const double wander = fractal_noise(salted(p.seed, salt_angle), X * f, Y * f, 2);
   const double direction = p.rotation + std::numbers::pi * p.turns * 2.0 * (wander - 0.5);
-  const double patch = fractal_noise(salted(p.seed, salt_shade), X * f * 1.7, Y * f * 1.7, 3);
+  const double patch = fractal_noise(salted(p.seed, salt_shade), X * f * 1.7, Y * f * 1.7, 2);
   const double speck = hash_uniform(salted(p.seed, salt_texel), floor_to_int(X), floor_to_int(Y));
   // Pile bent towards the viewer's side looks lighter: shade by direction and by patch.
   const double shade = (0.55 + 0.45 * std::cos(2.0 * (direction - p.rotation))) * (0.7 + 0.6 * patch) * (0.92 + 0.16 * speck);
