@@ -79,9 +79,9 @@ padded_source<T> padded(const tensor<C, T>& x, int top, int left, int Hp, int Wp
 template <class T, int Cb>
 inline constexpr int block_of = vectors_per_tile<T>(Cb) * lanes<T>;
 
-/// The forward weights as run_forward reads them: the caller's array when it is already one
-/// aligned block of whole registers, else packed into scratch (see pack_weights); with the bias
-/// padded to whole registers when needed.
+/// The forward weights as run_forward reads them: the caller's array when it is one aligned
+/// block of whole registers, else packed block by block inside the work items; with the bias
+/// padded to whole blocks when needed.
 template <int Taps, int Ci, int Co, class T>
 std::pair<weight_layout<T>, const T*> forward_weights(const T* w, const T* bias) {
   constexpr int block = block_of<T, Co>;
@@ -91,14 +91,14 @@ std::pair<weight_layout<T>, const T*> forward_weights(const T* w, const T* bias)
     for (int c = 0; c < padded_channels<T>(Co) + block; ++c) pb[c] = c < Co ? bias[c] : T(0);
     b = pb;
   }
-  if (Co == block && reinterpret_cast<std::uintptr_t>(w) % simd::alignment == 0)
-    return {weight_layout<T>{w, Co, std::ptrdiff_t(Ci) * Co, block}, b};
-  T* packed = scratch<T>(1, std::size_t(Taps) * Ci * ((Co + block - 1) / block) * block);
-  return {pack_weights(w, Taps, Ci, Co, false, false, block, packed), b};
+  weight_layout<T> wl{w, Co, std::ptrdiff_t(Ci) * Co, block, false};
+  wl.pack = !(Co == block && reinterpret_cast<std::uintptr_t>(w) % simd::alignment == 0);
+  return {wl, b};
 }
 
-/// The kernel of an input-gradient pass: weights [Taps][Ci][Co] transposed to Co rows of Ci
-/// columns (rotated by 180 degrees when `flip`), packed in blocks of the input channels.
+/// The kernel of an input-gradient pass through run_forward (used when the output gradient's
+/// channel count is not a multiple of the SIMD width, so dot products cannot run over it):
+/// weights [Taps][Ci][Co] transposed to Co rows of Ci columns, packed in blocks of the inputs.
 template <int Taps, int Ci, int Co, class T>
 weight_layout<T> input_gradient_weights(const T* w, bool flip) {
   constexpr int block = block_of<T, Ci>;
@@ -106,10 +106,10 @@ weight_layout<T> input_gradient_weights(const T* w, bool flip) {
   return pack_weights(w, Taps, Ci, Co, true, flip, block, packed);
 }
 
-/// Stride-S K x K convolution of a padded source into out (Ho x Wo taken from out).
-template <int Ca, int Cb, int K, int S, class T>
-void conv_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
-               tensor<Cb, T>& out, bool accumulate) {
+/// The pass of a stride-S K x K convolution of a padded source into out (Ho x Wo from out); tap
+/// (kh, kw) reads the weights of tap (K-1-kh, K-1-kw) when `flip`.
+template <int Ca, int K, int S, int Cb, class T>
+forward_pass<T> conv_pass(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdiff_t tap_stride, bool flip) {
   forward_pass<T> ps;
   ps.a = a.data;
   ps.a_batch = a.batch_stride;
@@ -125,22 +125,21 @@ void conv_core(const padded_source<T>& a, const weight_layout<T>& w, const std::
   for (int kh = 0; kh < K; ++kh)
     for (int kw = 0; kw < K; ++kw) {
       ps.a_tap[kh * K + kw] = kh * a.row_stride + kw * Ca;
-      ps.w_tap[kh * K + kw] = (kh * K + kw) * w.tap_stride;
+      ps.w_tap[kh * K + kw] = (flip ? K * K - 1 - (kh * K + kw) : kh * K + kw) * tap_stride;
     }
-  run_forward<vectors_per_tile<T>(Cb), S * Ca>(&ps, 1, Ca, Cb, w, bias, accumulate);
+  return ps;
 }
 
-/// 4x4 stride-2 pad-1 transposed convolution as four 2x2 convolutions, one per output parity.
-/// `a` is the input padded by one pixel above/left (rows ceil(Ho/2)+2, columns ceil(Wo/2)+2);
-/// out has any size Ho x Wo up to twice the input.
+/// The four passes (one per output parity, each a 2x2 convolution) of a 4x4 stride-2 pad-1
+/// transposed convolution. `a` is the input padded by one pixel above/left (rows ceil(Ho/2)+2,
+/// columns ceil(Wo/2)+2); out has any size Ho x Wo up to twice the input. Returns the count.
 template <int Ca, int Cb, class T>
-void transposed_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
-                     tensor<Cb, T>& out, bool accumulate) {
-  forward_pass<T> ps[4];
+int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdiff_t tap_stride, forward_pass<T>* ps) {
   int n = 0;
   for (int py = 0; py < 2; ++py)
     for (int px = 0; px < 2; ++px) {
       forward_pass<T>& p = ps[n];
+      p = forward_pass<T>{};
       p.rows = (out.height() - py + 1) / 2;
       p.cols = (out.width() - px + 1) / 2;
       if (p.rows <= 0 || p.cols <= 0 || out.batch() == 0) continue;
@@ -160,12 +159,38 @@ void transposed_core(const padded_source<T>& a, const weight_layout<T>& w, const
           if ((px + 1 - kw) % 2 != 0) continue;
           const int dy = (py + 1 - kh) / 2 + 1, dx = (px + 1 - kw) / 2 + 1;
           p.a_tap[p.taps] = dy * a.row_stride + dx * Ca;
-          p.w_tap[p.taps] = (kh * 4 + kw) * w.tap_stride;
+          p.w_tap[p.taps] = (kh * 4 + kw) * tap_stride;
           ++p.taps;
         }
       }
       ++n;
     }
+  return n;
+}
+
+/// True when an input-gradient pass should run as dot products over the stored kernel rather
+/// than through a transposed copy of it: when the kernel is large for the number of pixels, the
+/// copy (memory-bound, about 2 ns per weight) would cost more than the pass itself.
+/// Tests set it to 0 (always dot) or SIZE_MAX (never) to check both paths on small shapes.
+inline std::size_t dot_weights_per_pixel = 8192;
+inline bool prefer_dot(std::size_t weights, std::size_t pixels) {
+  return dot_weights_per_pixel == 0 || (pixels <= weights / dot_weights_per_pixel);
+}
+
+/// Stride-S K x K convolution of a padded source into out (register-blocked forward kernel).
+template <int Ca, int Cb, int K, int S, class T>
+void conv_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
+               tensor<Cb, T>& out, bool accumulate, bool flip = false) {
+  forward_pass<T> ps = conv_pass<Ca, K, S>(a, out, w.tap_stride, flip);
+  run_forward<vectors_per_tile<T>(Cb), S * Ca>(&ps, 1, Ca, Cb, w, bias, accumulate);
+}
+
+/// 4x4 stride-2 pad-1 transposed convolution of a padded source into out (forward kernel).
+template <int Ca, int Cb, class T>
+void transposed_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
+                     tensor<Cb, T>& out, bool accumulate) {
+  forward_pass<T> ps[4];
+  const int n = transposed_passes<Ca>(a, out, w.tap_stride, ps);
   if (n) run_forward<vectors_per_tile<T>(Cb), Ca>(ps, n, Ca, Cb, w, bias, accumulate);
 }
 
@@ -196,17 +221,28 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
   if constexpr (Stride == 1) {
     // A stride-1 convolution's input gradient is the convolution of the padded output gradient
     // with the kernel rotated by 180 degrees and transposed (in <-> out).
-    const auto wt = dc::input_gradient_weights<K * K, Cin, Cout>(weight, true);
     const int top = K - 1 - G::pad_before;
     const auto a = dc::padded(grad_out, top, top, H + K - 1, W + K - 1, Cout, 0);
-    dc::conv_core<Cout, Cin, K, 1>(a, wt, nullptr, grad_in, true);
+    constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
+    if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(weights, grad_in.size() / Cin)) {
+      auto ps = dc::conv_pass<Cout, K, 1>(a, grad_in, std::ptrdiff_t(Cin) * Cout, true);
+      dc::run_dot<Cout, Cin>(&ps, 1, Cout, weight, Cout);
+    } else {
+      dc::conv_core<Cout, Cin, K, 1>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, true), nullptr, grad_in, true);
+    }
   } else if constexpr (Stride == 2 && K == 4 && G::pad_before == 1) {
     // The input gradient of a 4x4 stride-2 convolution is a transposed convolution of the output
     // gradient with the transposed kernel: four 2x2 sub-convolutions.
-    const auto wt = dc::input_gradient_weights<K * K, Cin, Cout>(weight, false);
     const int Hh = (H + 1) / 2, Wh = (W + 1) / 2;
     const auto a = dc::padded(grad_out, 1, 1, Hh + 2, Wh + 2, Cout, 0);
-    dc::transposed_core<Cout, Cin>(a, wt, nullptr, grad_in, true);
+    constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
+    if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(weights, grad_in.size() / Cin)) {
+      dc::forward_pass<T> ps[4];
+      const int n = dc::transposed_passes<Cout>(a, grad_in, std::ptrdiff_t(Cin) * Cout, ps);
+      if (n) dc::run_dot<Cout, Cin>(ps, n, Cout, weight, Cout);
+    } else {
+      dc::transposed_core<Cout, Cin>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, false), nullptr, grad_in, true);
+    }
   } else {
     // Other strides: direct scatter (no layer of the paper's networks uses it).
     const int Ho = grad_out.height(), Wo = grad_out.width();

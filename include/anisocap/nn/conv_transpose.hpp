@@ -34,9 +34,14 @@ void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* w
   if (grad_in.empty()) return;
   // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
   // output gradient with the transposed kernel (in <-> out).
-  const auto wt = dc::input_gradient_weights<16, Cin, Cout>(weight, false);
   const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  dc::conv_core<Cout, Cin, 4, 2>(a, wt, nullptr, grad_in, true);
+  if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
+    // Dot products over the output channels read the kernel in its stored layout.
+    auto ps = dc::conv_pass<Cout, 4, 2>(a, grad_in, std::ptrdiff_t(Cin) * Cout, false);
+    dc::run_dot<2 * Cout, Cin>(&ps, 1, Cout, weight, Cout);
+  } else {
+    dc::conv_core<Cout, Cin, 4, 2>(a, dc::input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, true);
+  }
 }
 
 /// Gradients for the weights [4][4][Cin][Cout] and bias [Cout] (null: skipped), ACCUMULATED.

@@ -51,7 +51,7 @@ constexpr int vectors_per_tile(int c) {
 /// training steps allocate nothing. Slots separate buffers alive at the same time.
 template <class T>
 inline T* scratch(int slot, std::size_t n) {
-  thread_local aligned_buffer<T> buffers[4];
+  thread_local aligned_buffer<T> buffers[6];
   if (buffers[slot].size() < n) buffers[slot] = aligned_buffer<T>(n + n / 8 + 64);
   return buffers[slot].data();
 }
@@ -92,8 +92,7 @@ struct forward_pass {
 /// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
 /// `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
 template <int NX, int NV, int ACOL, class T>
-inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int ci0, int ci1,
-                         std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
+inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
                          const T* bias, int init) {
   constexpr int W = lanes<T>;
   batch<T> acc[NX][NV];
@@ -110,8 +109,8 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
     }
   for (int t = 0; t < taps; ++t) {
     const T* a = a_tap[t];
-    const T* w = w_tap[t] + ci0 * ldw;
-    for (int ci = ci0; ci < ci1; ++ci, w += ldw) {
+    const T* w = w_tap[t];
+    for (int ci = 0; ci < n; ++ci, w += ldw) {
       batch<T> wv[NV];
       for (int v = 0; v < NV; ++v) wv[v] = batch<T>::load_unaligned(w + v * W);
       for (int p = 0; p < NX; ++p) {
@@ -135,6 +134,10 @@ template <class T>
 struct weight_layout {
   const T* w = nullptr;
   std::ptrdiff_t ld = 0, tap_stride = 0, block_stride = 0;
+  /// The weights are the caller's [taps][Ca][ld] array: each work item copies the block of
+  /// taps x ci-chunk x block it needs into a per-thread, L2-sized, contiguous buffer (one read of
+  /// the weights from memory, no 4 KiB strides in the inner loop, no whole-array copy).
+  bool pack = false;
 };
 
 /// How one row of `cols` pixels is cut into register tiles: n_wide tiles of the wide width, then
@@ -216,26 +219,155 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
     const int per_row = pl.tiles();
     const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
     const T* w_tap[16];
-    for (int t = 0; t < ps.taps; ++t) w_tap[t] = wl.w + ps.w_tap[t] + cb * wl.block_stride;
+    std::ptrdiff_t ld = wl.ld;
+    T* buffer = wl.pack ? scratch<T>(4, std::size_t(ps.taps) * ci_chunk * block) : nullptr;
+    const int n_cols = std::min(block, Cb - co0);
     const T* bias_block = bias ? bias + co0 : nullptr;
     const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
     for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
       const int c1 = std::min(Ca, c0 + ci_chunk);
+      if (wl.pack) {
+        for (int t = 0; t < ps.taps; ++t) {
+          const T* src = wl.w + ps.w_tap[t] + std::ptrdiff_t(c0) * wl.ld + co0;
+          T* dst = buffer + std::ptrdiff_t(t) * (c1 - c0) * block;
+          for (int ci = c0; ci < c1; ++ci, src += wl.ld, dst += block) {
+            std::memcpy(static_cast<void*>(dst), src, sizeof(T) * n_cols);
+            if (n_cols < block) std::memset(static_cast<void*>(dst + n_cols), 0, sizeof(T) * (block - n_cols));
+          }
+          w_tap[t] = buffer + std::ptrdiff_t(t) * (c1 - c0) * block;
+        }
+        ld = block;
+      } else {
+        for (int t = 0; t < ps.taps; ++t) w_tap[t] = wl.w + ps.w_tap[t] + cb * wl.block_stride + std::ptrdiff_t(c0) * wl.ld;
+      }
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
         const long long row = tile / per_row;
         const auto [x, nx] = pl.tile(int(tile % per_row));
         const int b = int(row / ps.rows), r = int(row % ps.rows);
-        const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL;
+        const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
         if (nx == NX1)
-          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
         else if (nx == NX2)
-          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
         else
-          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c0, c1, wl.ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
+      }
+    }
+  }
+}
+
+// ---- input-gradient pass as dot products --------------------------------------------------------
+
+/// The register tile of an input-gradient pass: NX pixels x CIB output channels, each a register
+/// of partial sums over the reduced channels (the A side's), summed across lanes at the end. It
+/// reads the weights [tap][out][reduced] in their stored layout, so no transposed copy is made.
+// GCC 12 flags the undefined upper half inside _mm512 extract intrinsics that xsimd::hadd uses as
+// maybe-uninitialized; it is a false positive of the intrinsic header.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+template <int NX, int CIB, int ACOL, class T>
+inline void dot_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, T* out,
+                     std::ptrdiff_t o_col) {
+  constexpr int W = lanes<T>;
+  batch<T> acc[NX][CIB];
+  for (int p = 0; p < NX; ++p)
+    for (int i = 0; i < CIB; ++i) acc[p][i] = batch<T>(T(0));
+  for (int t = 0; t < taps; ++t) {
+    const T* a = a_tap[t];
+    const T* w = w_tap[t];
+    for (int c = 0; c < n; c += W) {
+      batch<T> wv[CIB];
+      for (int i = 0; i < CIB; ++i) wv[i] = batch<T>::load_unaligned(w + i * ldw + c);
+      for (int p = 0; p < NX; ++p) {
+        const batch<T> x = batch<T>::load_unaligned(a + p * ACOL + c);
+        for (int i = 0; i < CIB; ++i) acc[p][i] = xsimd::fma(x, wv[i], acc[p][i]);
+      }
+    }
+  }
+  for (int p = 0; p < NX; ++p)
+    for (int i = 0; i < CIB; ++i) out[p * o_col + i] += xsimd::hadd(acc[p][i]);
+}
+#pragma GCC diagnostic pop
+
+/// Runs input-gradient passes with dot_tile: out[pixel][j] += sum over taps t and reduced
+/// channels c of A[pixel + a_tap_t][c] * w[w_tap_t + j * ldw + c]. Ca (reduced) must be a multiple
+/// of the SIMD width; Cb output channels in blocks of 4 (a remainder in single channels).
+template <int ACOL, int Cb, class T>
+void run_dot(forward_pass<T>* passes, int npasses, int Ca, const T* w, std::ptrdiff_t ldw) {
+  // 8 outputs per tile when they divide: each loaded A register then feeds 8 FMAs.
+  constexpr int CIB = Cb % 8 == 0 && accumulator_budget<T> >= 24 ? 8 : 4;
+  constexpr int NX1 = std::max(1, accumulator_budget<T> / CIB);
+  constexpr int NX2 = std::max(1, 2 * NX1 / 3);
+  constexpr int group = 16;  // output channels per work item
+  const int groups = (Cb + group - 1) / group;
+  // Reduced-channel chunk: the weights of a (tap, 4 outputs, chunk) slice stay in L1.
+  int chunk = int((std::size_t(32) << 10) / (std::size_t(passes[0].taps) * CIB * sizeof(T)));
+  chunk = std::max(lanes<T>, chunk / lanes<T> * lanes<T>);
+  chunk = std::min(chunk, Ca);
+  row_plan plan[4];
+  long long tiles_in[4], first_item[5];
+  const int threads = omp_get_max_threads();
+  long long total_tiles = 0;
+  for (int i = 0; i < npasses; ++i) {
+    plan[i] = row_plan::make(passes[i].cols, NX1, NX2);
+    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
+    total_tiles += tiles_in[i];
+  }
+  long long tchunk = 32;
+  while (tchunk > 1 && ((total_tiles + tchunk - 1) / tchunk) * groups < 8LL * threads) tchunk /= 2;
+  long long items = 0;
+  for (int i = 0; i < npasses; ++i) {
+    first_item[i] = items;
+    items += (tiles_in[i] + tchunk - 1) / tchunk * groups;
+  }
+  first_item[npasses] = items;
+
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && total_tiles * Ca * Cb > (1 << 16))
+  for (long long item = 0; item < items; ++item) {
+    int pi = 0;
+    while (item >= first_item[pi + 1]) ++pi;
+    const forward_pass<T>& ps = passes[pi];
+    const row_plan& pl = plan[pi];
+    const long long local = item - first_item[pi];
+    const long long ch = local / groups;
+    const int g = int(local % groups);
+    const int j0 = g * group, j1 = std::min(Cb, j0 + group);
+    const int per_row = pl.tiles();
+    const long long t0 = ch * tchunk, t1 = std::min(tiles_in[pi], t0 + tchunk);
+    for (int c0 = 0; c0 < Ca; c0 += chunk) {
+      const int n = std::min(Ca, c0 + chunk) - c0;
+      for (int j = j0; j < j1; j += CIB) {
+        const T* w_tap[16];
+        for (int t = 0; t < ps.taps; ++t) w_tap[t] = w + ps.w_tap[t] + std::ptrdiff_t(j) * ldw + c0;
+        for (long long tile = t0; tile < t1; ++tile) {
+          const long long row = tile / per_row;
+          const auto [x, nx] = pl.tile(int(tile % per_row));
+          const int b = int(row / ps.rows), r = int(row % ps.rows);
+          const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
+          T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + j;
+          const T* a_tap[16];
+          for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
+          if (j + CIB <= j1) {
+            if (nx == NX1) dot_tile<NX1, CIB, ACOL>(a_tap, w_tap, ps.taps, n, ldw, obase, ps.o_col);
+            else if (nx == NX2) dot_tile<NX2, CIB, ACOL>(a_tap, w_tap, ps.taps, n, ldw, obase, ps.o_col);
+            else dot_tile<1, CIB, ACOL>(a_tap, w_tap, ps.taps, n, ldw, obase, ps.o_col);
+          } else if constexpr (Cb % CIB != 0) {
+            // The last channels, one at a time (only when Cb is not a multiple of CIB).
+            for (int jj = j; jj < j1; ++jj) {
+              const T* w1[16];
+              for (int t = 0; t < ps.taps; ++t) w1[t] = w_tap[t] + std::ptrdiff_t(jj - j) * ldw;
+              for (int p = 0; p < nx; ++p) {
+                const T* a1[16];
+                for (int t = 0; t < ps.taps; ++t) a1[t] = a_tap[t] + std::ptrdiff_t(p) * ACOL;
+                dot_tile<1, 1, ACOL>(a1, w1, ps.taps, n, ldw, obase + p * ps.o_col + (jj - j), ps.o_col);
+              }
+            }
+          }
+        }
       }
     }
   }
