@@ -349,14 +349,25 @@ inline std::string describe(const procedural_parameters& p) {
   char buffer[256];
   const double degrees = p.rotation * 180.0 / std::numbers::pi;
   if (is_weave(p.kind)) {
-    std::snprintf(buffer, sizeof buffer, "%s %d/%d, pitch %.1fx%.1f px, warp %s, weft %s, rotation %.0f deg",
-                  material_kind_name(p.kind), p.pattern_over, p.pattern_period - p.pattern_over, p.warp_pitch,
-                  p.weft_pitch, fabric_palette[p.colour_names[0]].name, fabric_palette[p.colour_names[1]].name, degrees);
+    char pattern[48];
+    if (p.kind == material_kind::twill || p.kind == material_kind::herringbone)
+      std::snprintf(pattern, sizeof pattern, "%s %d/%d", material_kind_name(p.kind), p.pattern_over,
+                    p.pattern_period - p.pattern_over);
+    else if (p.kind == material_kind::satin)
+      std::snprintf(pattern, sizeof pattern, "%d-end %s", p.pattern_period, p.weft_faced ? "sateen" : "satin");
+    else
+      std::snprintf(pattern, sizeof pattern, "%s weave", material_kind_name(p.kind));
+    std::snprintf(buffer, sizeof buffer, "%s, pitch %.1fx%.1f px, warp %s, weft %s, rotation %.0f deg", pattern,
+                  p.warp_pitch, p.weft_pitch, fabric_palette[p.colour_names[0]].name,
+                  fabric_palette[p.colour_names[1]].name, degrees);
   } else if (p.kind == material_kind::crushed_velvet) {
     std::snprintf(buffer, sizeof buffer, "velvet, %s, patches %.0f px", fabric_palette[p.colour_names[0]].name,
                   p.feature_scale);
+  } else if (p.kind == material_kind::spun_metal) {
+    std::snprintf(buffer, sizeof buffer, "spun %s, lobes %.3f x %.3f, centre (%.0f, %.0f) px",
+                  metal_palette[p.colour_names[0]].name, p.sigma_along[0], p.sigma_across[0], p.centre[0], p.centre[1]);
   } else {
-    std::snprintf(buffer, sizeof buffer, "%s %s, lobes %.3f x %.3f, rotation %.0f deg", material_kind_name(p.kind),
+    std::snprintf(buffer, sizeof buffer, "brushed %s, lobes %.3f x %.3f, rotation %.0f deg",
                   metal_palette[p.colour_names[0]].name, p.sigma_along[0], p.sigma_across[0], degrees);
   }
   return buffer;
