@@ -175,7 +175,12 @@ def main():
         run([program, "--threads", "2", "capture", os.path.join(case0, "capture.json"), "-o", report_dir,
              "--init", os.path.join(other, "truth"), "--steps", "0"])
         with open(os.path.join(report_dir, "report.json")) as f:
-            cpp_loss = float(json.load(f)["stages"]["refine"]["loss_initial"])
+            report = json.load(f)
+        try:
+            cpp_loss = float(report["stages"]["refine"]["loss_initial"])
+        except (KeyError, TypeError, ValueError):
+            print("FAIL: report.json of `anisocap capture` has no stages.refine.loss_initial")
+            return 1
         capture = ward.read_capture(os.path.join(case0, "capture.json"))
         targets = np.stack([exr.read_rgb(os.path.join(case0, im["file"])) for im in capture])
         ref_loss = float(ward.image_loss(np, ward.render(np, ward.read_map_set(os.path.join(other, "truth")), capture),
