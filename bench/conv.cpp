@@ -13,6 +13,8 @@
 
 // GCC 12 reports Eigen's AVX-512 transposes (inlined here) as maybe-uninitialized: a known false positive.
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// GCC 12 also misreports std::string concatenation (benchmark names) under -Wrestrict (PR 105329).
+#pragma GCC diagnostic ignored "-Wrestrict"
 #include <Eigen/Core>
 #include <algorithm>
 #include <chrono>
@@ -90,7 +92,8 @@ void conv_case(benchmark::State& state, int n, int threads, pass_kind pass) {
   auto gout = random_tensor<Cout>(1, m, m, 2);
   tensor<Cout> out(1, m, m);
   tensor<Cin> gin(1, n, n);
-  std::vector<float> w(static_cast<std::size_t>(K * K * Cin * Cout)), b(Cout), gw(w.size()), gb(Cout);
+  // Aligned like nn::parameter storage, which is what the layers pass.
+  aligned_buffer<float> w(static_cast<std::size_t>(K * K * Cin * Cout)), b(Cout), gw(w.size()), gb(Cout);
   fill(w.data(), w.size(), 3);
   for (auto _ : state) {
     if (pass == forward) nn::conv2d_forward<Cin, Cout, K, S, P>(in, w.data(), b.data(), out);
@@ -108,7 +111,7 @@ void conv_transpose_case(benchmark::State& state, int n, int threads, pass_kind 
   auto gout = random_tensor<Cout>(1, 2 * n, 2 * n, 2);
   tensor<Cout> out(1, 2 * n, 2 * n);
   tensor<Cin> gin(1, n, n);
-  std::vector<float> w(std::size_t(16) * Cin * Cout), b(Cout), gw(w.size()), gb(Cout);
+  aligned_buffer<float> w(std::size_t(16) * Cin * Cout), b(Cout), gw(w.size()), gb(Cout);
   fill(w.data(), w.size(), 3);
   for (auto _ : state) {
     if (pass == forward) nn::conv_transpose2d_forward<Cin, Cout>(in, w.data(), b.data(), out);

@@ -298,14 +298,15 @@ inline void dot_tile(const T* const* a_tap, const T* const* w_tap, int taps, int
 /// of the SIMD width; Cb output channels in blocks of 4 (a remainder in single channels).
 template <int ACOL, int Cb, class T>
 void run_dot(forward_pass<T>* passes, int npasses, int Ca, const T* w, std::ptrdiff_t ldw) {
-  // 8 outputs per tile when they divide: each loaded A register then feeds 8 FMAs.
-  constexpr int CIB = Cb % 8 == 0 && accumulator_budget<T> >= 24 ? 8 : 4;
+  // 4 outputs x NX1 pixels: NX1 * 4 accumulators + 4 weight registers + 1 input register.
+  constexpr int CIB = 4;
   constexpr int NX1 = std::max(1, accumulator_budget<T> / CIB);
   constexpr int NX2 = std::max(1, 2 * NX1 / 3);
   constexpr int group = 16;  // output channels per work item
   const int groups = (Cb + group - 1) / group;
-  // Reduced-channel chunk: the weights of a (tap, 4 outputs, chunk) slice stay in L1.
-  int chunk = int((std::size_t(32) << 10) / (std::size_t(passes[0].taps) * CIB * sizeof(T)));
+  // Reduced-channel chunk: the weights of a (taps, 4 outputs, chunk) slice stay in L2, and the
+  // loop over it is long enough to amortise the lane sums at the end of a tile.
+  int chunk = int((std::size_t(128) << 10) / (std::size_t(passes[0].taps) * CIB * sizeof(T)));
   chunk = std::max(lanes<T>, chunk / lanes<T> * lanes<T>);
   chunk = std::min(chunk, Ca);
   row_plan plan[4];
@@ -437,35 +438,43 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   const int ci_items = ciblocks + ci_rest;
   const long long items = (long long)coblocks * ps.taps * ci_items;
   const int rows_total = ps.batch * ps.rows;
-  const int chunk_rows = std::max(1, 1024 / std::max(1, ps.cols));
+  // Pixel chunks of about 96 (whole rows when rows are shorter, else row segments): the chunk's
+  // output-gradient block (96 x NV registers) stays in L1 while a thread runs its items over it.
+  const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * sizeof(T))));
+  const int seg = std::min(ps.cols, target);
+  const int segs_per_row = (ps.cols + seg - 1) / seg;
+  const int chunk_rows = seg < ps.cols ? 1 : std::max(1, std::min(64, target / std::max(1, ps.cols)));
   const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
 #pragma omp parallel if (items > 1 && work > double(1 << 16))
   {
     const int nt = omp_get_num_threads(), id = omp_get_thread_num();
     const long long i0 = items * id / nt, i1 = items * (id + 1) / nt;
-    const T* a_rows[1024];
-    const T* g_rows[1024];
+    const T* a_rows[64];
+    const T* g_rows[64];
     for (int r0 = 0; r0 < rows_total && i0 < i1; r0 += chunk_rows) {
       const int nr = std::min(chunk_rows, rows_total - r0);
-      for (int r = 0; r < nr; ++r) {
-        const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
-        a_rows[r] = ps.a + b * ps.a_batch + y * ps.a_row;
-        g_rows[r] = ps.g + b * ps.g_batch + y * ps.g_row;
-      }
-      for (long long it = i0; it < i1; ++it) {
-        const int cb = int(it / (ps.taps * ci_items));
-        const int rest = int(it % (ps.taps * ci_items));
-        const int t = rest / ci_items, ck = rest % ci_items;
-        const int co0 = cb * block;
-        const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
-        if (ck < ciblocks) {
-          const int ci0 = ck * CIB;
-          weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, ps.cols, ps.a_col, ps.g_col,
+      for (int sg = 0; sg < segs_per_row; ++sg) {
+        const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
+        for (int r = 0; r < nr; ++r) {
+          const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
+          a_rows[r] = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col;
+          g_rows[r] = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col;
+        }
+        for (long long it = i0; it < i1; ++it) {
+          const int cb = int(it / (ps.taps * ci_items));
+          const int rest = int(it % (ps.taps * ci_items));
+          const int t = rest / ci_items, ck = rest % ci_items;
+          const int co0 = cb * block;
+          const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+          if (ck < ciblocks) {
+            const int ci0 = ck * CIB;
+            weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
+                                 gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+          } else {
+            const int ci0 = ciblocks * CIB + (ck - ciblocks);
+            weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
                                gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
-        } else {
-          const int ci0 = ciblocks * CIB + (ck - ciblocks);
-          weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, ps.cols, ps.a_col, ps.g_col,
-                             gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+          }
         }
       }
     }
