@@ -122,3 +122,22 @@ TEST_CASE("tape: no-grad mode records nothing and allocates no gradients") {
   CHECK(y.requires_grad);
   CHECK(t.size() == 3);
 }
+
+TEST_CASE("tape: a composed network's gradients match finite differences (shared inputs accumulate)") {
+  // Every intermediate feeds two operations (concat(h, h), add(u, u), the global track), so the
+  // check fails unless gradients accumulate.
+  nn::random_generator g(23);
+  nn::linear<3, 6, double> fc1("fc1", 1);
+  nn::instance_norm<6, double> norm("norm");
+  nn::linear<6, 6, double> global("global", 2);
+  nn::linear<12, 2, double> fc2("fc2", 3);
+  nn::uniform_init(norm.bias, 0.5, 4);
+  auto net = [&](ad::tape& t, const ad::variable<3, double>& x) {
+    auto h = nn::leaky_relu(t, norm(t, fc1(t, x)), 0.2);
+    h = nn::add_channel_bias(t, h, global(t, nn::spatial_mean(t, h)));
+    auto u = nn::upsample_nearest2x(t, nn::max_over_images(t, nn::concat(t, h, nn::selu(t, h)), 2));
+    return nn::tanh(t, fc2(t, nn::add(t, u, u)));
+  };
+  auto x = test_nn::random_tensor<3>(g, 4, 3, 5);
+  test_nn::check_layer(net, x, {&fc1.weight, &norm.weight, &norm.bias, &global.weight, &fc2.bias});
+}
