@@ -98,3 +98,31 @@ TEST_CASE("adam: converges on least squares through the tape") {
   for (int k = 0; k < 5; ++k) CHECK(fc.weight.value[k] == doctest::Approx(a[0][k]).epsilon(1e-3));
   CHECK(fc.bias.value[1] == doctest::Approx(c[1]).epsilon(1e-3));
 }
+
+TEST_CASE("adam: state can be saved and restored exactly (checkpoints)") {
+  // Two optimisers: one runs 3 steps; the other runs 1, takes a copy of the first's state after 1,
+  // and must then follow the same trajectory.
+  nn::parameter a("a", {5}), b("b", {5});
+  for (int i = 0; i < 5; ++i) a.value[i] = b.value[i] = float(i) - 2;
+  nn::adam first(nn::learning_rate_schedule::step_decay(0.1, 2, 0.5)), second(nn::learning_rate_schedule::step_decay(0.1, 2, 0.5));
+  first.add(a);
+  second.add(b);
+  auto gradient = [](nn::parameter& p) { for (std::size_t i = 0; i < p.size(); ++i) p.grad[i] = p.value[i] * p.value[i] - 1; };
+  gradient(a);
+  first.step();
+  // Restore into `second` from `first`: values, moments, per-parameter and global step counts.
+  std::copy(a.value.begin(), a.value.end(), b.value.begin());
+  std::vector<float> m, v;
+  long steps = 0;
+  first.for_each_state([&](nn::parameter&, auto& mm, auto& vv, long& s) { m.assign(mm.begin(), mm.end()); v.assign(vv.begin(), vv.end()); steps = s; });
+  second.for_each_state([&](nn::parameter&, auto& mm, auto& vv, long& s) { std::copy(m.begin(), m.end(), mm.begin()); std::copy(v.begin(), v.end(), vv.begin()); s = steps; });
+  second.set_steps(first.steps());
+  for (int k = 0; k < 2; ++k) {
+    gradient(a);
+    gradient(b);
+    first.step();
+    second.step();
+  }
+  for (int i = 0; i < 5; ++i) CHECK(a.value[i] == b.value[i]);
+  CHECK(second.learning_rate() == first.learning_rate());
+}

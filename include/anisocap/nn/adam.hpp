@@ -99,6 +99,14 @@ class basic_adam {
 
   /// Number of step() calls so far.
   long steps() const noexcept { return steps_; }
+  /// Sets the step counter (restoring a checkpoint; the schedule reads it).
+  void set_steps(long n) noexcept { steps_ = n; }
+  /// Visits each added parameter's state f(parameter, m, v, steps) (first and second moments and
+  /// the parameter's own update count), so a checkpoint can save and restore it exactly.
+  template <class F>
+  void for_each_state(F&& f) {
+    for (auto& s : states_) f(*s.parameter, s.m, s.v, s.steps);
+  }
   /// The learning rate the next step will use.
   double learning_rate() const { return schedule(steps_); }
 
