@@ -553,17 +553,26 @@ weight_layout<T> pack_weights(const T* w, int taps, int Ci, int Co, bool transpo
   return {dst, block, tap_stride, std::ptrdiff_t(taps) * tap_stride};
 }
 
-/// grad_bias[c] += sum over pixels of g[c].
+/// grad_bias[c] += sum over pixels of g[c]. Rows are split into fixed per-thread ranges whose
+/// partial sums are added in thread order, so the result is the same on every run.
 template <int C, class T>
 void bias_gradient(const tensor<C, T>& g, T* grad_bias) {
-  alignas(simd::alignment) T sum[padded_channels<T>(C)] = {};
-  for (int b = 0; b < g.batch(); ++b)
-    for (int y = 0; y < g.height(); ++y) {
-      const T* p = g.pixel(b, y, 0);
+  const int rows = g.batch() * g.height();
+  const int threads = g.size() > (1u << 16) ? omp_get_max_threads() : 1;
+  T* partial = scratch<T>(5, std::size_t(threads) * C);
+  std::fill(partial, partial + std::size_t(threads) * C, T(0));  // a thread the runtime withholds adds 0
+#pragma omp parallel num_threads(threads)
+  {
+    const int nt = omp_get_num_threads(), id = omp_get_thread_num();
+    T* sum = partial + std::size_t(id) * C;
+    for (int r = rows * id / nt; r < rows * (id + 1) / nt; ++r) {
+      const T* p = g.pixel(r / g.height(), r % g.height(), 0);
       for (int x = 0; x < g.width(); ++x, p += C)
         for (int c = 0; c < C; ++c) sum[c] += p[c];
     }
-  for (int c = 0; c < C; ++c) grad_bias[c] += sum[c];
+  }
+  for (int t = 0; t < threads; ++t)
+    for (int c = 0; c < C; ++c) grad_bias[c] += partial[std::size_t(t) * C + c];
 }
 
 }  // namespace anisocap::nn::detail::conv
