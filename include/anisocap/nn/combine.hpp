@@ -67,24 +67,31 @@ ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, co
   if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)
     throw std::invalid_argument("nn::add_channel_bias: the bias must be batch x 1 x 1 x C with the input's batch");
   auto y = t.make_variable<C, T>(x.value.batch(), x.value.height(), x.value.width(), x.requires_grad || v.requires_grad);
+  constexpr std::size_t P = detail::pattern_length<C, T>;
   const int w = x.value.width();
+  const std::size_t n = std::size_t(w) * C;
+  // Each entry's bias expanded to a channel pattern, so rows are added as flat arrays.
+  T* pattern = t.memory().allocate_array<T>(std::size_t(x.value.batch()) * P);
+  for (int b = 0; b < x.value.batch(); ++b) detail::expand_pattern<C>(v.value.pixel(b, 0, 0), pattern + std::size_t(b) * P);
   detail::for_each_row(x.value.batch(), x.value.height(), x.value.size(), [&](int b, int r) {
-    const T* bias = v.value.pixel(b, 0, 0);
-    for (int i = 0; i < w; ++i)
-      detail::transform(C, y.value.pixel(b, r, i), [](auto p, auto q) { return p + q; }, x.value.pixel(b, r, i), bias);
+    const T* in = x.value.pixel(b, r, 0);
+    T* out = y.value.pixel(b, r, 0);
+    detail::for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
+      detail::transform(len, out + s, [](auto p, auto q) { return p + q; }, in + s, pattern + std::size_t(b) * P);
+    });
   });
   if (y.requires_grad) {
     ad::tape* tp = &t;
-    t.record([x = x, v = v, y, w, tp]() mutable {
+    t.record([x = x, v = v, y, w, n, tp]() mutable {
       const int B = y.value.batch(), H = y.value.height();
       if (x.requires_grad)
         detail::for_each_row(B, H, y.value.size(), [&](int b, int r) {
-          detail::add_to(x.grad.pixel(b, r, 0), y.grad.pixel(b, r, 0), std::size_t(w) * C);
+          detail::add_to(x.grad.pixel(b, r, 0), y.grad.pixel(b, r, 0), n);
         });
       if (v.requires_grad) {
         T* partial = tp->memory().allocate_array<T>(std::size_t(B) * H * C);
-        detail::row_channel_sums<C>(B, H, w, partial, [&](int b, int r, int i, T* acc) {
-          detail::add_to(acc, y.grad.pixel(b, r, i), C);
+        detail::row_channel_sums<C>(B, H, w, partial, [&](int b, int r, std::size_t s, std::size_t len, T* acc) {
+          detail::add_to(acc, y.grad.pixel(b, r, 0) + s, len);
         });
         alignas(simd::alignment) T sums[C];
         for (int b = 0; b < B; ++b) {

@@ -6,6 +6,7 @@
 /// arena, then a serial sum over rows, so results do not depend on the number of threads.
 #include <algorithm>
 #include <cstddef>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 
@@ -65,15 +66,51 @@ inline void require_same_shape(const tensor<C1, T>& a, const tensor<C2, T>& b, c
                                 std::to_string(b.width()) + ")");
 }
 
-/// Per-row channel sums: partial[(b * height + y) * C + c] = sum over x of f(b, y, x)[c], where
-/// `f(b, y, x, acc)` adds its C values to acc. Rows run in parallel when large.
-template <int C, class T, class F>
+/// Length of a channel pattern: a whole number of pixels (a multiple of C) and of SIMD registers,
+/// and at least about 512 values. Per-channel coefficients expanded to this length let a row's
+/// values be processed as one flat array with full registers even when C is not a multiple of the
+/// register width (C = 3, 8, 12 in the networks' outer layers).
+template <int C, class T>
+inline constexpr std::size_t pattern_length = [] {
+  const std::size_t l = std::lcm(std::size_t(C), simd::width<T>);
+  return l * std::max<std::size_t>(1, 512 / l);
+}();
+
+/// pattern[j] = per_channel[j % C] for j < pattern_length<C, T>.
+template <int C, class T>
+inline void expand_pattern(const T* per_channel, T* pattern) {
+  for (std::size_t j = 0; j < pattern_length<C, T>; j += C) std::copy_n(per_channel, C, pattern + j);
+}
+
+/// Per-row channel sums over flat chunks of a row's width * C values. Chunks start at multiples of
+/// P = pattern_length<C, T> (so value j of a chunk is channel j % C) and hold at most P values;
+/// `f(b, y, offset, length, acc)` adds the chunk's values to acc[0, length) (and with Sums = 2 a
+/// second quantity to acc[P, P + length)). Then partial[((b * height + y) * Sums + s) * C + c] is the
+/// sum of quantity s over the row's pixels. Rows run in parallel when large.
+template <int C, int Sums = 1, class T, class F>
 inline void row_channel_sums(int batch, int height, int width, T* partial, F&& f) {
-  for_each_row(batch, height, std::size_t(batch) * height * width * C, [&](int b, int y) {
-    T* acc = partial + (std::size_t(b) * height + y) * C;
-    std::fill(acc, acc + C, T(0));
-    for (int x = 0; x < width; ++x) f(b, y, x, acc);
+  constexpr std::size_t P = pattern_length<C, T>;
+  const std::size_t n = std::size_t(width) * C;
+  for_each_row(batch, height, std::size_t(batch) * height * n, [&](int b, int y) {
+    alignas(simd::alignment) T acc[Sums * P];
+    std::fill_n(acc, Sums * P, T(0));
+    for (std::size_t s = 0; s < n; s += P) f(b, y, s, std::min(P, n - s), acc);
+    T* out = partial + (std::size_t(b) * height + y) * Sums * C;
+    const std::size_t used = std::min(P, n);  // a short row leaves the rest of acc at zero
+    for (int k = 0; k < Sums; ++k) {
+      T* o = out + std::size_t(k) * C;
+      std::copy_n(acc + k * P, C, o);
+      for (std::size_t j = C; j < used; j += C)
+        for (int c = 0; c < C; ++c) o[c] += acc[k * P + j + c];
+    }
   });
+}
+
+/// Calls f(offset, length) for the chunks of a row of n values that row_channel_sums uses.
+template <int C, class T, class F>
+inline void for_each_chunk(std::size_t n, F&& f) {
+  constexpr std::size_t P = pattern_length<C, T>;
+  for (std::size_t s = 0; s < n; s += P) f(s, std::min(P, n - s));
 }
 
 /// sums[c] = sum over rows [r0, r1) of partial[r * C + c] (serial: deterministic).

@@ -20,22 +20,35 @@ namespace anisocap::nn {
 
 namespace detail {
 
+/// Per-group channel patterns (groups x pattern_length values) of per-group channel values.
+template <int C, class T>
+T* expand_groups(ad::tape& t, const T* values, int groups) {
+  constexpr std::size_t P = pattern_length<C, T>;
+  T* p = t.memory().allocate_array<T>(std::size_t(groups) * P);
+  for (int g = 0; g < groups; ++g) expand_pattern<C>(values + std::size_t(g) * C, p + std::size_t(g) * P);
+  return p;
+}
+
 /// Per-group channel mean and biased variance of x; a group is one batch entry
 /// (`per_entry`) or the whole batch. mean and variance hold groups x C values.
 template <int C, class T>
 void channel_statistics(ad::tape& t, const tensor<C, T>& x, bool per_entry, T* mean, T* variance) {
+  constexpr std::size_t P = pattern_length<C, T>;
   const int B = x.batch(), H = x.height(), W = x.width();
   const int groups = per_entry ? B : 1, rows_per_group = per_entry ? H : B * H;
   const T inverse = T(1) / T(std::size_t(rows_per_group) * W);
   T* partial = t.memory().allocate_array<T>(std::size_t(B) * H * C);
-  row_channel_sums<C>(B, H, W, partial, [&](int b, int r, int i, T* acc) { add_to(acc, x.pixel(b, r, i), C); });
+  row_channel_sums<C>(B, H, W, partial, [&](int b, int r, std::size_t s, std::size_t n, T* acc) {
+    add_to(acc, x.pixel(b, r, 0) + s, n);
+  });
   for (int g = 0; g < groups; ++g) {
     sum_rows<C>(partial, g * rows_per_group, (g + 1) * rows_per_group, mean + std::size_t(g) * C);
     for (int c = 0; c < C; ++c) mean[std::size_t(g) * C + c] *= inverse;
   }
-  row_channel_sums<C>(B, H, W, partial, [&](int b, int r, int i, T* acc) {
-    const T* m = mean + std::size_t(per_entry ? b : 0) * C;
-    transform(C, acc, [](auto a, auto v, auto mu) { return a + (v - mu) * (v - mu); }, acc, x.pixel(b, r, i), m);
+  const T* mean_pattern = expand_groups<C>(t, mean, groups);
+  row_channel_sums<C>(B, H, W, partial, [&](int b, int r, std::size_t s, std::size_t n, T* acc) {
+    const T* m = mean_pattern + std::size_t(per_entry ? b : 0) * P;
+    transform(n, acc, [](auto a, auto v, auto mu) { return a + (v - mu) * (v - mu); }, acc, x.pixel(b, r, 0) + s, m);
   });
   for (int g = 0; g < groups; ++g) {
     sum_rows<C>(partial, g * rows_per_group, (g + 1) * rows_per_group, variance + std::size_t(g) * C);
@@ -46,41 +59,50 @@ void channel_statistics(ad::tape& t, const tensor<C, T>& x, bool per_entry, T* m
 /// y = (x - mean) * rstd * gamma + beta with per-group mean and rstd (groups x C values, group =
 /// batch entry when `per_entry`). `batch_statistics` says whether mean and rstd came from x itself
 /// (training: the backward pass differentiates through them) or are constants (running statistics).
+/// Rows are processed as flat arrays against channel patterns (see pattern_length).
 template <int C, class T>
 ad::variable<C, T> normalize(ad::tape& t, const ad::variable<C, T>& x, basic_parameter<T>& gamma,
                              basic_parameter<T>& beta, bool per_entry, bool batch_statistics, const T* mean,
                              const T* rstd) {
+  constexpr std::size_t P = pattern_length<C, T>;
   const int B = x.value.batch(), H = x.value.height(), W = x.value.width();
   const int groups = per_entry ? B : 1;
+  const std::size_t gc = std::size_t(groups) * C, n = std::size_t(W) * C;
   auto y = t.make_variable<C, T>(B, H, W, x.requires_grad || gamma.trainable() || beta.trainable());
   // Per-group scale and shift: y = x * scale + shift.
-  T* scale = t.memory().allocate_array<T>(std::size_t(groups) * C);
-  T* shift = t.memory().allocate_array<T>(std::size_t(groups) * C);
+  T* scale = t.memory().allocate_array<T>(2 * gc);
+  T* shift = scale + gc;
   for (int g = 0; g < groups; ++g)
     for (int c = 0; c < C; ++c) {
       const std::size_t k = std::size_t(g) * C + c;
       scale[k] = gamma.value[c] * rstd[k];
       shift[k] = beta.value[c] - mean[k] * scale[k];
     }
+  const T* scale_pattern = expand_groups<C>(t, scale, groups);
+  const T* shift_pattern = expand_groups<C>(t, shift, groups);
   for_each_row(B, H, x.value.size(), [&](int b, int r) {
-    const std::size_t g = std::size_t(per_entry ? b : 0) * C;
-    for (int i = 0; i < W; ++i)
-      transform(C, y.value.pixel(b, r, i), [](auto v, auto s, auto o) { return xsimd::fma(v, s, o); },
-                x.value.pixel(b, r, i), scale + g, shift + g);
+    const std::size_t g = std::size_t(per_entry ? b : 0) * P;
+    const T* in = x.value.pixel(b, r, 0);
+    T* out = y.value.pixel(b, r, 0);
+    for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
+      transform(len, out + s, [](auto v, auto sc, auto o) { return xsimd::fma(v, sc, o); }, in + s, scale_pattern + g,
+                shift_pattern + g);
+    });
   });
   if (!y.requires_grad) return y;
+  const T* mean_pattern = expand_groups<C>(t, mean, groups);
+  const T* rstd_pattern = expand_groups<C>(t, rstd, groups);
   ad::tape* tp = &t;
   t.record([=, x = x, &gamma, &beta]() mutable {
-    const std::size_t gc = std::size_t(groups) * C;
     // S1 = sum gy, S2 = sum gy * xhat per group and channel, xhat = (x - mean) * rstd.
     T* partial = tp->memory().allocate_array<T>(std::size_t(B) * H * 2 * C);
     T* sums = tp->memory().allocate_array<T>(2 * gc);
-    row_channel_sums<2 * C>(B, H, W, partial, [&](int b, int r, int i, T* acc) {
-      const std::size_t g = std::size_t(per_entry ? b : 0) * C;
-      const T* gy = y.grad.pixel(b, r, i);
-      add_to(acc, gy, C);
-      transform(C, acc + C, [](auto a, auto d, auto v, auto mu, auto s) { return xsimd::fma(d, (v - mu) * s, a); },
-                acc + C, gy, x.value.pixel(b, r, i), mean + g, rstd + g);
+    row_channel_sums<C, 2>(B, H, W, partial, [&](int b, int r, std::size_t s, std::size_t len, T* acc) {
+      const std::size_t g = std::size_t(per_entry ? b : 0) * P;
+      const T* gy = y.grad.pixel(b, r, 0) + s;
+      add_to(acc, gy, len);
+      transform(len, acc + P, [](auto a, auto d, auto v, auto mu, auto rs) { return xsimd::fma(d, (v - mu) * rs, a); },
+                acc + P, gy, x.value.pixel(b, r, 0) + s, mean_pattern + g, rstd_pattern + g);
     });
     const int rows_per_group = per_entry ? H : B * H;
     for (int g = 0; g < groups; ++g) {
@@ -106,17 +128,22 @@ ad::variable<C, T> normalize(ad::tape& t, const ad::variable<C, T>& x, basic_par
       a[j] = batch_statistics ? -k[j] * rstd[j] * sums[gc + j] * inverse_n : T(0);
       d[j] = batch_statistics ? -k[j] * sums[j] * inverse_n : T(0);
     }
+    const T* k_pattern = expand_groups<C>(*tp, k, groups);
+    const T* a_pattern = expand_groups<C>(*tp, a, groups);
+    const T* d_pattern = expand_groups<C>(*tp, d, groups);
     for_each_row(B, H, x.value.size(), [&](int b, int r) {
-      const std::size_t g = std::size_t(per_entry ? b : 0) * C;
-      for (int i = 0; i < W; ++i) {
-        T* gx = x.grad.pixel(b, r, i);
+      const std::size_t g = std::size_t(per_entry ? b : 0) * P;
+      T* gx = x.grad.pixel(b, r, 0);
+      const T* gy = y.grad.pixel(b, r, 0);
+      const T* v = x.value.pixel(b, r, 0);
+      for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
         transform(
-            C, gx,
-            [](auto acc, auto gy, auto v, auto mu, auto kk, auto aa, auto dd) {
-              return acc + (xsimd::fma(kk, gy, aa * (v - mu)) + dd);
+            len, gx + s,
+            [](auto acc, auto dy, auto xv, auto mu, auto kk, auto aa, auto dd) {
+              return acc + (xsimd::fma(kk, dy, aa * (xv - mu)) + dd);
             },
-            gx, y.grad.pixel(b, r, i), x.value.pixel(b, r, i), mean + g, k + g, a + g, d + g);
-      }
+            gx + s, gy + s, v + s, mean_pattern + g, k_pattern + g, a_pattern + g, d_pattern + g);
+      });
     });
   });
   return y;

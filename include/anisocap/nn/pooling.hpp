@@ -19,8 +19,8 @@ ad::variable<C, T> spatial_mean(ad::tape& t, const ad::variable<C, T>& x) {
   if (H == 0 || W == 0) throw std::invalid_argument("nn::spatial_mean: empty image");
   auto y = t.make_variable<C, T>(B, 1, 1, x.requires_grad);
   T* partial = t.memory().allocate_array<T>(std::size_t(B) * H * C);
-  detail::row_channel_sums<C>(B, H, W, partial, [&](int b, int r, int i, T* acc) {
-    detail::add_to(acc, x.value.pixel(b, r, i), C);
+  detail::row_channel_sums<C>(B, H, W, partial, [&](int b, int r, std::size_t s, std::size_t n, T* acc) {
+    detail::add_to(acc, x.value.pixel(b, r, 0) + s, n);
   });
   const T inverse = T(1) / T(std::size_t(H) * W);
   for (int b = 0; b < B; ++b) {
@@ -29,12 +29,23 @@ ad::variable<C, T> spatial_mean(ad::tape& t, const ad::variable<C, T>& x) {
     for (int c = 0; c < C; ++c) out[c] *= inverse;
   }
   if (y.requires_grad) {
-    t.record([x = x, y, inverse, W]() mutable {
-      detail::for_each_row(x.value.batch(), x.value.height(), x.value.size(), [&](int b, int r) {
-        const T* g = y.grad.pixel(b, 0, 0);
-        for (int i = 0; i < W; ++i)
-          detail::transform(C, x.grad.pixel(b, r, i), [inverse](auto a, auto gy) { return a + gy * inverse; },
-                            x.grad.pixel(b, r, i), g);
+    ad::tape* tp = &t;
+    t.record([x = x, y, inverse, tp]() mutable {
+      // gx += gy / (H W): the output gradient, scaled and expanded to a channel pattern per entry.
+      constexpr std::size_t P = detail::pattern_length<C, T>;
+      const int B = x.value.batch();
+      T* pattern = tp->memory().allocate_array<T>(std::size_t(B) * P);
+      for (int b = 0; b < B; ++b) {
+        alignas(simd::alignment) T scaled[C];
+        for (int c = 0; c < C; ++c) scaled[c] = y.grad(b, 0, 0, c) * inverse;
+        detail::expand_pattern<C>(scaled, pattern + std::size_t(b) * P);
+      }
+      const std::size_t n = std::size_t(x.value.width()) * C;
+      detail::for_each_row(B, x.value.height(), x.value.size(), [&](int b, int r) {
+        T* g = x.grad.pixel(b, r, 0);
+        detail::for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
+          detail::add_to(g + s, pattern + std::size_t(b) * P, len);
+        });
       });
     });
   }

@@ -29,10 +29,16 @@ ad::variable<C, T> upsample_nearest2x(ad::tape& t, const ad::variable<C, T>& x) 
     t.record([x = x, y, B, H, W]() mutable {
       detail::for_each_row(B, H, y.value.size(), [&](int b, int i) {
         for (int j = 0; j < W; ++j) {
-          detail::transform(
-              C, x.grad.pixel(b, i, j), [](auto g, auto p, auto q, auto r, auto s) { return g + ((p + q) + (r + s)); },
-              x.grad.pixel(b, i, j), y.grad.pixel(b, 2 * i, 2 * j), y.grad.pixel(b, 2 * i, 2 * j + 1),
-              y.grad.pixel(b, 2 * i + 1, 2 * j), y.grad.pixel(b, 2 * i + 1, 2 * j + 1));
+          T* g = x.grad.pixel(b, i, j);
+          const T *p = y.grad.pixel(b, 2 * i, 2 * j), *q = p + C, *r = y.grad.pixel(b, 2 * i + 1, 2 * j), *s = r + C;
+          if constexpr (C % simd::width<T> == 0) {
+            detail::transform(C, g, [](auto a, auto p0, auto q0, auto r0, auto s0) { return a + ((p0 + q0) + (r0 + s0)); },
+                              g, p, q, r, s);
+          } else {
+            // Fewer channels than a register (or a ragged multiple): a plain loop of compile-time
+            // length, same summation order.
+            for (int c = 0; c < C; ++c) g[c] += (p[c] + q[c]) + (r[c] + s[c]);
+          }
         }
       });
     });
