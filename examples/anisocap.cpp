@@ -165,6 +165,7 @@ nlohmann::json capture_command(const capture_args& a) {
   fs::create_directories(a.out);
   write_maps(maps, a.out);
   write_renders(maps, cap, a.out / "renders");
+  write_capture_sheet(a.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
   const double write_seconds = seconds_since(t_write);
 
   nlohmann::json report;

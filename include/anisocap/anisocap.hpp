@@ -27,6 +27,7 @@
 #include "anisocap/render/renderer.hpp"
 
 #include "anisocap/data/capture_io.hpp"
+#include "anisocap/data/contact_sheet.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/data/procedural.hpp"
