@@ -51,8 +51,8 @@ ad::variable<C1 + C2, T> concat(ad::tape& t, const ad::variable<C1, T>& a, const
       detail::for_each_row(y.value.batch(), y.value.height(), y.value.size(), [&](int bi, int r) {
         for (int x = 0; x < w; ++x) {
           const T* g = y.grad.pixel(bi, r, x);
-          if (a.requires_grad) detail::add_to(a.grad.pixel(bi, r, x), g, C1);
-          if (b.requires_grad) detail::add_to(b.grad.pixel(bi, r, x), g + C1, C2);
+          if (a.requires_grad) detail::add_channels<C1>(a.grad.pixel(bi, r, x), g);
+          if (b.requires_grad) detail::add_channels<C2>(b.grad.pixel(bi, r, x), g + C1);
         }
       });
     });

@@ -47,6 +47,14 @@ inline void add_to(T* acc, const T* x, std::size_t n) {
   transform(n, acc, [](auto a, auto b) { return a + b; }, acc, x);
 }
 
+/// acc[c] += x[c] for the C channels of one pixel: SIMD when C is a whole number of registers, a
+/// plain loop of compile-time length otherwise (the padded-register tail would cost more).
+template <int C, class T>
+inline void add_channels(T* acc, const T* x) {
+  if constexpr (C % simd::width<T> == 0) add_to(acc, x, C);
+  else for (int c = 0; c < C; ++c) acc[c] += x[c];
+}
+
 /// Calls f(b, y) for every row of a batch x height image stack, on all threads when `elements`
 /// (the work's size) is large. f must only write memory that belongs to its row.
 template <class F>
