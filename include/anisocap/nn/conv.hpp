@@ -177,21 +177,53 @@ inline bool prefer_dot(std::size_t weights, std::size_t pixels) {
   return dot_weights_per_pixel == 0 || (pixels <= weights / dot_weights_per_pixel);
 }
 
+/// Runs the passes that `make_passes(target)` builds for an output tensor `target`. When Cb is
+/// not a whole number of register blocks (3, 9 or 12 channels), the kernel writes whole blocks
+/// into a padded scratch tensor that is then added (or copied) into out: partial-register loads
+/// and stores in the inner tiles would cost more than the pass.
+template <int Ca, int Cb, int ACOL, class T, class MakePasses>
+void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bias, bool accumulate,
+                      MakePasses&& make_passes) {
+  constexpr int NV = vectors_per_tile<T>(Cb);
+  constexpr int block = NV * lanes<T>;
+  forward_pass<T> ps[4];
+  if constexpr (Cb % block == 0) {
+    const int n = make_passes(out, ps);
+    if (n) run_forward<NV, ACOL>(ps, n, Ca, Cb, w, bias, accumulate);
+  } else {
+    constexpr int Cp = (Cb + block - 1) / block * block;
+    const int B = out.batch(), H = out.height(), W = out.width();
+    auto padded_out = tensor<Cp, T>::wrap(scratch<T>(6, std::size_t(B) * H * W * Cp), B, H, W);
+    const int n = make_passes(padded_out, ps);
+    if (n) run_forward<NV, ACOL>(ps, n, Ca, Cb, w, bias, false, true);
+#pragma omp parallel for schedule(static) if (out.size() > (1u << 16))
+    for (int r = 0; r < B * H; ++r) {
+      const int b = r / H, y = r % H;
+      T* o = out.pixel(b, y, 0);
+      const T* p = padded_out.pixel(b, y, 0);
+      for (int x = 0; x < W; ++x, o += Cb, p += Cp)
+        for (int c = 0; c < Cb; ++c) o[c] = accumulate ? o[c] + p[c] : p[c];
+    }
+  }
+}
+
 /// Stride-S K x K convolution of a padded source into out (register-blocked forward kernel).
 template <int Ca, int Cb, int K, int S, class T>
 void conv_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
                tensor<Cb, T>& out, bool accumulate, bool flip = false) {
-  forward_pass<T> ps = conv_pass<Ca, K, S>(a, out, w.tap_stride, flip);
-  run_forward<vectors_per_tile<T>(Cb), S * Ca>(&ps, 1, Ca, Cb, w, bias, accumulate);
+  run_forward_into<Ca, Cb, S * Ca>(out, w, bias, accumulate, [&](auto& target, forward_pass<T>* ps) {
+    ps[0] = conv_pass<Ca, K, S>(a, target, w.tap_stride, flip);
+    return 1;
+  });
 }
 
 /// 4x4 stride-2 pad-1 transposed convolution of a padded source into out (forward kernel).
 template <int Ca, int Cb, class T>
 void transposed_core(const padded_source<T>& a, const weight_layout<T>& w, const std::type_identity_t<T>* bias,
                      tensor<Cb, T>& out, bool accumulate) {
-  forward_pass<T> ps[4];
-  const int n = transposed_passes<Ca>(a, out, w.tap_stride, ps);
-  if (n) run_forward<vectors_per_tile<T>(Cb), Ca>(ps, n, Ca, Cb, w, bias, accumulate);
+  run_forward_into<Ca, Cb, Ca>(out, w, bias, accumulate, [&](auto& target, forward_pass<T>* ps) {
+    return transposed_passes<Ca>(a, target, w.tap_stride, ps);
+  });
 }
 
 }  // namespace detail::conv

@@ -51,7 +51,7 @@ constexpr int vectors_per_tile(int c) {
 /// training steps allocate nothing. Slots separate buffers alive at the same time.
 template <class T>
 inline T* scratch(int slot, std::size_t n) {
-  thread_local aligned_buffer<T> buffers[6];
+  thread_local aligned_buffer<T> buffers[8];
   if (buffers[slot].size() < n) buffers[slot] = aligned_buffer<T>(n + n / 8 + 64);
   return buffers[slot].data();
 }
@@ -96,7 +96,9 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
                          const T* bias, int init) {
   constexpr int W = lanes<T>;
   batch<T> acc[NX][NV];
+  #pragma GCC unroll 32
   for (int p = 0; p < NX; ++p)
+    #pragma GCC unroll 32
     for (int v = 0; v < NV; ++v) {
       if (init == 2) {
         const T* src = out + p * o_col + v * W;
@@ -112,14 +114,19 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
     const T* w = w_tap[t];
     for (int ci = 0; ci < n; ++ci, w += ldw) {
       batch<T> wv[NV];
+      #pragma GCC unroll 32
       for (int v = 0; v < NV; ++v) wv[v] = batch<T>::load_unaligned(w + v * W);
+      #pragma GCC unroll 32
       for (int p = 0; p < NX; ++p) {
         const batch<T> x(a[p * ACOL + ci]);
+        #pragma GCC unroll 32
         for (int v = 0; v < NV; ++v) acc[p][v] = xsimd::fma(x, wv[v], acc[p][v]);
       }
     }
   }
+  #pragma GCC unroll 32
   for (int p = 0; p < NX; ++p)
+    #pragma GCC unroll 32
     for (int v = 0; v < NV; ++v) {
       T* dst = out + p * o_col + v * W;
       if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[p][v], last_lanes);
@@ -172,7 +179,7 @@ struct row_plan {
 /// overwriting it.
 template <int NV, int ACOL, class T>
 void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
-                 const T* bias, bool accumulate) {
+                 const T* bias, bool accumulate, bool whole_blocks = false) {
   constexpr int W = lanes<T>;
   constexpr int NX1 = std::max(1, accumulator_budget<T> / NV);
   constexpr int NX2 = std::max(1, 2 * NX1 / 3);
@@ -223,7 +230,8 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
     T* buffer = wl.pack ? scratch<T>(4, std::size_t(ps.taps) * ci_chunk * block) : nullptr;
     const int n_cols = std::min(block, Cb - co0);
     const T* bias_block = bias ? bias + co0 : nullptr;
-    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+    // whole_blocks: the output has room for whole blocks (a padded buffer), so no partial stores.
+    const int lanes_here = (cb == coblocks - 1 && !whole_blocks) ? last_lanes : W;
     for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
       const int c1 = std::min(Ca, c0 + ci_chunk);
       if (wl.pack) {
@@ -274,21 +282,28 @@ inline void dot_tile(const T* const* a_tap, const T* const* w_tap, int taps, int
                      std::ptrdiff_t o_col) {
   constexpr int W = lanes<T>;
   batch<T> acc[NX][CIB];
+  #pragma GCC unroll 32
   for (int p = 0; p < NX; ++p)
+    #pragma GCC unroll 32
     for (int i = 0; i < CIB; ++i) acc[p][i] = batch<T>(T(0));
   for (int t = 0; t < taps; ++t) {
     const T* a = a_tap[t];
     const T* w = w_tap[t];
     for (int c = 0; c < n; c += W) {
       batch<T> wv[CIB];
+      #pragma GCC unroll 32
       for (int i = 0; i < CIB; ++i) wv[i] = batch<T>::load_unaligned(w + i * ldw + c);
+      #pragma GCC unroll 32
       for (int p = 0; p < NX; ++p) {
         const batch<T> x = batch<T>::load_unaligned(a + p * ACOL + c);
+        #pragma GCC unroll 32
         for (int i = 0; i < CIB; ++i) acc[p][i] = xsimd::fma(x, wv[i], acc[p][i]);
       }
     }
   }
+  #pragma GCC unroll 32
   for (int p = 0; p < NX; ++p)
+    #pragma GCC unroll 32
     for (int i = 0; i < CIB; ++i) out[p * o_col + i] += xsimd::hadd(acc[p][i]);
 }
 #pragma GCC diagnostic pop
@@ -398,7 +413,9 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
                         std::ptrdiff_t ldw, int last_lanes) {
   constexpr int W = lanes<T>;
   batch<T> acc[CIB][NV];
+  #pragma GCC unroll 32
   for (int i = 0; i < CIB; ++i)
+    #pragma GCC unroll 32
     for (int v = 0; v < NV; ++v) {
       const T* src = gw + i * ldw + v * W;
       acc[i][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<T>::load_unaligned(src);
@@ -408,14 +425,19 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
     const T* g = g_rows[r] + g_off;
     for (int c = 0; c < cols; ++c, a += a_col, g += g_col) {
       batch<T> gv[NV];
+      #pragma GCC unroll 32
       for (int v = 0; v < NV; ++v) gv[v] = batch<T>::load_unaligned(g + v * W);
+      #pragma GCC unroll 32
       for (int i = 0; i < CIB; ++i) {
         const batch<T> x(a[i]);
+        #pragma GCC unroll 32
         for (int v = 0; v < NV; ++v) acc[i][v] = xsimd::fma(x, gv[v], acc[i][v]);
       }
     }
   }
+  #pragma GCC unroll 32
   for (int i = 0; i < CIB; ++i)
+    #pragma GCC unroll 32
     for (int v = 0; v < NV; ++v) {
       T* dst = gw + i * ldw + v * W;
       if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[i][v], last_lanes);
