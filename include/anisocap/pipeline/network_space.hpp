@@ -1,0 +1,156 @@
+#pragma once
+/// @file
+/// The networks' value space (MODEL.md 1 and 5): the 12 appearance parameters mapped to [-1, 1]
+/// (what the estimator's and the auto-encoder's tanh outputs produce), the photographs mapped by
+/// eq. 7, and the chain rule that turns the render loss's dL/d(maps) into dL/d(network outputs).
+///
+/// Per channel (k = parameter_index, the same order as the networks' 9 + 3 output channels):
+/// - a_d, a'_s, F0: u = 2 v - 1 (linear).
+/// - sigma_x, sigma_y: log space, u = 2 (log sigma - log s0) / (-log s0) - 1 with s0 = 1e-4
+///   (min_lobe_width), so u = -1 is sigma = 1e-4 and u = 1 is sigma = 1; widths below s0 clamp to -1.
+///   **decision** (MODEL.md 1 leaves the map open): equal steps in u are equal ratios of sigma,
+///   which is how the lobe's appearance changes.
+/// - n_x, n_y: as they are; a decoded pair with x^2 + y^2 > 0.999^2 is scaled back onto that circle
+///   (radius 0.999 keeps n_z > 0.04, so the tangent frame stays defined), and the chain rule
+///   follows the scaling.
+/// - alpha: u = alpha / (pi / 2); the encoder wraps alpha into [-pi/2, pi/2] first (alpha is
+///   pi-periodic, MODEL.md 1).
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/image.hpp"
+#include "anisocap/core/tensor.hpp"
+
+namespace anisocap::network_space {
+
+/// log(min_lobe_width): the lower end of the lobe widths' log range.
+inline const double log_min_lobe = std::log(double(min_lobe_width));
+/// Largest |(n_x, n_y)| a decoded normal may have.
+inline constexpr double max_normal_xy = 0.999;
+
+/// Parameter value v of channel k in network space.
+inline double to_network(int k, double v) {
+  switch (k) {
+    case lobe_x:
+    case lobe_y: {
+      const double s = std::max(v, double(min_lobe_width));
+      return 2 * (std::log(s) - log_min_lobe) / (-log_min_lobe) - 1;
+    }
+    case normal_x:
+    case normal_y: return v;
+    case rotation: {
+      const double wrapped = v - std::numbers::pi * std::nearbyint(v / std::numbers::pi);
+      return wrapped / (std::numbers::pi / 2);
+    }
+    default: return 2 * v - 1;
+  }
+}
+
+/// Parameter value of channel k for network value u (normals not yet limited to the disc).
+inline double from_network(int k, double u) {
+  switch (k) {
+    case lobe_x:
+    case lobe_y: return std::exp(log_min_lobe + (u + 1) / 2 * (-log_min_lobe));
+    case normal_x:
+    case normal_y: return u;
+    case rotation: return u * (std::numbers::pi / 2);
+    default: return (u + 1) / 2;
+  }
+}
+
+/// Writes the map set in network space into entry `b` of `out` (same height and width).
+template <class T>
+void maps_to_network(const material_maps& maps, tensor<parameter_count, T>& out, int b) {
+  if (out.height() != maps.height() || out.width() != maps.width() || b < 0 || b >= out.batch())
+    throw std::invalid_argument("maps_to_network: the tensor is " + std::to_string(out.height()) + "x" +
+                                std::to_string(out.width()) + ", the maps " + std::to_string(maps.height()) + "x" +
+                                std::to_string(maps.width()));
+  for (int y = 0; y < maps.height(); ++y)
+    for (int x = 0; x < maps.width(); ++x) {
+      T* p = out.pixel(b, y, x);
+      for (int k = 0; k < parameter_count; ++k) p[k] = T(to_network(k, maps.at(k, x, y)));
+    }
+}
+
+/// The map set of entry `b` of network outputs u (the inverse of maps_to_network, normals limited
+/// to |(x, y)| <= max_normal_xy).
+template <class T>
+material_maps network_to_maps(const tensor<parameter_count, T>& u, int b) {
+  material_maps maps(u.width(), u.height());
+  for (int y = 0; y < u.height(); ++y)
+    for (int x = 0; x < u.width(); ++x) {
+      const T* p = u.pixel(b, y, x);
+      for (int k = 0; k < parameter_count; ++k) maps.at(k, x, y) = float(from_network(k, double(p[k])));
+      const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
+      if (r > max_normal_xy) {
+        maps.at(normal_x, x, y) = float(nx * max_normal_xy / r);
+        maps.at(normal_y, x, y) = float(ny * max_normal_xy / r);
+      }
+    }
+  return maps;
+}
+
+/// Chain rule of network_to_maps: adds scale * dL/du to entry b of grad_u, given dL/d(maps) in
+/// `grad_maps` at the network values u.
+template <class T>
+void add_network_gradient(const tensor<parameter_count, T>& u, int b, const material_maps& grad_maps, double scale,
+                          tensor<parameter_count, T>& grad_u) {
+  const double half = 0.5, lobe_factor = -log_min_lobe / 2, rotation_factor = std::numbers::pi / 2;
+  for (int y = 0; y < u.height(); ++y)
+    for (int x = 0; x < u.width(); ++x) {
+      const T* p = u.pixel(b, y, x);
+      T* g = grad_u.pixel(b, y, x);
+      for (int k = 0; k < parameter_count; ++k) {
+        const double gm = grad_maps.at(k, x, y);
+        double d;
+        switch (k) {
+          case lobe_x:
+          case lobe_y: d = from_network(k, p[k]) * lobe_factor; break;  // d exp(a + c u)/du = c exp(...)
+          case normal_x:
+          case normal_y: d = 1; break;  // corrected below when scaled onto the circle
+          case rotation: d = rotation_factor; break;
+          default: d = half;
+        }
+        g[k] += T(scale * gm * d);
+      }
+      const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
+      if (r > max_normal_xy) {
+        // n = s u with s = m / |u|: dn/du = (m / r) (I - u u^T / r^2).
+        const double gx = grad_maps.at(normal_x, x, y), gy = grad_maps.at(normal_y, x, y);
+        const double dot = nx * gx + ny * gy, f = max_normal_xy / r;
+        g[normal_x] += T(scale * (f * (gx - nx * dot / (r * r)) - gx));
+        g[normal_y] += T(scale * (f * (gy - ny * dot / (r * r)) - gy));
+      }
+    }
+}
+
+/// Eq. 7 followed by the scaling to [-1, 1]: x -> 2 (log(x + 0.01) - log 0.01) / (log 1.01 - log 0.01) - 1.
+/// Radiance 0 maps to -1, radiance 1 to +1 (brighter values go above 1, as in the paper).
+inline double input_value(double radiance) {
+  static const double l0 = std::log(0.01), range = std::log(1.01) - std::log(0.01);
+  return 2 * (std::log(std::max(radiance, 0.0) + 0.01) - l0) / range - 1;
+}
+
+/// Writes photograph `photo` (3-channel planar) in eq. 7 space into entry b of `out`, whose size
+/// may exceed the photograph's: the extra rows and columns mirror the image (reflection without
+/// repeating the edge), so a network that needs sizes in multiples of 64 sees no hard border.
+template <class T>
+void photo_to_network(const image& photo, tensor<3, T>& out, int b) {
+  const int W = photo.width(), H = photo.height();
+  if (photo.channels() != 3) throw std::invalid_argument("photo_to_network: the image must have 3 channels");
+  if (out.width() < W || out.height() < H || out.width() > 2 * W || out.height() > 2 * H)
+    throw std::invalid_argument("photo_to_network: the tensor must be 1 to 2 times the image's size");
+  auto mirror = [](int i, int n) { return i < n ? i : std::max(0, 2 * n - 2 - i); };
+  for (int y = 0; y < out.height(); ++y)
+    for (int x = 0; x < out.width(); ++x) {
+      const int sx = mirror(x, W), sy = mirror(y, H);
+      T* p = out.pixel(b, y, x);
+      for (int c = 0; c < 3; ++c) p[c] = T(input_value(photo.at(c, sx, sy)));
+    }
+}
+
+}  // namespace anisocap::network_space

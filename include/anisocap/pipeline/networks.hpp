@@ -1,0 +1,442 @@
+#pragma once
+/// @file
+/// The two networks of the paper (MODEL.md 7): the multi-image estimation network (after
+/// Deschaintre 2018/2019) and the map auto-encoder (after Gao 2019). Widths are compile-time
+/// presets: `paper` (the paper's widths) and `compact` (trains on 2 CPU cores; the shipped weights
+/// in models/compact/). Both work on NHWC tensors in network space (pipeline/network_space.hpp).
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/image.hpp"
+#include "anisocap/nn/nn.hpp"
+#include "anisocap/pipeline/network_space.hpp"
+
+namespace anisocap {
+
+/// The paper's estimator widths: 6 encoder layers up to 1024 channels, track 1 (a_d, a'_s, sigma,
+/// F0) from 512 down to 64, track 2 (n_s, alpha) from 256 down to 32 (MODEL.md 7).
+struct estimator_paper {
+  static constexpr std::array<int, 6> encoder{64, 128, 256, 512, 1024, 1024};  ///< encoder widths
+  static constexpr std::array<int, 6> track1{512, 512, 256, 128, 64, 64};      ///< track 1 decoder widths
+  static constexpr std::array<int, 6> track2{256, 256, 128, 64, 32, 32};       ///< track 2 decoder widths
+  static constexpr const char* name = "paper";                                  ///< preset name in files
+};
+
+/// The compact estimator: about 1/16 of the paper's widths, so that training makes progress on
+/// 2 CPU cores (bench/README.md "## Networks" has its step time).
+struct estimator_compact {
+  static constexpr std::array<int, 6> encoder{16, 32, 64, 64, 64, 64};  ///< encoder widths
+  static constexpr std::array<int, 6> track1{64, 64, 64, 32, 16, 16};   ///< track 1 decoder widths
+  static constexpr std::array<int, 6> track2{32, 32, 32, 16, 8, 8};     ///< track 2 decoder widths
+  static constexpr const char* name = "compact";                         ///< preset name in files
+};
+
+/// The paper's auto-encoder widths: 5 stride-2 convolutions 64-128-256-512-1024 (MODEL.md 7).
+struct autoencoder_paper {
+  static constexpr std::array<int, 5> encoder{64, 128, 256, 512, 1024};  ///< encoder widths; latent = last
+  static constexpr const char* name = "paper";                            ///< preset name in files
+};
+
+/// The compact auto-encoder: latent (H/32) x (W/32) x 128.
+struct autoencoder_compact {
+  static constexpr std::array<int, 5> encoder{32, 64, 128, 128, 128};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact";                        ///< preset name in files
+};
+
+namespace network_detail {
+
+/// Leaky-ReLU slope of both networks (Deschaintre 2018 uses 0.2).
+inline constexpr double leaky_slope = 0.2;
+
+/// Visits every parameter of a list of layers.
+template <class F, class... L>
+void visit(F& f, L&... layers) {
+  (layers.for_each_parameter(f), ...);
+}
+
+/// y = x cropped to its top-left height x width (recorded on the tape).
+template <int C, class T>
+ad::variable<C, T> crop(ad::tape& t, const ad::variable<C, T>& x, int height, int width) {
+  if (height == x.value.height() && width == x.value.width()) return x;
+  auto y = t.make_variable<C, T>(x.value.batch(), height, width, x.requires_grad);
+  for (int b = 0; b < x.value.batch(); ++b)
+    for (int r = 0; r < height; ++r) std::copy_n(x.value.pixel(b, r, 0), std::size_t(width) * C, y.value.pixel(b, r, 0));
+  if (y.requires_grad)
+    t.record([x = x, y, height, width]() mutable {
+      for (int b = 0; b < x.value.batch(); ++b)
+        for (int r = 0; r < height; ++r) {
+          T* g = x.grad.pixel(b, r, 0);
+          const T* gy = y.grad.pixel(b, r, 0);
+          for (std::size_t i = 0; i < std::size_t(width) * C; ++i) g[i] += gy[i];
+        }
+    });
+  return y;
+}
+
+/// One decoder track of the estimator: 6 transposed convolutions from the bottleneck (H/64) to
+/// full size, each after the first fed by the matching encoder skip (concatenated), each followed
+/// by instance normalisation, the global feature vector as a per-channel bias, and leaky ReLU.
+template <class P, const std::array<int, 6>& D, class T>
+class decoder_track {
+  static constexpr auto E = P::encoder;
+
+ public:
+  /// The track's six widths.
+  static constexpr std::array<int, 6> widths = D;
+  nn::conv_transpose2d<E[5], D[0], T> up0;
+  nn::conv_transpose2d<D[0] + E[4], D[1], T> up1;
+  nn::conv_transpose2d<D[1] + E[3], D[2], T> up2;
+  nn::conv_transpose2d<D[2] + E[2], D[3], T> up3;
+  nn::conv_transpose2d<D[3] + E[1], D[4], T> up4;
+  nn::conv_transpose2d<D[4] + E[0], D[5], T> up5;
+  nn::instance_norm<D[0], T> n0;
+  nn::instance_norm<D[1], T> n1;
+  nn::instance_norm<D[2], T> n2;
+  nn::instance_norm<D[3], T> n3;
+  nn::instance_norm<D[4], T> n4;
+  nn::instance_norm<D[5], T> n5;
+  nn::linear<E[5], D[0], T> g0;
+  nn::linear<E[5], D[1], T> g1;
+  nn::linear<E[5], D[2], T> g2;
+  nn::linear<E[5], D[3], T> g3;
+  nn::linear<E[5], D[4], T> g4;
+  nn::linear<E[5], D[5], T> g5;
+
+  /// Layers named prefix + "up0" ... ; weights seeded from `seed`.
+  decoder_track(const std::string& p, std::uint64_t seed)
+      : up0(p + "up0"), up1(p + "up1"), up2(p + "up2"), up3(p + "up3"), up4(p + "up4"), up5(p + "up5"),
+        n0(p + "norm0"), n1(p + "norm1"), n2(p + "norm2"), n3(p + "norm3"), n4(p + "norm4"), n5(p + "norm5"),
+        g0(p + "global0", seed), g1(p + "global1", seed), g2(p + "global2", seed), g3(p + "global3", seed),
+        g4(p + "global4", seed), g5(p + "global5", seed) {}
+
+  /// Full-size track features from the encoder activations a[0..5] and the global vector g.
+  template <class A>
+  auto operator()(ad::tape& t, const A& a, const ad::variable<E[5], T>& g) {
+    auto step = [&](auto& up, auto& norm, auto& glob, const auto& in) {
+      auto h = norm(t, up(t, in));
+      h = nn::add_channel_bias(t, h, glob(t, g));
+      return nn::leaky_relu(t, h, T(leaky_slope));
+    };
+    auto d0 = step(up0, n0, g0, std::get<5>(a));
+    auto d1 = step(up1, n1, g1, nn::concat(t, d0, std::get<4>(a)));
+    auto d2 = step(up2, n2, g2, nn::concat(t, d1, std::get<3>(a)));
+    auto d3 = step(up3, n3, g3, nn::concat(t, d2, std::get<2>(a)));
+    auto d4 = step(up4, n4, g4, nn::concat(t, d3, std::get<1>(a)));
+    return step(up5, n5, g5, nn::concat(t, d4, std::get<0>(a)));
+  }
+
+  /// Visits every trainable parameter.
+  template <class F>
+  void for_each_parameter(F&& f) {
+    visit(f, up0, up1, up2, up3, up4, up5, n0, n1, n2, n3, n4, n5, g0, g1, g2, g3, g4, g5);
+  }
+};
+
+/// The three reducing convolutions after the max-pool over images: 3x3 D -> D (plus the pooled
+/// global vector as a bias), 3x3 D -> D, 1x1 D -> Out, then tanh (lands in network space).
+template <int G, int D, int Out, class T>
+class reducing_head {
+ public:
+  nn::conv2d<D, D, 3, 1, 1, T> c0;
+  nn::conv2d<D, D, 3, 1, 1, T> c1;
+  nn::conv2d<D, Out, 1, 1, 0, T> c2;
+  nn::linear<G, D, T> global;
+
+  /// Layers named prefix + "reduce0" ... .
+  reducing_head(const std::string& p, std::uint64_t seed)
+      : c0(p + "reduce0"), c1(p + "reduce1"), c2(p + "reduce2"), global(p + "reduce_global", seed) {}
+
+  /// Out channels in (-1, 1).
+  ad::variable<Out, T> operator()(ad::tape& t, const ad::variable<D, T>& x, const ad::variable<G, T>& g) {
+    auto h = nn::add_channel_bias(t, c0(t, x), global(t, g));
+    h = nn::leaky_relu(t, h, T(leaky_slope));
+    h = nn::leaky_relu(t, c1(t, h), T(leaky_slope));
+    return nn::tanh(t, c2(t, h));
+  }
+
+  /// Visits every trainable parameter.
+  template <class F>
+  void for_each_parameter(F&& f) {
+    visit(f, c0, c1, c2, global);
+  }
+};
+
+/// He-uniform weights (leaky ReLU) and zero biases for a convolution, from the layer's name.
+template <class Conv>
+void init_conv(Conv& c, int fan_in, std::uint64_t seed) {
+  nn::he_uniform(c.weight, fan_in, seed, leaky_slope);
+  if (c.has_bias()) nn::constant_init(c.bias, decltype(c.bias.value[0] + 0)(0));
+}
+
+}  // namespace network_detail
+
+/// The estimation network (MODEL.md 7): one single-image U-Net with a global-feature track,
+/// applied with shared weights to every input image (the images are batch entries), its two
+/// decoder tracks and global vectors max-pooled over the images of each set, then three reducing
+/// convolutions per track to 9 (a_d, a'_s, sigma, F0) + 3 (n_s.xy, alpha) channels in network space.
+///
+/// forward() takes sizes that are multiples of 64 (six stride-2 layers); estimate() pads any size.
+template <class Preset, class T = float>
+class EstimationNet {
+  static constexpr auto E = Preset::encoder;
+
+ public:
+  using preset = Preset;  ///< the widths
+  /// Side lengths forward() accepts are multiples of this.
+  static constexpr int size_multiple = 64;
+
+  nn::conv2d<3, E[0], 4, 2, 1, T> enc0;
+  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;
+  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;
+  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;
+  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;
+  nn::conv2d<E[4], E[5], 4, 2, 1, T> enc5;
+  nn::instance_norm<E[1], T> norm1;
+  nn::instance_norm<E[2], T> norm2;
+  nn::instance_norm<E[3], T> norm3;
+  nn::instance_norm<E[4], T> norm4;
+  nn::instance_norm<E[5], T> norm5;
+  // Global-feature track (Deschaintre 2018): g_i = selu(W [g_{i-1}, mean(h_i)]), and g_{i-1} enters
+  // layer i as a per-channel bias.
+  nn::linear<E[0], E[0], T> global0;
+  nn::linear<E[0] + E[1], E[1], T> global1;
+  nn::linear<E[1] + E[2], E[2], T> global2;
+  nn::linear<E[2] + E[3], E[3], T> global3;
+  nn::linear<E[3] + E[4], E[4], T> global4;
+  nn::linear<E[4] + E[5], E[5], T> global5;
+  nn::linear<E[0], E[1], T> bias1;
+  nn::linear<E[1], E[2], T> bias2;
+  nn::linear<E[2], E[3], T> bias3;
+  nn::linear<E[3], E[4], T> bias4;
+  nn::linear<E[4], E[5], T> bias5;
+  network_detail::decoder_track<Preset, Preset::track1, T> track1;
+  network_detail::decoder_track<Preset, Preset::track2, T> track2;
+  network_detail::reducing_head<E[5], Preset::track1[5], 9, T> head1;
+  network_detail::reducing_head<E[5], Preset::track2[5], 3, T> head2;
+
+  /// A network with seeded He-uniform weights (the same on every machine for the same seed).
+  explicit EstimationNet(std::uint64_t seed = 1)
+      : enc0("enc0"), enc1("enc1"), enc2("enc2"), enc3("enc3"), enc4("enc4"), enc5("enc5"), norm1("enc_norm1"),
+        norm2("enc_norm2"), norm3("enc_norm3"), norm4("enc_norm4"), norm5("enc_norm5"), global0("global0", seed),
+        global1("global1", seed), global2("global2", seed), global3("global3", seed), global4("global4", seed),
+        global5("global5", seed), bias1("global_bias1", seed), bias2("global_bias2", seed),
+        bias3("global_bias3", seed), bias4("global_bias4", seed), bias5("global_bias5", seed),
+        track1("track1.", seed), track2("track2.", seed), head1("track1.", seed), head2("track2.", seed) {
+    using network_detail::init_conv;
+    init_conv(enc0, 16 * 3, seed);
+    init_conv(enc1, 16 * E[0], seed);
+    init_conv(enc2, 16 * E[1], seed);
+    init_conv(enc3, 16 * E[2], seed);
+    init_conv(enc4, 16 * E[3], seed);
+    init_conv(enc5, 16 * E[4], seed);
+    init_track(track1, seed);
+    init_track(track2, seed);
+    init_head(head1, seed);
+    init_head(head2, seed);
+  }
+
+  /// Network-space maps (sets x H x W x 12) from the images x (sets * images_per_set entries,
+  /// H x W x 3 in eq. 7 space, H and W multiples of 64; the images of set s are entries
+  /// s * images_per_set ... s * images_per_set + images_per_set - 1).
+  ad::variable<parameter_count, T> forward(ad::tape& t, const ad::variable<3, T>& x, int images_per_set) {
+    if (x.value.height() % size_multiple != 0 || x.value.width() % size_multiple != 0 || x.value.height() == 0 ||
+        x.value.width() == 0)
+      throw std::invalid_argument("EstimationNet::forward: image size " + std::to_string(x.value.height()) + "x" +
+                                  std::to_string(x.value.width()) + " is not a positive multiple of 64 (use estimate())");
+    const T s = T(network_detail::leaky_slope);
+    auto h0 = enc0(t, x);
+    auto g0 = nn::selu(t, global0(t, nn::spatial_mean(t, h0)));
+    auto a0 = nn::leaky_relu(t, h0, s);
+    auto layer = [&](auto& conv, auto& norm, auto& bias, auto& global, const auto& a, const auto& g) {
+      auto h = conv(t, a);
+      auto m = nn::spatial_mean(t, h);
+      h = nn::add_channel_bias(t, norm(t, h), bias(t, g));
+      auto gn = nn::selu(t, global(t, nn::concat(t, g, m)));
+      return std::pair{nn::leaky_relu(t, h, s), gn};
+    };
+    auto [a1, g1] = layer(enc1, norm1, bias1, global1, a0, g0);
+    auto [a2, g2] = layer(enc2, norm2, bias2, global2, a1, g1);
+    auto [a3, g3] = layer(enc3, norm3, bias3, global3, a2, g2);
+    auto [a4, g4] = layer(enc4, norm4, bias4, global4, a3, g3);
+    auto [a5, g5] = layer(enc5, norm5, bias5, global5, a4, g4);
+    const auto skips = std::tie(a0, a1, a2, a3, a4, a5);
+    auto f1 = nn::max_over_images(t, track1(t, skips, g5), images_per_set);
+    auto f2 = nn::max_over_images(t, track2(t, skips, g5), images_per_set);
+    auto g = nn::max_over_images(t, g5, images_per_set);
+    return nn::concat(t, head1(t, f1, g), head2(t, f2, g));
+  }
+
+  /// The map set estimated from one set of photographs (any size >= 1 x 1, all the same size; at
+  /// least one image). The images are mirrored out to a multiple of 64 and the maps cropped back.
+  material_maps estimate(const std::vector<image>& photos) {
+    if (photos.empty()) throw std::invalid_argument("EstimationNet::estimate: no input images");
+    const int W = photos[0].width(), H = photos[0].height();
+    for (const auto& p : photos)
+      if (p.width() != W || p.height() != H)
+        throw std::invalid_argument("EstimationNet::estimate: the input images differ in size");
+    const int Hp = padded_size(H), Wp = padded_size(W);
+    ad::tape t;
+    ad::tape::no_grad_guard guard(t);
+    auto x = t.make_variable<3, T>(int(photos.size()), Hp, Wp, false);
+    for (std::size_t i = 0; i < photos.size(); ++i) padded_photo(photos[i], x.value, int(i));
+    auto y = forward(t, x, int(photos.size()));
+    auto c = network_detail::crop(t, y, H, W);
+    return network_space::network_to_maps(c.value, 0);
+  }
+
+  /// The size forward() runs an n-texel side at: n rounded up to a multiple of 64.
+  static int padded_size(int n) { return (n + size_multiple - 1) / size_multiple * size_multiple; }
+
+  /// Visits every trainable parameter (for optimisers and weight files).
+  template <class F>
+  void for_each_parameter(F&& f) {
+    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, enc5, norm1, norm2, norm3, norm4, norm5, global0, global1,
+                          global2, global3, global4, global5, bias1, bias2, bias3, bias4, bias5, track1, track2, head1,
+                          head2);
+  }
+
+ private:
+  /// photo_to_network, mirroring repeatedly when the padded size is more than twice the image's.
+  static void padded_photo(const image& photo, tensor<3, T>& out, int b) {
+    if (out.width() <= 2 * photo.width() && out.height() <= 2 * photo.height()) {
+      network_space::photo_to_network(photo, out, b);
+      return;
+    }
+    auto fold = [](int i, int n) {
+      if (n == 1) return 0;
+      const int period = 2 * n - 2, r = i % period;
+      return r < n ? r : period - r;
+    };
+    for (int y = 0; y < out.height(); ++y)
+      for (int x = 0; x < out.width(); ++x)
+        for (int c = 0; c < 3; ++c)
+          out.pixel(b, y, x)[c] = T(network_space::input_value(photo.at(c, fold(x, photo.width()), fold(y, photo.height()))));
+  }
+  template <class Track>
+  static void init_track(Track& tr, std::uint64_t seed) {
+    using network_detail::init_conv;
+    constexpr auto D = Track::widths;
+    // A 4x4 stride-2 transposed convolution sums 4 taps per output pixel.
+    init_conv(tr.up0, 4 * E[5], seed);
+    init_conv(tr.up1, 4 * (D[0] + E[4]), seed);
+    init_conv(tr.up2, 4 * (D[1] + E[3]), seed);
+    init_conv(tr.up3, 4 * (D[2] + E[2]), seed);
+    init_conv(tr.up4, 4 * (D[3] + E[1]), seed);
+    init_conv(tr.up5, 4 * (D[4] + E[0]), seed);
+  }
+  template <class Head>
+  static void init_head(Head& h, std::uint64_t seed) {
+    network_detail::init_conv(h.c0, 9 * h.c0.weight.shape[2], seed);
+    network_detail::init_conv(h.c1, 9 * h.c1.weight.shape[2], seed);
+    // The last layer starts 10x smaller than Xavier: outputs begin near 0 (mid-range in network
+    // space: albedos 0.5, sigma 0.01, flat normals, alpha 0) instead of in tanh's flat tails, where
+    // a saturated normal (|n_xy| at the disc's edge) gets almost no gradient and stays there.
+    nn::uniform_init(h.c2.weight, 0.1 * std::sqrt(6.0 / (h.c2.weight.shape[2] + h.c2.weight.shape[3])), seed);
+    nn::constant_init(h.c2.bias, T(0));
+  }
+};
+
+/// The map auto-encoder (MODEL.md 7, after Gao 2019): five 4x4 stride-2 convolutions with leaky
+/// ReLU between them and one batch normalisation at the end give the latent code z
+/// (H/32 x W/32 x Preset::encoder[4]); five 4x4 stride-2 transposed convolutions decode it back to
+/// 12 channels in network space (tanh). encode() and decode() are separate so that the pipeline
+/// can fine-tune the decoder with z fixed and the encoder frozen (MODEL.md 8).
+template <class Preset, class T = float>
+class AutoEncoder {
+  static constexpr auto E = Preset::encoder;
+
+ public:
+  using preset = Preset;  ///< the widths
+  /// Latent channels.
+  static constexpr int latent_channels = E[4];
+  /// Side lengths encode() accepts are multiples of this.
+  static constexpr int size_multiple = 32;
+
+  nn::conv2d<parameter_count, E[0], 4, 2, 1, T> enc0;
+  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;
+  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;
+  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;
+  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;
+  nn::batch_norm<E[4], T> latent_norm;
+  nn::conv_transpose2d<E[4], E[3], T> dec0;
+  nn::conv_transpose2d<E[3], E[2], T> dec1;
+  nn::conv_transpose2d<E[2], E[1], T> dec2;
+  nn::conv_transpose2d<E[1], E[0], T> dec3;
+  nn::conv_transpose2d<E[0], parameter_count, T> dec4;
+
+  /// A network with seeded He-uniform weights.
+  explicit AutoEncoder(std::uint64_t seed = 1)
+      : enc0("enc0"), enc1("enc1"), enc2("enc2"), enc3("enc3"), enc4("enc4"), latent_norm("latent_norm"),
+        dec0("dec0"), dec1("dec1"), dec2("dec2"), dec3("dec3"), dec4("dec4") {
+    using network_detail::init_conv;
+    init_conv(enc0, 16 * parameter_count, seed);
+    init_conv(enc1, 16 * E[0], seed);
+    init_conv(enc2, 16 * E[1], seed);
+    init_conv(enc3, 16 * E[2], seed);
+    init_conv(enc4, 16 * E[3], seed);
+    init_conv(dec0, 4 * E[4], seed);
+    init_conv(dec1, 4 * E[3], seed);
+    init_conv(dec2, 4 * E[2], seed);
+    init_conv(dec3, 4 * E[1], seed);
+    nn::xavier_uniform(dec4.weight, 4 * E[0], 4 * parameter_count, seed);
+    nn::constant_init(dec4.bias, T(0));
+  }
+
+  /// z from network-space maps (batch x H x W x 12, H and W multiples of 32). Batch norm uses the
+  /// batch's statistics while `training`, the running ones otherwise.
+  ad::variable<latent_channels, T> encode(ad::tape& t, const ad::variable<parameter_count, T>& maps) {
+    if (maps.value.height() % size_multiple != 0 || maps.value.width() % size_multiple != 0 || maps.value.height() == 0 ||
+        maps.value.width() == 0)
+      throw std::invalid_argument("AutoEncoder::encode: map size " + std::to_string(maps.value.height()) + "x" +
+                                  std::to_string(maps.value.width()) + " is not a positive multiple of 32 (pad it)");
+    const T s = T(network_detail::leaky_slope);
+    auto h = nn::leaky_relu(t, enc0(t, maps), s);
+    auto h1 = nn::leaky_relu(t, enc1(t, h), s);
+    auto h2 = nn::leaky_relu(t, enc2(t, h1), s);
+    auto h3 = nn::leaky_relu(t, enc3(t, h2), s);
+    return latent_norm(t, enc4(t, h3));
+  }
+
+  /// Network-space maps (batch x 32 h x 32 w x 12, in (-1, 1)) from z (batch x h x w x latent).
+  ad::variable<parameter_count, T> decode(ad::tape& t, const ad::variable<latent_channels, T>& z) {
+    const T s = T(network_detail::leaky_slope);
+    auto h = nn::leaky_relu(t, dec0(t, z), s);
+    auto h1 = nn::leaky_relu(t, dec1(t, h), s);
+    auto h2 = nn::leaky_relu(t, dec2(t, h1), s);
+    auto h3 = nn::leaky_relu(t, dec3(t, h2), s);
+    return nn::tanh(t, dec4(t, h3));
+  }
+
+  /// Batch norm mode: batch statistics (training) or running statistics (inference).
+  void set_training(bool training) noexcept { latent_norm.training = training; }
+
+  /// Freezes (or unfreezes) the encoder and its batch norm: no gradients are computed for them.
+  void freeze_encoder(bool frozen = true) {
+    auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
+    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm);
+  }
+
+  /// Visits every trainable parameter.
+  template <class F>
+  void for_each_parameter(F&& f) {
+    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm, dec0, dec1, dec2, dec3, dec4);
+  }
+  /// Visits the saved, untrained state (the batch norm's running statistics).
+  template <class F>
+  void for_each_buffer(F&& f) {
+    latent_norm.for_each_buffer(f);
+  }
+  /// Visits the decoder's parameters only (what the pipeline fine-tunes).
+  template <class F>
+  void for_each_decoder_parameter(F&& f) {
+    network_detail::visit(f, dec0, dec1, dec2, dec3, dec4);
+  }
+};
+
+}  // namespace anisocap

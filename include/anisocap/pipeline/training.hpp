@@ -1,0 +1,446 @@
+#pragma once
+/// @file
+/// Training of the estimation network and the auto-encoder on procedural materials generated on
+/// the fly (MODEL.md 5-7): samples from seeds, the losses (L1 in network space + render loss, equal
+/// weights; the auto-encoder adds latent smoothness), Adam, checkpoints that resume exactly, and
+/// validation logged to CSV.
+///
+/// Randomness: every random choice is a pure function of (run seed, step, batch entry), so the
+/// step number IS the random-number state: a checkpoint stores weights, Adam's moments and step
+/// counts, batch-norm running statistics and the step, and a resumed run is bit-identical to an
+/// uninterrupted one (tests/networks/resume_test.cpp).
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/core/json.hpp"
+#include "anisocap/core/random.hpp"
+#include "anisocap/data/procedural.hpp"
+#include "anisocap/nn/nn.hpp"
+#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/pipeline/network_space.hpp"
+#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/render/configurations.hpp"
+#include "anisocap/render/renderer.hpp"
+
+namespace anisocap::training {
+
+/// Material seeds of training samples are below 2^62, validation seeds at or above: disjoint.
+inline constexpr std::uint64_t validation_seed_base = std::uint64_t(1) << 62;
+
+/// Material seed of batch entry b at step `step` of a run seeded `seed` (below 2^62).
+inline std::uint64_t training_seed(std::uint64_t seed, long step, int b) { return hash64(seed, step, b) >> 2; }
+/// Material seed of validation material i (the same for every run).
+inline std::uint64_t validation_seed(int i) { return validation_seed_base + std::uint64_t(i); }
+
+/// One training example: true maps (and in network space), the 5 input photographs of the
+/// training set (MODEL.md 6) when asked for, and the render-loss targets under the 4 render-loss
+/// configurations (eq. 8).
+struct sample {
+  material_maps truth;                 ///< the procedural material
+  tensor<parameter_count> truth_net;   ///< truth in network space (1 x H x W x 12)
+  std::vector<image> photos;           ///< the 5 training inputs (empty for the auto-encoder)
+  capture loss_configurations;         ///< render_loss_set
+  loss_targets targets;                ///< log renders of the truth under loss_configurations
+};
+
+/// The sample of material seed `seed` at size x size (configurations seeded from it too).
+inline sample make_sample(std::uint64_t seed, int size, bool with_photos) {
+  sample s;
+  s.truth = generate_material(seed, size, size);
+  s.truth_net = tensor<parameter_count>(1, size, size);
+  network_space::maps_to_network(s.truth, s.truth_net, 0);
+  if (with_photos) s.photos = render(s.truth, training_set(hash64(seed ^ 0x696e70757473ULL), size, size));
+  s.loss_configurations = render_loss_set(hash64(seed ^ 0x6c6f7373ULL), size, size);
+  s.targets = make_loss_targets(render(s.truth, s.loss_configurations));
+  return s;
+}
+
+/// The parts of a loss, each averaged over the batch.
+struct loss_terms {
+  double total = 0;       ///< what is minimised
+  double l1 = 0;          ///< mean |u - u_true| in network space
+  double render = 0;      ///< render loss (sum over the 4 configurations of the mean log-image difference)
+  double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
+};
+
+/// L1 in network space plus the render loss, equal weights (MODEL.md 5), of network outputs u
+/// (one entry per sample); when grad is given, adds d(loss)/du (the loss is the batch mean).
+inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
+                             tensor<parameter_count>* grad) {
+  loss_terms terms;
+  const int B = u.batch();
+  if (B != int(samples.size())) throw std::invalid_argument("map_losses: batch and sample count differ");
+  const std::size_t n = std::size_t(u.height()) * u.width() * parameter_count;
+  for (int b = 0; b < B; ++b) {
+    const sample& s = samples[b];
+    double l1 = 0;
+    const float step = float(1.0 / (double(n) * B));
+    for (int y = 0; y < u.height(); ++y) {
+      const float* p = u.pixel(b, y, 0);
+      const float* q = s.truth_net.pixel(0, y, 0);
+      float* g = grad ? grad->pixel(b, y, 0) : nullptr;
+      for (int i = 0; i < u.width() * parameter_count; ++i) {
+        const float d = p[i] - q[i];
+        l1 += std::abs(d);
+        if (g) g[i] += d > 0 ? step : (d < 0 ? -step : 0.0f);
+      }
+    }
+    terms.l1 += l1 / double(n) / B;
+    const material_maps maps = network_space::network_to_maps(u, b);
+    material_maps grad_maps;
+    if (grad) grad_maps = material_maps(maps.width(), maps.height());
+    const double r = loss_and_gradient(maps, s.loss_configurations, s.targets, grad ? &grad_maps : nullptr);
+    terms.render += r / B;
+    if (grad) network_space::add_network_gradient(u, b, grad_maps, 1.0 / B, *grad);
+  }
+  terms.total = terms.l1 + terms.render;
+  return terms;
+}
+
+/// Settings of a training run.
+struct train_options {
+  std::filesystem::path out_dir;      ///< checkpoints, weights, validation.csv
+  long steps = 1000;                  ///< total optimiser steps (a resumed run continues to this)
+  int size = 128;                     ///< material size (square, a multiple of 64)
+  int batch = 2;                      ///< materials per step
+  double learning_rate = 0;           ///< 0: the paper's (estimator 5e-5, auto-encoder 1e-3)
+  std::uint64_t seed = 1;             ///< run seed: initial weights and training materials
+  double checkpoint_minutes = 5;      ///< wall time between checkpoints (and one at the end)
+  long checkpoint_every = 0;          ///< > 0: also a checkpoint every so many steps (tests)
+  long validate_every = 250;          ///< steps between validations (and one at the end)
+  int validation_count = 8;           ///< validation materials
+  bool resume = false;                ///< continue from out_dir/checkpoint.json
+  double smoothness_weight = 0.1;     ///< auto-encoder: weight of the latent smoothness term
+  double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
+  long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
+  double progress_seconds = 10;       ///< wall time between progress lines
+  std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
+};
+
+/// Weights of the network alone (what is shipped), with metadata.
+template <class Net>
+void save_network(const std::filesystem::path& file, Net& net, const std::string& kind) {
+  nn::save_weights(file, net, {{"network", kind}, {"preset", Net::preset::name}});
+}
+
+/// Writes a checkpoint: weights, buffers, Adam moments and step counts in one safetensors file
+/// (written to a temporary name and renamed), then checkpoint.json naming it (same), then removes
+/// the previous checkpoint file. A crash at any point leaves a complete earlier checkpoint.
+template <class Net>
+void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, long step, json::object info) {
+  nn::safetensors_file contents;
+  nn::detail::visit_weights(net, [&](auto& p) {
+    contents.add<float>(p.name, std::vector<std::int64_t>(p.shape.begin(), p.shape.end()), p.value.data(), p.size());
+  });
+  opt.for_each_state([&](nn::parameter& p, auto& m, auto& v, long& steps) {
+    const std::int64_t s = steps;
+    contents.add<float>("adam.m." + p.name, {std::int64_t(m.size())}, m.data(), m.size());
+    contents.add<float>("adam.v." + p.name, {std::int64_t(v.size())}, v.data(), v.size());
+    contents.add<std::int64_t>("adam.steps." + p.name, {1}, &s, 1);
+  });
+  const std::string file = "checkpoint-" + std::to_string(step) + ".safetensors";
+  nn::write_safetensors(dir / file, contents);
+  std::string previous;
+  if (std::filesystem::exists(dir / "checkpoint.json")) {
+    try {
+      std::ifstream in(dir / "checkpoint.json");
+      std::stringstream text;
+      text << in.rdbuf();
+      previous = json::parse(text.str()).as_object().at("file").as_string();
+    } catch (const std::exception&) {
+    }
+  }
+  info.insert_or_assign("step", json::value(step));
+  info.insert_or_assign("optimizer_steps", json::value(opt.steps()));
+  info.insert_or_assign("file", json::value(file));
+  info.insert_or_assign("rng", json::value("all randomness is a function of (seed, step): the step is the RNG state"));
+  const auto temporary = dir / "checkpoint.json.tmp";
+  {
+    std::ofstream out(temporary);
+    out << json::value(std::move(info)).dump(2) << "\n";
+    if (!out) throw std::runtime_error((dir / "checkpoint.json").string() + ": cannot write the checkpoint description");
+  }
+  std::filesystem::rename(temporary, dir / "checkpoint.json");
+  if (!previous.empty() && previous != file) std::filesystem::remove(dir / previous);
+}
+
+/// Restores a checkpoint written by save_checkpoint; returns its step. Throws std::runtime_error
+/// naming the file when it is missing, malformed or does not match the network.
+template <class Net>
+long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json::object* info = nullptr) {
+  const auto description = dir / "checkpoint.json";
+  std::ifstream in(description);
+  if (!in) throw std::runtime_error(description.string() + ": no checkpoint to resume from");
+  std::stringstream text;
+  text << in.rdbuf();
+  const json::value root = json::parse(text.str(), description.string());
+  const auto& object = root.as_object();
+  const auto file = dir / object.at("file").as_string();
+  nn::load_weights(file, net);
+  const nn::safetensors_file contents = nn::read_safetensors(file);
+  opt.for_each_state([&](nn::parameter& p, auto& m, auto& v, long& steps) {
+    const auto* em = contents.find("adam.m." + p.name);
+    const auto* ev = contents.find("adam.v." + p.name);
+    const auto* es = contents.find("adam.steps." + p.name);
+    if (!em || !ev || !es || em->count() != m.size() || ev->count() != v.size())
+      throw std::runtime_error(file.string() + ": optimiser state of '" + p.name + "' is missing or has the wrong size");
+    std::memcpy(static_cast<void*>(m.data()), contents.bytes(*em).data(), m.size() * sizeof(float));
+    std::memcpy(static_cast<void*>(v.data()), contents.bytes(*ev).data(), v.size() * sizeof(float));
+    std::int64_t s;
+    std::memcpy(&s, contents.bytes(*es).data(), sizeof s);
+    steps = long(s);
+  });
+  opt.set_steps(long(object.at("optimizer_steps").as_number()));
+  if (info) *info = object;
+  return long(object.at("step").as_number());
+}
+
+/// Validation summary: mean losses and per-parameter errors (compare_maps, original ranges).
+struct validation_result {
+  loss_terms loss;          ///< mean over the validation materials
+  parameter_errors errors;  ///< mean over the validation materials
+};
+
+/// Adds e / count into sum.
+inline void accumulate(parameter_errors& sum, const parameter_errors& e, double count) {
+  sum.diffuse += e.diffuse / count;
+  sum.specular += e.specular / count;
+  sum.normal += e.normal / count;
+  sum.lobes += e.lobes / count;
+  sum.rotation += e.rotation / count;
+  sum.fresnel += e.fresnel / count;
+}
+
+/// The estimator's network-space maps for one sample (no gradients).
+template <class Net>
+tensor<parameter_count> estimator_output(Net& net, const sample& s) {
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  const int H = s.truth.height(), W = s.truth.width();
+  auto x = t.make_variable<3>(int(s.photos.size()), H, W, false);
+  for (std::size_t i = 0; i < s.photos.size(); ++i) network_space::photo_to_network(s.photos[i], x.value, int(i));
+  auto y = net.forward(t, x, int(s.photos.size()));
+  tensor<parameter_count> out(1, H, W);
+  std::copy_n(y.value.data(), out.size(), out.data());
+  return out;
+}
+
+/// The auto-encoder's reconstruction of one sample (running batch-norm statistics, no gradients).
+template <class Net>
+tensor<parameter_count> autoencoder_output(Net& net, const sample& s) {
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  net.set_training(false);
+  auto x = t.leaf(s.truth_net);
+  auto y = net.decode(t, net.encode(t, x));
+  net.set_training(true);
+  tensor<parameter_count> out(1, s.truth.height(), s.truth.width());
+  std::copy_n(y.value.data(), out.size(), out.data());
+  return out;
+}
+
+/// Validation of either network on `count` validation materials of size x size.
+template <class Net, class Output>
+validation_result validate(Net& net, int count, int size, bool with_photos, Output output) {
+  validation_result r;
+  for (int i = 0; i < count; ++i) {
+    std::vector<sample> one;
+    one.push_back(make_sample(validation_seed(i), size, with_photos));
+    const auto u = output(net, one[0]);
+    const loss_terms l = map_losses(u, one, nullptr);
+    r.loss.total += l.total / count;
+    r.loss.l1 += l.l1 / count;
+    r.loss.render += l.render / count;
+    accumulate(r.errors, compare_maps(network_space::network_to_maps(u, 0), one[0].truth), count);
+  }
+  return r;
+}
+
+namespace detail {
+
+/// Keeps the rows of a CSV whose first field (a step) is at most `step` (a resumed run rewrites
+/// the validations a killed run made after its last checkpoint).
+inline void truncate_csv(const std::filesystem::path& file, long step) {
+  std::ifstream in(file);
+  if (!in) return;
+  std::string line, kept;
+  bool header = true;
+  while (std::getline(in, line)) {
+    if (header || (!line.empty() && std::stol(line.substr(0, line.find(','))) <= step)) kept += line + "\n";
+    header = false;
+  }
+  in.close();
+  std::ofstream(file) << kept;
+}
+
+/// Appends one validation row (writing the header first when the file is new).
+inline void append_validation(const std::filesystem::path& file, long step, double train_loss, const validation_result& v) {
+  const bool fresh = !std::filesystem::exists(file);
+  std::ofstream out(file, std::ios::app);
+  if (fresh)
+    out << "step,train_loss,val_loss,val_l1,val_render,mse_diffuse,mse_specular,mse_normal,mse_lobes,mse_rotation,"
+           "mse_fresnel\n";
+  char row[512];
+  std::snprintf(row, sizeof row, "%ld,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", step, train_loss, v.loss.total,
+                v.loss.l1, v.loss.render, v.errors.diffuse, v.errors.specular, v.errors.normal, v.errors.lobes,
+                v.errors.rotation, v.errors.fresnel);
+  out << row;
+}
+
+/// The loop shared by both trainers: `step_fn(step)` runs one optimiser step and returns its loss;
+/// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
+template <class Net, class StepFn, class ValidateFn>
+void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, StepFn step_fn, ValidateFn validate_fn) {
+  std::filesystem::create_directories(o.out_dir);
+  long step = 0;
+  json::object info{{"network", json::value(kind)}, {"preset", json::value(Net::preset::name)},
+                    {"seed", json::value(double(o.seed))}, {"size", json::value(o.size)}, {"batch", json::value(o.batch)},
+                    {"learning_rate", json::value(opt.learning_rate())}};
+  const auto csv = o.out_dir / "validation.csv";
+  if (o.resume) {
+    step = load_checkpoint(o.out_dir, net, opt);
+    truncate_csv(csv, step);
+    o.log(kind + ": resumed at step " + std::to_string(step));
+  } else {
+    std::filesystem::remove(csv);
+  }
+  using clock = std::chrono::steady_clock;
+  const auto start = clock::now();
+  auto last_checkpoint = start, last_progress = start;
+  const long first = step;
+  double window = 0, since_validation = 0;  // loss sums for the progress line and the CSV row
+  long window_count = 0, since_validation_count = 0;
+  auto checkpoint = [&] {
+    save_checkpoint(o.out_dir, net, opt, step, info);
+    save_network(o.out_dir / (kind + ".safetensors"), net, kind);
+  };
+  while (step < o.steps) {
+    const double loss = step_fn(step);
+    ++step;
+    window += loss;
+    ++window_count;
+    since_validation += loss;
+    ++since_validation_count;
+    const auto now = clock::now();
+    const double elapsed = std::chrono::duration<double>(now - start).count();
+    if (std::chrono::duration<double>(now - last_progress).count() >= o.progress_seconds || step == o.steps) {
+      const double rate = double(step - first) / std::max(elapsed, 1e-9);
+      char line[256];
+      std::snprintf(line, sizeof line, "%s: step %ld/%ld  loss %.4f  %.3f steps/s  %.2f samples/s  %.0f s left",
+                    kind.c_str(), step, o.steps, window / double(window_count), rate, rate * o.batch, double(o.steps - step) / rate);
+      o.log(line);
+      window = 0;
+      window_count = 0;
+      last_progress = now;
+    }
+    if ((o.validate_every > 0 && step % o.validate_every == 0) || step == o.steps) {
+      // The CSV's train_loss: mean over the steps since the previous validation (or the resume).
+      const validation_result v = validate_fn();
+      append_validation(csv, step, since_validation / double(since_validation_count), v);
+      since_validation = 0;
+      since_validation_count = 0;
+      char line[256];
+      std::snprintf(line, sizeof line, "%s: validation at step %ld: loss %.4f (L1 %.4f, render %.4f)", kind.c_str(), step,
+                    v.loss.total, v.loss.l1, v.loss.render);
+      o.log(line);
+    }
+    const bool timed = std::chrono::duration<double>(clock::now() - last_checkpoint).count() >= 60 * o.checkpoint_minutes;
+    if (timed || step == o.steps || (o.checkpoint_every > 0 && step % o.checkpoint_every == 0)) {
+      checkpoint();
+      last_checkpoint = clock::now();
+    }
+    if (o.stop_after >= 0 && step >= o.stop_after) return;
+  }
+}
+
+}  // namespace detail
+
+/// Trains the estimator (MODEL.md 7): per step, `batch` procedural materials with their 5 training
+/// inputs; loss = L1 (network space) + render loss; Adam (default rate 5e-5, the paper's).
+template <class Preset>
+void train_estimator(const train_options& o, EstimationNet<Preset>& net) {
+  if (o.size <= 0 || o.size % 64 != 0) throw std::invalid_argument("train-estimator: --size must be a positive multiple of 64");
+  nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
+  opt.add_parameters(net);
+  ad::tape t;
+  auto step_fn = [&](long step) {
+    std::vector<sample> samples;
+    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, true));
+    const int N = int(samples[0].photos.size());
+    t.clear();
+    auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
+    for (int b = 0; b < o.batch; ++b)
+      for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
+    auto y = net.forward(t, x, N);
+    const loss_terms l = map_losses(y.value, samples, &y.grad);
+    t.backward();
+    opt.step();
+    return l.total;
+  };
+  auto validate_fn = [&] {
+    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); });
+  };
+  detail::run(o, "estimator", net, opt, step_fn, validate_fn);
+}
+
+/// Trains the auto-encoder (MODEL.md 7): per step, `batch` procedural map sets; loss = L1 + render
+/// loss of D(E(m)) + smoothness_weight * mean |D(z) - D(z + delta)| with delta ~ N(0, latent_noise^2)
+/// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's).
+template <class Preset>
+void train_autoencoder(const train_options& o, AutoEncoder<Preset>& net) {
+  if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
+  if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
+  nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 1e-3));
+  opt.add_parameters(net);
+  ad::tape t;
+  constexpr int Z = AutoEncoder<Preset>::latent_channels;
+  auto step_fn = [&](long step) {
+    std::vector<sample> samples;
+    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false));
+    t.clear();
+    auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
+    for (int b = 0; b < o.batch; ++b)
+      std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
+    net.set_training(true);
+    auto z = net.encode(t, x);
+    auto y = net.decode(t, z);
+    loss_terms l = map_losses(y.value, samples, &y.grad);
+    if (o.smoothness_weight > 0) {
+      auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
+      nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+      for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
+      auto y2 = net.decode(t, nn::add(t, z, delta));
+      const double n = double(y.value.size());
+      const float g = float(o.smoothness_weight / n);
+      double s = 0;
+      for (std::size_t i = 0; i < y.value.size(); ++i) {
+        const float d = y.value.data()[i] - y2.value.data()[i];
+        s += std::abs(d);
+        const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
+        y.grad.data()[i] += sg;
+        y2.grad.data()[i] -= sg;
+      }
+      l.smoothness = s / n;
+      l.total += o.smoothness_weight * l.smoothness;
+    }
+    t.backward();
+    opt.step();
+    return l.total;
+  };
+  auto validate_fn = [&] {
+    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); });
+  };
+  detail::run(o, "autoencoder", net, opt, step_fn, validate_fn);
+}
+
+}  // namespace anisocap::training

@@ -1,0 +1,94 @@
+// EstimationNet (pipeline/networks.hpp): shapes for odd sizes and 1, 3, 5 images, invariance to
+// the order of the images (max-pool), output ranges, multiple sets in one batch.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "anisocap/core/random.hpp"
+#include "anisocap/pipeline/networks.hpp"
+#include "tiny_presets.hpp"
+
+using namespace anisocap;
+using Net = EstimationNet<testing::estimator_tiny>;
+
+namespace {
+std::vector<image> random_photos(int n, int width, int height, std::uint64_t seed) {
+  random_generator rng(seed);
+  std::vector<image> photos;
+  for (int i = 0; i < n; ++i) {
+    image im(width, height, 3);
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x) im.at(c, x, y) = float(rng.uniform() * 1.5);
+    photos.push_back(im);
+  }
+  return photos;
+}
+
+/// True when every value of the map set lies in its parameter's valid range (MODEL.md 1).
+bool in_range(const material_maps& m) {
+  for (int y = 0; y < m.height(); ++y)
+    for (int x = 0; x < m.width(); ++x) {
+      for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0})
+        if (!(m.at(k, x, y) >= 0 && m.at(k, x, y) <= 1)) return false;
+      for (int k : {lobe_x, lobe_y})
+        if (!(m.at(k, x, y) >= min_lobe_width * 0.999f && m.at(k, x, y) <= 1)) return false;
+      if (!(std::hypot(m.at(normal_x, x, y), m.at(normal_y, x, y)) < 1)) return false;
+      if (!(std::abs(m.at(rotation, x, y)) <= 1.5708f)) return false;
+    }
+  return true;
+}
+}  // namespace
+
+TEST_CASE("estimator: any size and 1, 3 or 5 images give maps of the input's size in range") {
+  Net net(3);
+  for (int n : {1, 3, 5}) {
+    for (auto [w, h] : {std::pair{37, 21}, std::pair{64, 64}, std::pair{70, 129}}) {
+      const material_maps m = net.estimate(random_photos(n, w, h, 100 + n));
+      CHECK(m.width() == w);
+      CHECK(m.height() == h);
+      CHECK(in_range(m));
+    }
+  }
+  CHECK_THROWS_AS(net.estimate({}), std::invalid_argument);
+  auto mixed = random_photos(2, 16, 16, 5);
+  mixed.push_back(random_photos(1, 17, 16, 6)[0]);
+  CHECK_THROWS_AS(net.estimate(mixed), std::invalid_argument);
+}
+
+TEST_CASE("estimator: the result does not depend on the order of the images (max-pool over images)") {
+  Net net(4);
+  auto photos = random_photos(4, 40, 33, 9);
+  const material_maps a = net.estimate(photos);
+  std::reverse(photos.begin(), photos.end());
+  std::swap(photos[1], photos[2]);
+  const material_maps b = net.estimate(photos);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < a.texel_count(); ++i) REQUIRE(a.plane(k)[i] == b.plane(k)[i]);
+  // A different image set gives different maps (the network does read its inputs).
+  const material_maps c = net.estimate(random_photos(4, 40, 33, 10));
+  double diff = 0;
+  for (std::size_t i = 0; i < a.texel_count(); ++i) diff += std::abs(a.plane(diffuse_r)[i] - c.plane(diffuse_r)[i]);
+  CHECK(diff > 0);
+}
+
+TEST_CASE("estimator: two sets in one batch give what each gives alone; forward rejects sizes not multiple of 64") {
+  Net net(5);
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  auto x = t.make_variable<3>(6, 64, 128, false);
+  random_generator rng(3);
+  for (std::size_t i = 0; i < x.value.size(); ++i) x.value.data()[i] = float(rng.uniform() * 2 - 1);
+  auto y = net.forward(t, x, 3);
+  REQUIRE(y.value.batch() == 2);
+  CHECK(y.value.height() == 64);
+  CHECK(y.value.width() == 128);
+  auto x1 = t.make_variable<3>(3, 64, 128, false);
+  std::copy_n(x.value.pixel(3, 0, 0), x1.value.size(), x1.value.data());
+  auto y1 = net.forward(t, x1, 3);
+  for (std::size_t i = 0; i < y1.value.size(); ++i) REQUIRE(y1.value.data()[i] == doctest::Approx(y.value.pixel(1, 0, 0)[i]).epsilon(1e-5));
+  auto bad = t.make_variable<3>(1, 96, 64, false);
+  CHECK_THROWS_AS(net.forward(t, bad, 1), std::invalid_argument);
+}

@@ -1,0 +1,89 @@
+// Network space (pipeline/network_space.hpp): round trips per parameter, ranges, the chain rule
+// of network_to_maps against finite differences, and the photographs' eq. 7 map.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "anisocap/core/random.hpp"
+#include "anisocap/data/procedural.hpp"
+#include "anisocap/pipeline/network_space.hpp"
+
+using namespace anisocap;
+namespace ns = anisocap::network_space;
+
+TEST_CASE("network space: every parameter round-trips and valid values land in [-1, 1]") {
+  const material_maps maps = generate_material(7, 24, 17);
+  tensor<parameter_count> u(1, 17, 24);
+  ns::maps_to_network(maps, u, 0);
+  for (std::size_t i = 0; i < u.size(); ++i) {
+    CHECK(u.data()[i] >= -1.0f - 1e-6f);
+    CHECK(u.data()[i] <= 1.0f + 1e-6f);
+  }
+  const material_maps back = ns::network_to_maps(u, 0);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int y = 0; y < 17; ++y)
+      for (int x = 0; x < 24; ++x) {
+        const double v = maps.at(k, x, y), w = back.at(k, x, y);
+        if (k == rotation) {
+          // alpha is pi-periodic: compare modulo pi.
+          const double d = v - w;
+          CHECK(std::abs(d - std::numbers::pi * std::nearbyint(d / std::numbers::pi)) < 1e-5);
+        } else if (k == lobe_x || k == lobe_y) {
+          CHECK(w == doctest::Approx(std::max(v, double(min_lobe_width))).epsilon(1e-4));
+        } else {
+          CHECK(w == doctest::Approx(v).epsilon(1e-5));
+        }
+      }
+}
+
+TEST_CASE("network space: range ends map to the documented values") {
+  CHECK(ns::to_network(lobe_x, 1.0) == doctest::Approx(1.0));
+  CHECK(ns::to_network(lobe_y, 1e-4) == doctest::Approx(-1.0));
+  CHECK(ns::to_network(lobe_y, 1e-9) == doctest::Approx(-1.0));  // below the range: clamped
+  CHECK(ns::to_network(diffuse_g, 0.0) == -1.0);
+  CHECK(ns::to_network(fresnel_f0, 1.0) == 1.0);
+  CHECK(ns::to_network(rotation, std::numbers::pi / 2 - 1e-9) == doctest::Approx(1.0));
+  CHECK(ns::to_network(rotation, std::numbers::pi * 0.75) == doctest::Approx(-0.5));  // wrapped by pi
+  CHECK(ns::input_value(0.0) == doctest::Approx(-1.0));
+  CHECK(ns::input_value(1.0) == doctest::Approx(1.0));
+  // Decoded normals never leave the disc of radius 0.999.
+  tensor<parameter_count> u(1, 1, 1);
+  u(0, 0, 0, normal_x) = 0.9f;
+  u(0, 0, 0, normal_y) = -0.9f;
+  const material_maps m = ns::network_to_maps(u, 0);
+  CHECK(std::hypot(m.at(normal_x, 0, 0), m.at(normal_y, 0, 0)) == doctest::Approx(0.999).epsilon(1e-5));
+}
+
+TEST_CASE("network space: the chain rule matches finite differences, inside and outside the normal disc") {
+  const int W = 3, H = 2;
+  tensor<parameter_count> u(1, H, W), grad(1, H, W);
+  random_generator rng(11);
+  for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(rng.uniform() * 1.8 - 0.9);
+  u(0, 0, 0, normal_x) = 0.95f;  // outside the disc: scaled back
+  u(0, 0, 0, normal_y) = 0.6f;
+  // L = sum_k,p c_k,p maps_k,p: dL/dmaps = c.
+  material_maps c(W, H);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int i = 0; i < W * H; ++i) c.plane(k)[i] = float(rng.uniform() * 2 - 1);
+  auto loss = [&] {
+    const material_maps m = ns::network_to_maps(u, 0);
+    double s = 0;
+    for (int k = 0; k < parameter_count; ++k)
+      for (int i = 0; i < W * H; ++i) s += double(c.plane(k)[i]) * m.plane(k)[i];
+    return s;
+  };
+  grad.fill(0.0f);
+  ns::add_network_gradient(u, 0, c, 2.0, grad);  // scale 2 to check the scale argument
+  for (std::size_t i = 0; i < u.size(); ++i) {
+    const float saved = u.data()[i];
+    const float h = 1e-3f;
+    u.data()[i] = saved + h;
+    const double up = loss();
+    u.data()[i] = saved - h;
+    const double down = loss();
+    u.data()[i] = saved;
+    const double numeric = 2.0 * (up - down) / (2.0 * h);
+    CHECK(double(grad.data()[i]) == doctest::Approx(numeric).epsilon(2e-2).scale(1.0));
+  }
+}

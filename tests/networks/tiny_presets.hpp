@@ -1,0 +1,21 @@
+#pragma once
+// Tiny network presets for tests: the same code paths as `compact` and `paper`, cheap to run.
+#include <array>
+
+namespace anisocap::testing {
+
+/// An estimator with 4 channels everywhere.
+struct estimator_tiny {
+  static constexpr std::array<int, 6> encoder{4, 4, 4, 4, 4, 8};
+  static constexpr std::array<int, 6> track1{8, 4, 4, 4, 4, 4};
+  static constexpr std::array<int, 6> track2{4, 4, 4, 4, 4, 4};
+  static constexpr const char* name = "tiny";
+};
+
+/// An auto-encoder with 4 to 8 channels.
+struct autoencoder_tiny {
+  static constexpr std::array<int, 5> encoder{4, 4, 8, 8, 8};
+  static constexpr const char* name = "tiny";
+};
+
+}  // namespace anisocap::testing

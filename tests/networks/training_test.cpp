@@ -1,0 +1,118 @@
+// Training (pipeline/training.hpp): a run stopped half-way and resumed from its checkpoint ends
+// with exactly the weights of an uninterrupted run; the auto-encoder's shapes; the loss terms.
+#include <doctest/doctest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <unistd.h>
+
+#include "anisocap/pipeline/training.hpp"
+#include "tiny_presets.hpp"
+
+using namespace anisocap;
+namespace fs = std::filesystem;
+
+namespace {
+fs::path fresh_folder(const std::string& name) {
+  const fs::path p = fs::temp_directory_path() / ("anisocap_networks_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(p);
+  return p;
+}
+
+template <class Net>
+std::vector<float> all_weights(Net& net) {
+  std::vector<float> w;
+  nn::detail::visit_weights(net, [&](auto& p) { w.insert(w.end(), p.value.begin(), p.value.end()); });
+  return w;
+}
+
+training::train_options tiny_options(const fs::path& dir, int size) {
+  training::train_options o;
+  o.out_dir = dir;
+  o.steps = 4;
+  o.size = size;
+  o.batch = 2;
+  o.learning_rate = 1e-3;
+  o.seed = 5;
+  o.validate_every = 2;
+  o.validation_count = 1;
+  o.checkpoint_minutes = 1e9;
+  o.checkpoint_every = 2;
+  o.log = [](const std::string&) {};
+  return o;
+}
+}  // namespace
+
+TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k steps straight") {
+  const fs::path a = fresh_folder("straight"), b = fresh_folder("resumed");
+  EstimationNet<testing::estimator_tiny> straight(3);
+  training::train_estimator(tiny_options(a, 64), straight);
+  {
+    EstimationNet<testing::estimator_tiny> killed(3);
+    auto o = tiny_options(b, 64);
+    o.stop_after = 2;
+    training::train_estimator(o, killed);
+  }
+  EstimationNet<testing::estimator_tiny> resumed(99);  // different initial weights: all must come from the checkpoint
+  auto o = tiny_options(b, 64);
+  o.resume = true;
+  training::train_estimator(o, resumed);
+  const auto wa = all_weights(straight), wb = all_weights(resumed);
+  REQUIRE(wa.size() == wb.size());
+  CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
+  EstimationNet<testing::estimator_tiny> initial(3);
+  const auto w0 = all_weights(initial);
+  CHECK_FALSE(std::equal(wa.begin(), wa.end(), w0.begin()));  // training changed the weights
+  // Both runs logged the same validation rows (the resumed one rewrote none twice).
+  std::ifstream ca(a / "validation.csv"), cb(b / "validation.csv");
+  std::string sa((std::istreambuf_iterator<char>(ca)), {}), sb((std::istreambuf_iterator<char>(cb)), {});
+  CHECK(sa == sb);
+  CHECK(std::count(sa.begin(), sa.end(), '\n') == 3);
+  CHECK(fs::exists(a / "estimator.safetensors"));
+  // Resuming without a checkpoint is a clear error naming the file.
+  auto missing = tiny_options(fresh_folder("missing"), 64);
+  missing.resume = true;
+  CHECK_THROWS_WITH_AS(training::train_estimator(missing, resumed), doctest::Contains("checkpoint.json"), std::runtime_error);
+  fs::remove_all(a);
+  fs::remove_all(b);
+}
+
+TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statistics included)") {
+  const fs::path a = fresh_folder("ae_straight"), b = fresh_folder("ae_resumed");
+  AutoEncoder<testing::autoencoder_tiny> straight(3);
+  training::train_autoencoder(tiny_options(a, 32), straight);
+  {
+    AutoEncoder<testing::autoencoder_tiny> killed(3);
+    auto o = tiny_options(b, 32);
+    o.stop_after = 2;
+    training::train_autoencoder(o, killed);
+  }
+  AutoEncoder<testing::autoencoder_tiny> resumed(42);
+  auto o = tiny_options(b, 32);
+  o.resume = true;
+  training::train_autoencoder(o, resumed);
+  const auto wa = all_weights(straight), wb = all_weights(resumed);
+  REQUIRE(wa.size() == wb.size());
+  CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
+  fs::remove_all(a);
+  fs::remove_all(b);
+}
+
+TEST_CASE("training: loss terms are zero for the truth and positive otherwise; seeds are disjoint") {
+  std::vector<training::sample> s;
+  s.push_back(training::make_sample(training::validation_seed(0), 32, true));
+  CHECK(s[0].photos.size() == 5);
+  CHECK(s[0].loss_configurations.images.size() == 4);
+  const auto exact = training::map_losses(s[0].truth_net, s, nullptr);
+  CHECK(exact.l1 < 1e-6);
+  CHECK(exact.render < 2e-3);  // only the lobe clamp and float rounding
+  tensor<parameter_count> off(1, 32, 32), grad(1, 32, 32);
+  for (std::size_t i = 0; i < off.size(); ++i) off.data()[i] = s[0].truth_net.data()[i] * 0.5f;
+  const auto l = training::map_losses(off, s, &grad);
+  CHECK(l.l1 > 0.01);
+  CHECK(l.render > 0.01);
+  CHECK(l.total == doctest::Approx(l.l1 + l.render));
+  for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
+}
