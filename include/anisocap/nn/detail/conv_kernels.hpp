@@ -445,9 +445,10 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
     }
 }
 
-/// Accumulates a weight gradient gw [taps][Ca][Cb] over one pass on all threads. Each thread owns
-/// a fixed set of (output-channel block, tap, input-channel block) items, so no reduction is needed
-/// and the result does not depend on the number of threads.
+/// Accumulates a weight gradient gw [taps][Ca][Cb] over one pass on all threads. Work items are
+/// (output-channel block, tap, range of input-channel blocks); each item sweeps every pixel and
+/// owns its part of gw, so no reduction is needed and the result does not depend on the number of
+/// threads. Items are handed out dynamically (a thread that the system slows down takes fewer).
 template <int NV, class T>
 void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   constexpr int W = lanes<T>;
@@ -458,22 +459,30 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
   const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
   const int ci_items = ciblocks + ci_rest;
-  const long long items = (long long)coblocks * ps.taps * ci_items;
+  const int threads = omp_get_max_threads();
+  // Split the input channels when (block, tap) pairs alone would not feed every thread.
+  const int pairs = coblocks * ps.taps;
+  const int parts = std::max(1, std::min(ci_items, (8 * threads + pairs - 1) / pairs));
+  const long long items = (long long)pairs * parts;
   const int rows_total = ps.batch * ps.rows;
   // Pixel chunks of about 96 (whole rows when rows are shorter, else row segments): the chunk's
-  // output-gradient block (96 x NV registers) stays in L1 while a thread runs its items over it.
+  // output-gradient block (96 x NV registers) stays in L1 while the item's input-channel blocks
+  // run over it.
   const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * sizeof(T))));
   const int seg = std::min(ps.cols, target);
   const int segs_per_row = (ps.cols + seg - 1) / seg;
   const int chunk_rows = seg < ps.cols ? 1 : std::max(1, std::min(64, target / std::max(1, ps.cols)));
   const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
-#pragma omp parallel if (items > 1 && work > double(1 << 16))
-  {
-    const int nt = omp_get_num_threads(), id = omp_get_thread_num();
-    const long long i0 = items * id / nt, i1 = items * (id + 1) / nt;
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work > double(1 << 16))
+  for (long long it = 0; it < items; ++it) {
+    const int pair = int(it / parts), part = int(it % parts);
+    const int cb = pair / ps.taps, t = pair % ps.taps;
+    const int k0 = ci_items * part / parts, k1 = ci_items * (part + 1) / parts;
+    const int co0 = cb * block;
+    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
     const T* a_rows[64];
     const T* g_rows[64];
-    for (int r0 = 0; r0 < rows_total && i0 < i1; r0 += chunk_rows) {
+    for (int r0 = 0; r0 < rows_total; r0 += chunk_rows) {
       const int nr = std::min(chunk_rows, rows_total - r0);
       for (int sg = 0; sg < segs_per_row; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
@@ -482,12 +491,7 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
           a_rows[r] = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col;
           g_rows[r] = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col;
         }
-        for (long long it = i0; it < i1; ++it) {
-          const int cb = int(it / (ps.taps * ci_items));
-          const int rest = int(it % (ps.taps * ci_items));
-          const int t = rest / ci_items, ck = rest % ci_items;
-          const int co0 = cb * block;
-          const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+        for (int ck = k0; ck < k1; ++ck) {
           if (ck < ciblocks) {
             const int ci0 = ck * CIB;
             weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
