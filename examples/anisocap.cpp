@@ -17,6 +17,7 @@
 #include <string>
 
 #include "anisocap/anisocap.hpp"
+#include "anisocap/core/system.hpp"
 #include "commands/train.hpp"
 
 namespace fs = std::filesystem;
@@ -166,6 +167,8 @@ nlohmann::json capture_command(const capture_args& a) {
   write_maps(maps, a.out);
   write_renders(maps, cap, a.out / "renders");
   write_capture_sheet(a.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
+  const capture novel = novel_view_set(1, maps.width(), maps.height());
+  write_renders(maps, novel, a.out / "novel");
   const double write_seconds = seconds_since(t_write);
 
   nlohmann::json report;
@@ -182,7 +185,14 @@ nlohmann::json capture_command(const capture_args& a) {
   report["loss"] = r.final_loss;
   report["timings"] = {{"load", load_seconds}, {"initial_guess", init_seconds}, {"refine", r.seconds},
                        {"write", write_seconds}, {"total", seconds_since(start)}};
-  if (truth) report["errors"] = errors_to_json(compare_maps(maps, *truth));
+  report["novel_views"] = nlohmann::json::array();
+  for (const auto& v : novel.images)
+    report["novel_views"].push_back({{"file", "novel/" + v.file}, {"camera", v.camera}, {"light", v.light}, {"intensity", v.intensity}});
+  if (truth) {
+    report["errors"] = errors_to_json(compare_maps(maps, *truth));
+    report["errors"]["novel_view_image_loss"] = novel_view_error(maps, *truth, novel);
+  }
+  report["peak_memory_bytes"] = peak_resident_bytes();
   write_text_atomically(a.out / "report.json", report.dump(2) + "\n");
   std::fprintf(stderr, "capture: loss %.5f -> %.5f in %.1f s; maps, renders and report.json in %s\n",
                r.losses.empty() ? r.final_loss : r.losses.front(), r.final_loss, r.seconds, a.out.c_str());
@@ -206,7 +216,7 @@ void print_error_table(const nlohmann::json& errors) {
   for (const auto& r : rows) std::printf("| %s | %.5f | %.4f |\n", r.name, errors[r.key].get<double>(), r.paper);
   if (!errors["rotation_anisotropic"].is_null())
     std::printf("| rotation, anisotropic texels only | %.5f | - |\n", errors["rotation_anisotropic"].get<double>());
-  std::printf("\n");
+  std::printf("| novel-view image loss (3 unseen views) | %.5f | - |\n\n", errors["novel_view_image_loss"].get<double>());
 }
 
 }  // namespace

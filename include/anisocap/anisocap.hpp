@@ -8,6 +8,7 @@
 /// sets), render (captures, configurations, renderer and loss), data (image, capture and map I/O,
 /// procedural materials), pipeline (refine, evaluation).
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/system.hpp"
 #include "anisocap/core/json.hpp"
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/random.hpp"

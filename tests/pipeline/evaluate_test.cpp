@@ -44,3 +44,21 @@ TEST_CASE("compare_maps: known offsets give known errors") {
   CHECK(e.specular == 0.0);
   CHECK_THROWS_AS(compare_maps(material_maps(3, 3), truth), std::invalid_argument);
 }
+
+TEST_CASE("novel views: three unseen configurations; the error is zero for the truth and grows with a wrong estimate") {
+  const capture views = novel_view_set(5, 30, 20);
+  REQUIRE(views.images.size() == 3);
+  CHECK(views.images[0].file == "novel_00.exr");
+  for (const auto& v : views.images) CHECK(v.camera[2] > 0.0f);
+  const capture again = novel_view_set(5, 30, 20);
+  CHECK(again.images[1].light == views.images[1].light);
+  const material_maps truth = testing::random_maps(30, 20, 4);
+  CHECK(novel_view_error(truth, truth, views) < 1e-6);  // float logs computed two ways
+  material_maps off = truth;
+  for (std::size_t i = 0; i < off.texel_count(); ++i) off.plane(diffuse_r)[i] *= 0.5f;
+  material_maps further = truth;
+  for (std::size_t i = 0; i < off.texel_count(); ++i) further.plane(diffuse_r)[i] *= 0.25f;
+  const double e1 = novel_view_error(off, truth, views), e2 = novel_view_error(further, truth, views);
+  CHECK(e1 > 0.0);
+  CHECK(e2 > e1);
+}

@@ -77,3 +77,32 @@ inline parameter_errors compare_maps(const material_maps& estimate, const materi
 }
 
 }  // namespace anisocap
+
+#include "anisocap/render/configurations.hpp"
+#include "anisocap/render/renderer.hpp"
+
+namespace anisocap {
+
+/// Three views the capture did not use, for judging an estimate by its renderings (paper 5.1's
+/// "novel views"): a Fresnel, an independent and a mirror configuration drawn from `seed` (salted
+/// apart from every capture set). Files are named novel_00.exr, novel_01.exr, novel_02.exr.
+inline capture novel_view_set(std::uint64_t seed, int width, int height) {
+  random_generator rng(hash64(seed ^ 0x6e6f76656cULL));
+  capture c;
+  c.images.push_back(fresnel_configuration(rng, width, height));
+  c.images.push_back(independent_configuration(rng, width, height));
+  c.images.push_back(mirror_configuration(rng, width, height));
+  for (std::size_t i = 0; i < c.images.size(); ++i) c.images[i].file = "novel_0" + std::to_string(i) + ".exr";
+  return c;
+}
+
+/// Novel-view image error: the image loss of MODEL.md 5 between renderings of `estimate` and of
+/// `truth` under `views`, averaged over the views (mean over pixels and channels of
+/// |log(A + 0.01) - log(B + 0.01)|).
+inline double novel_view_error(const material_maps& estimate, const material_maps& truth, const capture& views) {
+  if (views.images.empty()) throw std::invalid_argument("novel_view_error: no views");
+  const loss_targets targets = make_loss_targets(render(truth, views));
+  return loss_and_gradient(estimate, views, targets, nullptr) / double(views.images.size());
+}
+
+}  // namespace anisocap
