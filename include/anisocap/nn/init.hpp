@@ -13,23 +13,19 @@
 #include <cstdint>
 #include <string_view>
 
+#include "anisocap/core/random.hpp"
 #include "anisocap/nn/parameter.hpp"
 
 namespace anisocap::nn {
 
-/// splitmix64 (Steele, Lea, Flood 2014): tiny, fast, and passes BigCrush; fully specified by its
-/// integer arithmetic.
+/// Weight-initialisation stream: core/random.hpp's splitmix64 (Steele, Lea, Flood 2014), with the
+/// exact uniform and Irwin-Hall normal transforms described above (bits identical everywhere).
 class random_generator {
  public:
   explicit random_generator(std::uint64_t seed) noexcept : state_(seed) {}
 
   /// Next 64 random bits.
-  std::uint64_t next() noexcept {
-    std::uint64_t z = (state_ += 0x9e3779b97f4a7c15ULL);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-    return z ^ (z >> 31);
-  }
+  std::uint64_t next() noexcept { return splitmix64(state_); }
 
   /// Uniform in [-1, 1), an exact multiple of 2^-51.
   double symmetric_uniform() noexcept {
