@@ -1,0 +1,112 @@
+#pragma once
+/// @file
+/// Sliding windows (MODEL.md 8.1): the estimator sees 256 x 256 windows of the photographs with an
+/// overlap of up to 192 texels (stride 64); the window estimates are blended back to full size
+/// with weights that fall off towards each window's border. Materials smaller than a window are
+/// mirrored out to the window size and the estimate cropped back.
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <numbers>
+#include <stdexcept>
+#include <vector>
+
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/image.hpp"
+
+namespace anisocap {
+
+/// Start offsets of windows of `window` texels with step `stride` covering [0, size): the last
+/// window ends exactly at size. A size below the window gives one window at 0 (padding needed).
+inline std::vector<int> window_starts(int size, int window, int stride) {
+  if (size <= 0 || window <= 0 || stride <= 0) throw std::invalid_argument("window_starts: sizes must be positive");
+  std::vector<int> s;
+  if (size <= window) return {0};
+  for (int x = 0;; x += stride) {
+    if (x + window >= size) { s.push_back(size - window); break; }
+    s.push_back(x);
+  }
+  return s;
+}
+
+/// Mirror index (reflection without repeating the edge texel): ..., 2, 1, 0, 1, 2, ..., n-1, n-2, ...
+inline int mirror_index(int i, int n) {
+  if (n == 1) return 0;
+  const int period = 2 * (n - 1);
+  i %= period;
+  if (i < 0) i += period;
+  return i < n ? i : period - i;
+}
+
+/// The window [x0, x0 + w) x [y0, y0 + h) of `src`, mirrored where it leaves the image.
+inline image crop_mirrored(const image& src, int x0, int y0, int w, int h) {
+  image out(w, h, src.channels());
+  for (int c = 0; c < src.channels(); ++c)
+    for (int y = 0; y < h; ++y) {
+      const int sy = mirror_index(y0 + y, src.height());
+      for (int x = 0; x < w; ++x) out.at(c, x, y) = src.at(c, mirror_index(x0 + x, src.width()), sy);
+    }
+  return out;
+}
+
+/// Blending weight of texel i of a window of n texels: a tent that is 1 in the middle and falls to
+/// `floor` at the border, so that overlapping windows hand over smoothly and a texel that only one
+/// window covers (the material's own border) still gets a valid weight.
+inline float window_weight(int i, int n, float floor = 0.05f) {
+  const float d = std::min(float(i) + 0.5f, float(n) - float(i) - 0.5f) / (0.5f * float(n));
+  return std::max(floor, d);
+}
+
+/// Blends per-window map estimates into one map set of `width` x `height`. `estimate_window`
+/// receives the window's crops of every photograph (size window x window, mirrored where the
+/// material is smaller) and returns their map set. Linear parameters are averaged with the window
+/// weights; the normal's (x, y) too, renormalised into the unit disc; the rotation alpha, which is
+/// pi-periodic, is averaged as the doubled angle (cos 2 alpha, sin 2 alpha) weighted by the lobe
+/// anisotropy |sx - sy| / max(sx, sy), so windows that cannot see it do not decide it.
+inline material_maps estimate_by_windows(const std::vector<image>& photos, int window, int stride,
+                                         const std::function<material_maps(const std::vector<image>&)>& estimate_window,
+                                         const std::function<void(int, int)>& progress = {}) {
+  if (photos.empty()) throw std::invalid_argument("estimate_by_windows: no photographs");
+  const int W = photos[0].width(), H = photos[0].height();
+  const auto xs = window_starts(W, window, stride), ys = window_starts(H, window, stride);
+  std::vector<double> sum(std::size_t(parameter_count) * W * H, 0.0), weight(std::size_t(W) * H, 0.0);
+  std::vector<double> rot_c(std::size_t(W) * H, 0.0), rot_s(std::size_t(W) * H, 0.0);
+  const int total = int(xs.size() * ys.size());
+  int done = 0;
+  for (int y0 : ys)
+    for (int x0 : xs) {
+      std::vector<image> crops;
+      crops.reserve(photos.size());
+      for (const auto& p : photos) crops.push_back(crop_mirrored(p, x0, y0, window, window));
+      const material_maps m = estimate_window(crops);
+      if (m.width() != window || m.height() != window)
+        throw std::runtime_error("estimate_by_windows: the window estimate has the wrong size");
+      for (int y = 0; y < std::min(window, H - y0); ++y)
+        for (int x = 0; x < std::min(window, W - x0); ++x) {
+          const double wgt = double(window_weight(x, window)) * window_weight(y, window);
+          const std::size_t i = std::size_t(y0 + y) * W + (x0 + x);
+          for (int k = 0; k < parameter_count; ++k)
+            if (k != rotation) sum[std::size_t(k) * W * H + i] += wgt * m.at(k, x, y);
+          const double sx = m.at(lobe_x, x, y), sy = m.at(lobe_y, x, y);
+          const double aniso = std::abs(sx - sy) / std::max({sx, sy, 1e-6}) + 1e-3;
+          const double a = 2.0 * m.at(rotation, x, y);
+          rot_c[i] += wgt * aniso * std::cos(a);
+          rot_s[i] += wgt * aniso * std::sin(a);
+          weight[i] += wgt;
+        }
+      if (progress) progress(++done, total);
+    }
+  material_maps out(W, H);
+  for (std::size_t i = 0; i < std::size_t(W) * H; ++i) {
+    for (int k = 0; k < parameter_count; ++k)
+      if (k != rotation) out.plane(k)[i] = float(sum[std::size_t(k) * W * H + i] / weight[i]);
+    float& nx = out.plane(normal_x)[i];
+    float& ny = out.plane(normal_y)[i];
+    const float r = std::sqrt(nx * nx + ny * ny);
+    if (r > 0.999f) { nx *= 0.999f / r; ny *= 0.999f / r; }
+    out.plane(rotation)[i] = float(0.5 * std::atan2(rot_s[i], rot_c[i]));
+  }
+  return out;
+}
+
+}  // namespace anisocap
