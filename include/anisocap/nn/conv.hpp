@@ -106,6 +106,15 @@ weight_layout<T> input_gradient_weights(const T* w, bool flip) {
   return pack_weights(w, Taps, Ci, Co, true, flip, block, packed);
 }
 
+/// The kernel of an input-gradient pass read in its stored layout [taps][Ci][Co] and transposed
+/// block by block inside the work items (see weight_layout::transposed).
+template <int Ci, int Co, class T>
+weight_layout<T> in_cache_transposed(const T* w) {
+  weight_layout<T> wl{w, Co, std::ptrdiff_t(Ci) * Co, 0, true};
+  wl.transposed = true;
+  return wl;
+}
+
 /// The pass of a stride-S K x K convolution of a padded source into out (Ho x Wo from out); tap
 /// (kh, kw) reads the weights of tap (K-1-kh, K-1-kw) when `flip`.
 template <int Ca, int K, int S, int Cb, class T>
@@ -168,9 +177,10 @@ int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdif
   return n;
 }
 
-/// True when an input-gradient pass should run as dot products over the stored kernel rather
-/// than through a transposed copy of it: when the kernel is large for the number of pixels, the
-/// copy (memory-bound, about 2 ns per weight) would cost more than the pass itself.
+/// True when an input-gradient pass should transpose the kernel block by block inside its work
+/// items rather than through one transposed copy: when the kernel is large for the number of
+/// pixels (few work items share a block), the copy (memory-bound, about 2 ns per weight) would
+/// cost more than the pass itself.
 /// Tests set it to 0 (always dot) or SIZE_MAX (never) to check both paths on small shapes.
 inline std::size_t dot_weights_per_pixel = 8192;
 inline bool prefer_dot(std::size_t weights, std::size_t pixels) {
@@ -256,9 +266,8 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int top = K - 1 - G::pad_before;
     const auto a = dc::padded(grad_out, top, top, H + K - 1, W + K - 1, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(weights, grad_in.size() / Cin)) {
-      auto ps = dc::conv_pass<Cout, K, 1>(a, grad_in, std::ptrdiff_t(Cin) * Cout, true);
-      dc::run_dot<Cout, Cin>(&ps, 1, Cout, weight, Cout);
+    if (dc::prefer_dot(weights, grad_in.size() / Cin)) {
+      dc::conv_core<Cout, Cin, K, 1>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true, true);
     } else {
       dc::conv_core<Cout, Cin, K, 1>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, true), nullptr, grad_in, true);
     }
@@ -268,10 +277,8 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int Hh = (H + 1) / 2, Wh = (W + 1) / 2;
     const auto a = dc::padded(grad_out, 1, 1, Hh + 2, Wh + 2, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(weights, grad_in.size() / Cin)) {
-      dc::forward_pass<T> ps[4];
-      const int n = dc::transposed_passes<Cout>(a, grad_in, std::ptrdiff_t(Cin) * Cout, ps);
-      if (n) dc::run_dot<Cout, Cin>(ps, n, Cout, weight, Cout);
+    if (dc::prefer_dot(weights, grad_in.size() / Cin)) {
+      dc::transposed_core<Cout, Cin>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
     } else {
       dc::transposed_core<Cout, Cin>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, false), nullptr, grad_in, true);
     }

@@ -35,10 +35,9 @@ void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* w
   // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
   // output gradient with the transposed kernel (in <-> out).
   const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  if (Cout % dc::lanes<T> == 0 && dc::prefer_dot(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
-    // Dot products over the output channels read the kernel in its stored layout.
-    auto ps = dc::conv_pass<Cout, 4, 2>(a, grad_in, std::ptrdiff_t(Cin) * Cout, false);
-    dc::run_dot<2 * Cout, Cin>(&ps, 1, Cout, weight, Cout);
+  if (dc::prefer_dot(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
+    // Few pixels for a large kernel: transpose it block by block inside the work items.
+    dc::conv_core<Cout, Cin, 4, 2>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
   } else {
     dc::conv_core<Cout, Cin, 4, 2>(a, dc::input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, true);
   }

@@ -145,6 +145,10 @@ struct weight_layout {
   /// taps x ci-chunk x block it needs into a per-thread, L2-sized, contiguous buffer (one read of
   /// the weights from memory, no 4 KiB strides in the inner loop, no whole-array copy).
   bool pack = false;
+  /// With pack: the caller's array holds the kernel transposed, [taps][out][reduced] with rows
+  /// ld apart (an input-gradient pass reading [K][K][Cin][Cout] weights); the work item
+  /// transposes its block while packing it, in cache, instead of a whole-array transposed copy.
+  bool transposed = false;
 };
 
 /// How one row of `cols` pixels is cut into register tiles: n_wide tiles of the wide width, then
@@ -234,7 +238,22 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
     const int lanes_here = (cb == coblocks - 1 && !whole_blocks) ? last_lanes : W;
     for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
       const int c1 = std::min(Ca, c0 + ci_chunk);
-      if (wl.pack) {
+      if (wl.pack && wl.transposed) {
+        for (int t = 0; t < ps.taps; ++t) {
+          const T* src = wl.w + ps.w_tap[t] + std::ptrdiff_t(co0) * wl.ld + c0;
+          T* dst = buffer + std::ptrdiff_t(t) * (c1 - c0) * block;
+          for (int j = 0; j < block; ++j) {
+            if (j < n_cols) {
+              const T* sj = src + std::ptrdiff_t(j) * wl.ld;
+              for (int r = 0; r < c1 - c0; ++r) dst[std::ptrdiff_t(r) * block + j] = sj[r];
+            } else {
+              for (int r = 0; r < c1 - c0; ++r) dst[std::ptrdiff_t(r) * block + j] = T(0);
+            }
+          }
+          w_tap[t] = dst;
+        }
+        ld = block;
+      } else if (wl.pack) {
         for (int t = 0; t < ps.taps; ++t) {
           const T* src = wl.w + ps.w_tap[t] + std::ptrdiff_t(c0) * wl.ld + co0;
           T* dst = buffer + std::ptrdiff_t(t) * (c1 - c0) * block;
