@@ -37,12 +37,12 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
   auto [d, m] = max_difference(out, ref);
   CHECK(d <= tol * (1 + m));
 
-  // Backward input accumulates: start from random values. Both input-gradient kernels (dot
-  // products over the stored kernel, forward kernel over a transposed copy) are checked.
+  // Backward input accumulates: start from random values. Both ways of transposing the
+  // kernel for it (block by block in the work items, one whole copy) are checked.
   tensor<Cout> gout(B, Ho, Wo);
   fill_random(gout, rng);
   for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
-  nn::detail::conv::dot_weights_per_pixel = threshold;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
   tensor<Cin> gin(B, H, W);
   fill_random(gin, rng);
   const tensor<Cin> gin0 = gin.clone();
@@ -56,7 +56,7 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
   std::tie(d, m) = max_difference(gin, gref);
   CHECK(d <= tol * (1 + m));
   }
-  nn::detail::conv::dot_weights_per_pixel = 8192;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 
   // Backward weight and bias accumulate too.
   std::vector<float> gw(w.size(), 0.5f), gb(Cout, 0.25f);
@@ -77,9 +77,9 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
 /// samples = 0 checks every entry, otherwise that many random entries of each array.
 template <int Cin, int Cout, int K, int S, int P>
 void check_gradients(int B, int H, int W, int samples, unsigned seed) {
-  // The sampled (SIMD-width) cases take the dot-product input-gradient kernel, the others the
-  // transposed-copy one.
-  nn::detail::conv::dot_weights_per_pixel = samples ? 0 : SIZE_MAX;
+  // The sampled (SIMD-width) cases transpose the kernel block by block in the work items, the
+  // others through one transposed copy.
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = samples ? 0 : SIZE_MAX;
   std::mt19937 rng(seed);
   const int Ho = nn::conv2d_output_size<K, S, P>(H), Wo = nn::conv2d_output_size<K, S, P>(W);
   tensor<Cin, double> in(B, H, W);
@@ -117,7 +117,7 @@ void check_gradients(int B, int H, int W, int samples, unsigned seed) {
   CHECK(check(in.data(), in.size(), gin.data()) < 1e-7);
   CHECK(check(w.data(), w.size(), gw.data()) < 1e-7);
   CHECK(check(bias.data(), bias.size(), gb.data()) < 1e-7);
-  nn::detail::conv::dot_weights_per_pixel = 8192;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 }
 
 }  // namespace

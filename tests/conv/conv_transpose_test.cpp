@@ -44,7 +44,7 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
     for (int ci = 0; ci < Cin; ++ci)
       for (int co = 0; co < Cout; ++co) wt[(t * Cout + co) * Cin + ci] = w[(t * Cin + ci) * Cout + co];
   for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
-  nn::detail::conv::dot_weights_per_pixel = threshold;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
   tensor<Cin> gin(B, H, W);
   fill_random(gin, rng);
   const tensor<Cin> gin0 = gin.clone();
@@ -58,7 +58,7 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
   std::tie(d, m) = max_difference(gin, gref);
   CHECK(d <= tol * (1 + m));
   }
-  nn::detail::conv::dot_weights_per_pixel = 8192;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 
   // gW[kh][kw][ci][co] = sum in[i][j][ci] gout[2i-1+kh][2j-1+kw][co]: the conv weight gradient
   // with input gout and output gradient in, transposed.
@@ -88,9 +88,9 @@ void check_against_reference(int B, int H, int W, unsigned seed) {
 
 template <int Cin, int Cout>
 void check_gradients(int B, int H, int W, int samples, unsigned seed) {
-  // The sampled (SIMD-width) cases take the dot-product input-gradient kernel, the others the
-  // transposed-copy one.
-  nn::detail::conv::dot_weights_per_pixel = samples ? 0 : SIZE_MAX;
+  // The sampled (SIMD-width) cases transpose the kernel block by block in the work items, the
+  // others through one transposed copy.
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = samples ? 0 : SIZE_MAX;
   std::mt19937 rng(seed);
   tensor<Cin, double> in(B, H, W);
   fill_random(in, rng);
@@ -127,7 +127,7 @@ void check_gradients(int B, int H, int W, int samples, unsigned seed) {
   CHECK(check(in.data(), in.size(), gin.data()) < 1e-7);
   CHECK(check(w.data(), w.size(), gw.data()) < 1e-7);
   CHECK(check(bias.data(), bias.size(), gb.data()) < 1e-7);
-  nn::detail::conv::dot_weights_per_pixel = 8192;
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 }
 
 }  // namespace

@@ -96,9 +96,9 @@ std::pair<weight_layout<T>, const T*> forward_weights(const T* w, const T* bias)
   return {wl, b};
 }
 
-/// The kernel of an input-gradient pass through run_forward (used when the output gradient's
-/// channel count is not a multiple of the SIMD width, so dot products cannot run over it):
-/// weights [Taps][Ci][Co] transposed to Co rows of Ci columns, packed in blocks of the inputs.
+/// The kernel of an input-gradient pass as one transposed copy (used when many work items share
+/// each block, i.e. many pixels for the kernel's size): weights [Taps][Ci][Co] transposed to Co
+/// rows of Ci columns, packed in blocks of the inputs.
 template <int Taps, int Ci, int Co, class T>
 weight_layout<T> input_gradient_weights(const T* w, bool flip) {
   constexpr int block = block_of<T, Ci>;
@@ -181,10 +181,10 @@ int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdif
 /// items rather than through one transposed copy: when the kernel is large for the number of
 /// pixels (few work items share a block), the copy (memory-bound, about 2 ns per weight) would
 /// cost more than the pass itself.
-/// Tests set it to 0 (always dot) or SIZE_MAX (never) to check both paths on small shapes.
-inline std::size_t dot_weights_per_pixel = 8192;
-inline bool prefer_dot(std::size_t weights, std::size_t pixels) {
-  return dot_weights_per_pixel == 0 || (pixels <= weights / dot_weights_per_pixel);
+/// Tests set it to 0 (always in cache) or SIZE_MAX (never) to check both paths on small shapes.
+inline std::size_t in_cache_transpose_weights_per_pixel = 8192;
+inline bool prefer_in_cache_transpose(std::size_t weights, std::size_t pixels) {
+  return in_cache_transpose_weights_per_pixel == 0 || (pixels <= weights / in_cache_transpose_weights_per_pixel);
 }
 
 /// Runs the passes that `make_passes(target)` builds for an output tensor `target`. When Cb is
@@ -266,7 +266,7 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int top = K - 1 - G::pad_before;
     const auto a = dc::padded(grad_out, top, top, H + K - 1, W + K - 1, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (dc::prefer_dot(weights, grad_in.size() / Cin)) {
+    if (dc::prefer_in_cache_transpose(weights, grad_in.size() / Cin)) {
       dc::conv_core<Cout, Cin, K, 1>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true, true);
     } else {
       dc::conv_core<Cout, Cin, K, 1>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, true), nullptr, grad_in, true);
@@ -277,7 +277,7 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int Hh = (H + 1) / 2, Wh = (W + 1) / 2;
     const auto a = dc::padded(grad_out, 1, 1, Hh + 2, Wh + 2, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (dc::prefer_dot(weights, grad_in.size() / Cin)) {
+    if (dc::prefer_in_cache_transpose(weights, grad_in.size() / Cin)) {
       dc::transposed_core<Cout, Cin>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
     } else {
       dc::transposed_core<Cout, Cin>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, false), nullptr, grad_in, true);

@@ -35,7 +35,7 @@ void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* w
   // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
   // output gradient with the transposed kernel (in <-> out).
   const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  if (dc::prefer_dot(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
+  if (dc::prefer_in_cache_transpose(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
     // Few pixels for a large kernel: transpose it block by block inside the work items.
     dc::conv_core<Cout, Cin, 4, 2>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
   } else {
