@@ -18,6 +18,8 @@
 
 #include "anisocap/anisocap.hpp"
 #include "anisocap/core/system.hpp"
+#include "anisocap/nn/safetensors.hpp"
+#include "anisocap/pipeline/capture_pipeline.hpp"
 #include "commands/train.hpp"
 
 namespace fs = std::filesystem;
@@ -118,21 +120,62 @@ void synthesize(const synthesize_args& a) {
                static_cast<unsigned long long>(a.seed), a.width, a.height, a.images, a.set.c_str(), a.out.c_str());
 }
 
+#ifndef ANISOCAP_MODELS_DIR
+#define ANISOCAP_MODELS_DIR "models"
+#endif
+
 struct capture_args {
   fs::path capture_file;
   fs::path out = "anisocap-result";
   std::optional<fs::path> truth, init;
-  int steps = 1000;
-  float learning_rate = 0.03f;
+  std::string stages = "auto";
+  std::string preset = "compact";
+  fs::path models = ANISOCAP_MODELS_DIR;
+  int steps = -1;                 // refine steps (-1: 500 after the networks, 1000 alone)
+  float learning_rate = -1;       // refine learning rate (-1: 0.003 after the networks, 0.03 alone)
+  int finetune_steps = 5000;
+  float finetune_learning_rate = 7.5e-4f;
+  double finetune_stop = 0.0;
+  bool resume = false;
   std::string kernel = "full";
   float cull = 0.0f;
 };
 
+/// Where the weights of a preset live, and whether both files are there.
+struct model_files {
+  fs::path estimator, autoencoder;
+  bool present() const { return fs::exists(estimator) && fs::exists(autoencoder); }
+};
+model_files models_for(const capture_args& a) {
+  return {a.models / a.preset / "estimator.safetensors", a.models / a.preset / "autoencoder.safetensors"};
+}
+
+/// Runs the network stages of MODEL.md 8 with the weights of `preset`.
+pipeline_result run_network_pipeline(const capture_args& a, const capture& cap, const std::vector<image>& photos,
+                                     const pipeline_options& o) {
+  const model_files files = models_for(a);
+  if (a.preset == "compact") {
+    EstimationNet<estimator_compact> estimator;
+    AutoEncoder<autoencoder_compact> autoencoder;
+    nn::load_weights(files.estimator, estimator);
+    nn::load_weights(files.autoencoder, autoencoder);
+    return run_pipeline(cap, photos, estimator, autoencoder, o);
+  }
+  if (a.preset == "paper") {
+    EstimationNet<estimator_paper> estimator;
+    AutoEncoder<autoencoder_paper> autoencoder;
+    nn::load_weights(files.estimator, estimator);
+    nn::load_weights(files.autoencoder, autoencoder);
+    return run_pipeline(cap, photos, estimator, autoencoder, o);
+  }
+  throw std::invalid_argument("unknown --preset '" + a.preset + "' (compact, paper)");
+}
+
 /// Per-texel optimisation from a capture: writes the map set, re-renders and report.json.
 nlohmann::json capture_command(const capture_args& a) {
   const auto start = std::chrono::steady_clock::now();
-  if (a.steps < 0) throw std::invalid_argument("--steps must be >= 0");
-  if (!(a.learning_rate > 0)) throw std::invalid_argument("--lr must be positive");
+  if (a.steps < -1) throw std::invalid_argument("--steps must be >= 0");
+  if (!(a.learning_rate > 0) && a.learning_rate != -1) throw std::invalid_argument("--lr must be positive");
   if (a.cull < 0 || a.cull >= 1) throw std::invalid_argument("--cull must be in [0, 1)");
   const brdf_features features = features_from_name(a.kernel);
   const capture cap = read_capture(a.capture_file);
@@ -147,21 +190,68 @@ nlohmann::json capture_command(const capture_args& a) {
   std::fprintf(stderr, "capture: %zu images of %dx%d from %s, kernel %s, %d threads\n", photos.size(), photos[0].width(),
                photos[0].height(), a.capture_file.c_str(), a.kernel.c_str(), omp_get_max_threads());
 
+  // Which stages: "auto" runs the networks when their weights are there, else refine alone.
+  const model_files files = models_for(a);
+  std::string stages_text = a.stages;
+  if (stages_text == "auto") {
+    stages_text = files.present() && !a.init ? "all" : "refine";
+    if (!files.present())
+      std::fprintf(stderr, "capture: no %s weights in %s: running the per-texel refine alone (train them with "
+                   "`anisocap train-estimator` / `train-autoencoder`, or pass --models)\n", a.preset.c_str(), (a.models / a.preset).c_str());
+  }
+  const pipeline_stages stages = pipeline_stages::parse(stages_text);
+  const bool networks = stages.estimate || stages.encode;
+  if (networks && !files.present())
+    throw std::invalid_argument("--stages " + stages_text + " needs the " + a.preset + " weights: " + files.estimator.string() +
+                                " and " + files.autoencoder.string() + " (not found)");
+  if (networks && a.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
+  if (a.finetune_steps < 0) throw std::invalid_argument("--finetune-steps must be >= 0");
+  if (!(a.finetune_learning_rate > 0)) throw std::invalid_argument("--finetune-lr must be positive");
+  const int refine_steps = a.steps >= 0 ? a.steps : (networks ? 500 : 1000);
+  const float refine_lr = a.learning_rate > 0 ? a.learning_rate : (networks ? 0.003f : 0.03f);
+
   const auto t_init = std::chrono::steady_clock::now();
-  material_maps maps = a.init ? read_maps(*a.init) : initial_guess(cap, photos);
-  if (maps.width() != photos[0].width() || maps.height() != photos[0].height())
-    throw std::invalid_argument(a.init->string() + ": the initial maps differ in size from the photographs");
+  std::optional<material_maps> start_maps;
+  if (a.init) {
+    start_maps = read_maps(*a.init);
+    if (start_maps->width() != photos[0].width() || start_maps->height() != photos[0].height())
+      throw std::invalid_argument(a.init->string() + ": the initial maps differ in size from the photographs");
+  }
   const loss_targets targets = make_loss_targets(photos);
   const double init_seconds = seconds_since(t_init);
 
   refine_options ro;
-  ro.steps = a.steps;
-  ro.learning_rate = a.learning_rate;
+  ro.steps = refine_steps;
+  ro.learning_rate = refine_lr;
   ro.render.cull_tolerance = a.cull;
-  ro.progress_every = std::max(1, a.steps / 50);
+  ro.progress_every = std::max(1, refine_steps / 50);
   ro.progress = progress_printer{"refine"};
-  const refine_result r = with_features(features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
-
+  material_maps maps;
+  std::vector<stage_report> stage_reports;
+  if (networks) {
+    pipeline_options po;
+    po.stages = stages;
+    po.finetune_steps = a.finetune_steps;
+    po.finetune_learning_rate = a.finetune_learning_rate;
+    po.finetune_min_improvement = a.finetune_stop;
+    po.refine = ro;
+    po.refine.progress_every = 0;
+    po.render.cull_tolerance = a.cull;
+    po.checkpoint_dir = a.out / ".checkpoint";
+    po.resume = a.resume;
+    po.progress_every = 25;
+    po.progress = [](const std::string& stage, const optimisation_progress& p) { progress_printer{stage}(p); };
+    pipeline_result pr = run_network_pipeline(a, cap, photos, po);
+    maps = std::move(pr.maps);
+    stage_reports = pr.stages;
+  } else {
+    maps = start_maps ? *start_maps : initial_guess(cap, photos);
+    stage_reports.push_back({"first_guess", true, false, 0, loss_and_gradient(maps, cap, targets, nullptr), init_seconds});
+    if (stages.refine) {
+      const refine_result r = with_features(features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
+      stage_reports.push_back({"refine", true, false, r.steps, r.final_loss, r.seconds});
+    }
+  }
   const auto t_write = std::chrono::steady_clock::now();
   fs::create_directories(a.out);
   write_maps(maps, a.out);
@@ -178,13 +268,18 @@ nlohmann::json capture_command(const capture_args& a) {
   report["height"] = photos[0].height();
   report["kernel"] = a.kernel;
   report["threads"] = omp_get_max_threads();
-  report["stages"]["refine"] = {{"steps", r.steps}, {"learning_rate", a.learning_rate},
-                                {"loss_initial", r.losses.empty() ? r.final_loss : r.losses.front()},
-                                {"loss_final", r.final_loss}, {"seconds", r.seconds},
-                                {"steps_per_second", r.seconds > 0 ? r.steps / r.seconds : 0.0}};
-  report["loss"] = r.final_loss;
-  report["timings"] = {{"load", load_seconds}, {"initial_guess", init_seconds}, {"refine", r.seconds},
-                       {"write", write_seconds}, {"total", seconds_since(start)}};
+  report["stages"] = nlohmann::json::array();
+  double stage_seconds = 0;
+  for (const auto& st : stage_reports) {
+    report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
+                                {"loss", st.loss}, {"seconds", st.seconds}});
+    stage_seconds += st.seconds;
+  }
+  report["refine"] = {{"steps", refine_steps}, {"learning_rate", refine_lr}};
+  if (networks) report["finetune"] = {{"steps", a.finetune_steps}, {"learning_rate", a.finetune_learning_rate}, {"preset", a.preset}};
+  const double final_loss = loss_and_gradient(maps, cap, targets, nullptr);
+  report["loss"] = final_loss;
+  report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)
     report["novel_views"].push_back({{"file", "novel/" + v.file}, {"camera", v.camera}, {"light", v.light}, {"intensity", v.intensity}});
@@ -194,8 +289,11 @@ nlohmann::json capture_command(const capture_args& a) {
   }
   report["peak_memory_bytes"] = peak_resident_bytes();
   write_text_atomically(a.out / "report.json", report.dump(2) + "\n");
-  std::fprintf(stderr, "capture: loss %.5f -> %.5f in %.1f s; maps, renders and report.json in %s\n",
-               r.losses.empty() ? r.final_loss : r.losses.front(), r.final_loss, r.seconds, a.out.c_str());
+  std::error_code ec;
+  fs::remove_all(a.out / ".checkpoint", ec);  // finished: nothing left to resume
+  std::fprintf(stderr, "capture:");
+  for (const auto& st : stage_reports) std::fprintf(stderr, " %s %.4f (%.1f s)", st.name.c_str(), st.loss, st.seconds);
+  std::fprintf(stderr, "; maps, renders, contact sheet and report.json in %s\n", a.out.c_str());
   return report;
 }
 
@@ -246,8 +344,15 @@ int main(int argc, char** argv) {
   capture_args cap;
   auto add_capture_options = [&](CLI::App* c) {
     c->add_option("-o,--out", cap.out, "output folder")->capture_default_str();
-    c->add_option("--steps", cap.steps, "refine steps")->capture_default_str();
-    c->add_option("--lr", cap.learning_rate, "refine learning rate (Adam, unconstrained parameters)")->capture_default_str();
+    c->add_option("--stages", cap.stages, "stages to run: auto (all when the weights are there, else refine), all, or a list of estimate,encode,finetune,refine")->capture_default_str();
+    c->add_option("--preset", cap.preset, "network preset whose weights to use: compact, paper")->capture_default_str();
+    c->add_option("--models", cap.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors")->capture_default_str();
+    c->add_option("--steps", cap.steps, "refine steps (default 500 after the networks, 1000 alone)");
+    c->add_option("--lr", cap.learning_rate, "refine learning rate, Adam in unconstrained parameters (default 0.003 after the networks, 0.03 alone)");
+    c->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps (paper: 5000)")->capture_default_str();
+    c->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
+    c->add_option("--finetune-stop", cap.finetune_stop, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_flag("--resume", cap.resume, "continue a killed run from OUT/.checkpoint");
     c->add_option("--kernel", cap.kernel, "BRDF terms to fit: full, isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
     c->add_option("--cull", cap.cull, "specular culling tolerance on each pixel's log loss term (0: exact)")->capture_default_str();
   };
@@ -263,7 +368,9 @@ int main(int argc, char** argv) {
   demo_cmd->add_option("-o,--out", demo_syn.out, "output folder")->capture_default_str();
   demo_cmd->add_option("--seed", demo_syn.seed, "material seed")->capture_default_str();
   demo_cmd->add_option("--size", demo_syn.width, "material size (square)")->capture_default_str();
-  demo_cmd->add_option("--steps", cap.steps, "refine steps")->capture_default_str();
+  demo_cmd->add_option("--steps", cap.steps, "refine steps (default 500 after the networks, 1000 alone)");
+  demo_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
+  demo_cmd->add_option("--stages", cap.stages, "stages to run (see capture --help)")->capture_default_str();
 
   std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
   commands::add_train_commands(app, actions);

@@ -1,0 +1,296 @@
+#pragma once
+/// @file
+/// The capture pipeline of MODEL.md 8 at any resolution: estimate (sliding windows of the
+/// estimation network), encode (the auto-encoder's encoder), fine-tune (the decoder's weights on the
+/// image loss against the photographs, z fixed, encoder frozen), refine (per texel). Each stage can
+/// be skipped; stages check-point into a folder so that a killed run resumes.
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/nn/adam.hpp"
+#include "anisocap/nn/safetensors.hpp"
+#include "anisocap/pipeline/network_space.hpp"
+#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/pipeline/refine.hpp"
+#include "anisocap/pipeline/windows.hpp"
+#include "anisocap/render/renderer.hpp"
+
+namespace anisocap {
+
+/// Which stages run.
+struct pipeline_stages {
+  bool estimate = true;  ///< estimation network over sliding windows (else: first guess from the photographs)
+  bool encode = true;    ///< encode + fine-tune the decoder need the estimate (or the first guess)
+  bool finetune = true;  ///< fine-tune the decoder's weights on the photographs
+  bool refine = true;    ///< per-texel refinement
+
+  /// Parses "estimate,encode,finetune,refine" (any subset, comma separated; "all").
+  static pipeline_stages parse(const std::string& text) {
+    pipeline_stages s{false, false, false, false};
+    std::size_t start = 0;
+    while (start <= text.size()) {
+      const std::size_t end = std::min(text.find(',', start), text.size());
+      const std::string name = text.substr(start, end - start);
+      if (name == "estimate") s.estimate = true;
+      else if (name == "encode") s.encode = true;
+      else if (name == "finetune" || name == "fine-tune") s.finetune = true;
+      else if (name == "refine") s.refine = true;
+      else if (name == "all") s = pipeline_stages{};
+      else throw std::invalid_argument("unknown stage '" + name + "' in --stages (estimate, encode, finetune, refine, all)");
+      start = end + 1;
+    }
+    if (s.finetune && !s.encode) throw std::invalid_argument("--stages: finetune needs encode");
+    return s;
+  }
+};
+
+/// Options of the pipeline (paper defaults where the paper gives them, MODEL.md 8).
+struct pipeline_options {
+  pipeline_stages stages{};
+  int window = 256;                 ///< estimation window (the estimator's training size)
+  int stride = 64;                  ///< window step (overlap 192)
+  int finetune_steps = 5000;        ///< paper: 5000
+  float finetune_learning_rate = 7.5e-4f;  ///< paper: Adam 7.5e-4
+  refine_options refine{};          ///< per-texel stage (steps, learning rate, ...)
+  render_options render{};          ///< culling etc. for every image loss
+  /// Fine-tune early stopping: stop when the loss improved by less than this fraction over the
+  /// last `finetune_patience` steps (0: run every step).
+  double finetune_min_improvement = 0.0;
+  int finetune_patience = 200;
+  /// Check-point folder (empty: none). With `resume`, completed stages are read back and the
+  /// fine-tune continues from its last saved step.
+  std::filesystem::path checkpoint_dir;
+  bool resume = false;
+  double checkpoint_seconds = 60;   ///< time between fine-tune check-points
+  std::function<void(const std::string& stage, const optimisation_progress&)> progress;
+  int progress_every = 50;
+};
+
+/// What one stage did.
+struct stage_report {
+  std::string name;
+  bool ran = false;
+  bool resumed = false;   ///< read back from a check-point instead of computed
+  int steps = 0;
+  double loss = 0;        ///< image loss against the photographs after the stage
+  double seconds = 0;
+};
+
+/// The result: the map set and a report per stage.
+struct pipeline_result {
+  material_maps maps;
+  std::vector<stage_report> stages;
+};
+
+namespace pipeline_detail {
+
+inline double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+/// `maps` mirrored out to `width` x `height` (at the right and bottom).
+inline material_maps pad_maps(const material_maps& maps, int width, int height) {
+  material_maps out(width, height);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int y = 0; y < height; ++y) {
+      const int sy = mirror_index(y, maps.height());
+      for (int x = 0; x < width; ++x) out.at(k, x, y) = maps.at(k, mirror_index(x, maps.width()), sy);
+    }
+  return out;
+}
+
+}  // namespace pipeline_detail
+
+/// Runs the pipeline on one capture. `estimator` and `autoencoder` must hold trained weights for
+/// the stages that use them.
+template <class EstimatorPreset, class AutoEncoderPreset>
+pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photos, EstimationNet<EstimatorPreset>& estimator,
+                             AutoEncoder<AutoEncoderPreset>& autoencoder, const pipeline_options& o) {
+  namespace fs = std::filesystem;
+  using clock = std::chrono::steady_clock;
+  if (photos.empty() || photos.size() != cap.images.size())
+    throw std::invalid_argument("run_pipeline: need one photograph per configuration");
+  const int W = photos[0].width(), H = photos[0].height();
+  const loss_targets targets = make_loss_targets(photos);
+  auto image_loss = [&](const material_maps& m) { return loss_and_gradient(m, cap, targets, nullptr, {}, o.render); };
+  const bool checkpoints = !o.checkpoint_dir.empty();
+  if (checkpoints) fs::create_directories(o.checkpoint_dir);
+  auto stage_dir = [&](const char* name) { return o.checkpoint_dir / name; };
+  auto saved = [&](const char* name) { return checkpoints && o.resume && fs::exists(stage_dir(name) / "diffuse.exr"); };
+  pipeline_result result;
+
+  // 1. Estimate (MODEL.md 8.1).
+  material_maps maps;
+  {
+    stage_report r{"estimate"};
+    const auto t0 = clock::now();
+    if (saved("estimate")) {
+      maps = read_maps(stage_dir("estimate"));
+      r.resumed = true;
+    } else if (o.stages.estimate) {
+      maps = estimate_by_windows(photos, o.window, o.stride, [&](const std::vector<image>& crops) { return estimator.estimate(crops); },
+                                 [&](int done, int total) {
+                                   if (!o.progress) return;
+                                   optimisation_progress p;
+                                   p.step = done;
+                                   p.steps = total;
+                                   p.seconds = pipeline_detail::seconds_since(t0);
+                                   p.steps_per_second = done / std::max(p.seconds, 1e-9);
+                                   p.seconds_left = (total - done) / std::max(p.steps_per_second, 1e-9);
+                                   o.progress("estimate", p);
+                                 });
+      if (checkpoints) write_maps(maps, stage_dir("estimate"), false);
+    } else {
+      maps = initial_guess(cap, photos);
+    }
+    r.ran = o.stages.estimate;
+    r.loss = image_loss(maps);
+    r.seconds = pipeline_detail::seconds_since(t0);
+    result.stages.push_back(r);
+  }
+  using pipeline_detail::seconds_since;
+
+  // 2. Encode (8.2) and 3. fine-tune the decoder (8.3).
+  if (o.stages.encode) {
+    stage_report enc{"encode"}, fine{"finetune"};
+    const auto t0 = clock::now();
+    constexpr int M = AutoEncoder<AutoEncoderPreset>::size_multiple;
+    const int Wp = (W + M - 1) / M * M, Hp = (H + M - 1) / M * M;
+    const material_maps padded = pipeline_detail::pad_maps(maps, Wp, Hp);
+    tensor<parameter_count, float> u(1, Hp, Wp);
+    network_space::maps_to_network(padded, u, 0);
+    autoencoder.set_training(false);
+    tensor<AutoEncoder<AutoEncoderPreset>::latent_channels, float> z;
+    {
+      ad::tape t;
+      ad::tape::no_grad_guard guard(t);
+      z = autoencoder.encode(t, t.leaf(u)).value.clone();
+    }
+    enc.ran = true;
+    enc.seconds = seconds_since(t0);
+    auto decode_maps = [&](ad::tape& t) {
+      auto y = autoencoder.decode(t, t.leaf(z));
+      return y;
+    };
+    {
+      ad::tape t;
+      ad::tape::no_grad_guard guard(t);
+      auto y = decode_maps(t);
+      maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
+    }
+    enc.loss = image_loss(maps);
+    result.stages.push_back(enc);
+
+    if (o.stages.finetune) {
+      const auto t1 = clock::now();
+      autoencoder.freeze_encoder(true);
+      nn::adam adam(nn::learning_rate_schedule::constant(o.finetune_learning_rate));
+      autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
+      const fs::path ft_dir = checkpoints ? stage_dir("finetune") : fs::path();
+      int first = 0;
+      if (checkpoints && o.resume && fs::exists(ft_dir / "decoder.safetensors")) {
+        nn::load_weights(ft_dir / "decoder.safetensors", autoencoder);
+        const fs::path state_file = ft_dir / "adam.safetensors";
+        const auto state = nn::read_safetensors(state_file);
+        adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m, aligned_buffer<float>& v, long& count) {
+          for (auto* buf : {&m, &v}) {
+            const std::string name = p.name + (buf == &m ? ".m" : ".v");
+            const auto* entry = state.find(name);
+            if (!entry || entry->count() != buf->size() || entry->dtype != "F32")
+              throw std::runtime_error(state_file.string() + ": missing or mismatched Adam state '" + name + "'");
+            std::memcpy(static_cast<void*>(buf->data()), state.bytes(*entry).data(), buf->size() * sizeof(float));
+          }
+          count = 0;
+        });
+        for (const auto& [key, value] : state.metadata)
+          if (key == "step") first = std::stoi(value);
+        adam.for_each_state([&](nn::parameter&, aligned_buffer<float>&, aligned_buffer<float>&, long& count) { count = first; });
+        adam.set_steps(first);
+        fine.resumed = true;
+      }
+      material_maps grad(W, H);
+      auto last_checkpoint = clock::now();
+      double window_best = 1e300;
+      int step = first;
+      ad::tape t;
+      for (; step < o.finetune_steps; ++step) {
+        t.clear();
+        auto y = decode_maps(t);
+        const auto u_view = y.value.tile(0, 0, H, W);
+        const material_maps m = network_space::network_to_maps(u_view, 0);
+        const double loss = loss_and_gradient(m, cap, targets, &grad, {}, o.render);
+        auto g_view = y.grad.tile(0, 0, H, W);
+        network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+        t.backward();
+        adam.step();
+        if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0) {
+          const double s = seconds_since(t1);
+          const double rate = (step + 1 - first) / std::max(s, 1e-9);
+          optimisation_progress p;
+          p.step = step + 1;
+          p.steps = o.finetune_steps;
+          p.loss = loss;
+          p.seconds = s;
+          p.steps_per_second = rate;
+          p.seconds_left = (o.finetune_steps - step - 1) / std::max(rate, 1e-9);
+          o.progress("finetune", p);
+        }
+        if (checkpoints && seconds_since(last_checkpoint) > o.checkpoint_seconds) {
+          fs::create_directories(ft_dir);
+          nn::save_weights(ft_dir / "decoder.safetensors", autoencoder);
+          nn::safetensors_file state;
+          adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m1, aligned_buffer<float>& v1, long&) {
+            state.add<float>(p.name + ".m", {std::int64_t(m1.size())}, m1.data(), m1.size());
+            state.add<float>(p.name + ".v", {std::int64_t(v1.size())}, v1.data(), v1.size());
+          });
+          state.metadata.emplace_back("step", std::to_string(step + 1));
+          nn::write_safetensors(ft_dir / "adam.safetensors", state);
+          last_checkpoint = clock::now();
+        }
+        if (o.finetune_min_improvement > 0 && o.finetune_patience > 0 && (step + 1) % o.finetune_patience == 0) {
+          if (loss > window_best * (1.0 - o.finetune_min_improvement)) { ++step; break; }
+          window_best = std::min(window_best, loss);
+        }
+      }
+      {
+        ad::tape::no_grad_guard guard(t);
+        t.clear();
+        auto y = decode_maps(t);
+        maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
+      }
+      fine.ran = true;
+      fine.steps = step - first;
+      fine.loss = image_loss(maps);
+      fine.seconds = seconds_since(t1);
+      result.stages.push_back(fine);
+    }
+  }
+
+  // 4. Refine per texel (8.4).
+  if (o.stages.refine) {
+    stage_report r{"refine"};
+    refine_options ro = o.refine;
+    ro.render = o.render;
+    if (o.progress) {
+      ro.progress = [&](const optimisation_progress& p) { o.progress("refine", p); };
+      if (ro.progress_every <= 0) ro.progress_every = o.progress_every;
+    }
+    const refine_result rr = refine(maps, cap, targets, ro);
+    r.ran = true;
+    r.steps = rr.steps;
+    r.loss = rr.final_loss;
+    r.seconds = rr.seconds;
+    result.stages.push_back(r);
+  }
+  result.maps = std::move(maps);
+  return result;
+}
+
+}  // namespace anisocap
