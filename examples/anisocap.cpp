@@ -13,7 +13,9 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <optional>
+#include <sstream>
 #include <string>
 
 #include "anisocap/anisocap.hpp"
@@ -297,6 +299,93 @@ nlohmann::json capture_command(const capture_args& a) {
   return report;
 }
 
+
+struct eval_args {
+  fs::path out = "anisocap-eval";
+  int count = 20, min_size = 256, max_size = 640;
+  std::vector<int> image_counts{8, 10, 12};
+  std::vector<std::string> sets{"alpha", "beta"};
+  std::uint64_t first_seed = 900000;  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
+};
+
+/// The paper's Table 1 on procedural validation materials (MODEL.md 9): per N, set and stage the
+/// mean over materials of each per-parameter MSE, the novel-view image loss and seconds per material.
+void eval_command(const eval_args& e, const capture_args& base) {
+  if (e.count < 1 || e.min_size < 1 || e.max_size < e.min_size) throw std::invalid_argument("eval: need --count >= 1 and 1 <= --min-size <= --max-size");
+  for (const auto& set : e.sets)
+    if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
+  for (int n : e.image_counts)
+    if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
+  const model_files files = models_for(base);
+  if (!files.present()) throw std::invalid_argument("eval needs the " + base.preset + " weights in " + (base.models / base.preset).string());
+  struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
+  std::map<std::string, row_sum> rows;
+  std::vector<std::string> order;
+  std::ostringstream csv;
+  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds\n";
+  auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
+    if (!rows.count(key)) order.push_back(key);
+    auto& r = rows[key];
+    r.e.diffuse += pe.diffuse; r.e.specular += pe.specular; r.e.normal += pe.normal; r.e.lobes += pe.lobes;
+    r.e.rotation += pe.rotation; r.e.fresnel += pe.fresnel; r.novel += novel; r.seconds += sec; ++r.n;
+  };
+  for (int m = 0; m < e.count; ++m) {
+    const std::uint64_t seed = e.first_seed + std::uint64_t(m);
+    random_generator rng(hash64(seed ^ 0x6576616cULL));
+    const int w = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
+    const int h = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
+    const material_maps truth = generate_material(seed, w, h);
+    const capture novel = novel_view_set(seed, w, h);
+    for (int n : e.image_counts)
+      for (const auto& set : e.sets) {
+        const capture cap = set == "alpha" ? set_alpha(n, seed, w, h) : set_beta(n, seed, w, h);
+        const auto photos = render(truth, cap);
+        pipeline_options po;
+        po.finetune_steps = base.finetune_steps;
+        po.finetune_learning_rate = base.finetune_learning_rate;
+        po.finetune_min_improvement = base.finetune_stop;
+        po.refine.steps = base.steps >= 0 ? base.steps : 500;
+        po.refine.learning_rate = base.learning_rate > 0 ? base.learning_rate : 0.003f;
+        const auto t0 = std::chrono::steady_clock::now();
+        const pipeline_result pr = run_network_pipeline(base, cap, photos, po);
+        const double sec = seconds_since(t0);
+        std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
+                     static_cast<unsigned long long>(seed), w, h, material_kind_name(kind_for_seed(seed)), n, set.c_str(), sec);
+        auto record = [&](const char* stage, const material_maps& maps) {
+          const parameter_errors pe = compare_maps(maps, truth);
+          const double nv = novel_view_error(maps, truth, novel);
+          const std::string key = std::to_string(n) + "|" + stage + "|" + set;
+          add(key, pe, nv, sec);
+          csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
+              << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
+              << pe.fresnel << ',' << nv << ',' << sec << '\n';
+        };
+        if (pr.after_finetune) record("fine-tuned", *pr.after_finetune);
+        record("refined", pr.maps);
+      }
+  }
+  std::ostringstream md;
+  md << "| N | stage | set | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss | s / material |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& key : order) {
+    const auto& r = rows[key];
+    const double k = r.n;
+    const auto p1 = key.find('|'), p2 = key.rfind('|');
+    char line[400];
+    std::snprintf(line, sizeof line, "| %s | %s | %s | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f | %.1f |\n", key.substr(0, p1).c_str(),
+                  key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(), r.e.diffuse / k, r.e.specular / k,
+                  r.e.normal / k, r.e.lobes / k, r.e.rotation / k, r.e.fresnel / k, r.novel / k, r.seconds / k);
+    md << line;
+  }
+  fs::create_directories(e.out);
+  file_transaction files_out;
+  const std::string table = md.str(), rows_csv = csv.str();
+  files_out.stage(e.out / "table.md", table.data(), table.size());
+  files_out.stage(e.out / "table.csv", rows_csv.data(), rows_csv.size());
+  files_out.commit();
+  std::printf("%s\n(%d materials, %d to %d texels a side; per-material rows in %s)\n", table.c_str(), e.count, e.min_size, e.max_size,
+              (e.out / "table.csv").c_str());
+}
+
 void render_command(const fs::path& maps_dir, const fs::path& capture_file, const fs::path& out) {
   const material_maps maps = read_maps(maps_dir);
   const capture cap = read_capture(capture_file);
@@ -362,6 +451,20 @@ int main(int argc, char** argv) {
   capture_cmd->add_option("--truth", cap.truth, "true map set: adds per-parameter errors to report.json");
   capture_cmd->add_option("--init", cap.init, "start from this map set instead of the built-in first guess");
 
+  eval_args ev;
+  auto* eval_cmd = app.add_subcommand("eval", "the paper's Table 1 on procedural validation materials (per N, set, stage)");
+  eval_cmd->add_option("-o,--out", ev.out, "output folder for table.md and table.csv")->capture_default_str();
+  eval_cmd->add_option("--count", ev.count, "validation materials")->capture_default_str();
+  eval_cmd->add_option("--min-size", ev.min_size, "smallest side in texels")->capture_default_str();
+  eval_cmd->add_option("--max-size", ev.max_size, "largest side in texels")->capture_default_str();
+  eval_cmd->add_option("--images", ev.image_counts, "input counts N")->delimiter(',')->capture_default_str();
+  eval_cmd->add_option("--sets", ev.sets, "configuration sets")->delimiter(',')->capture_default_str();
+  eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
+  eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
+  eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
+  eval_cmd->add_option("--finetune-stop", cap.finetune_stop, "fine-tune early stopping threshold (0: never)")->capture_default_str();
+  eval_cmd->add_option("--steps", cap.steps, "refine steps (default 500)");
+
   synthesize_args demo_syn;
   demo_syn.out = "anisocap-demo";
   auto* demo_cmd = app.add_subcommand("demo", "synthesize a procedural fabric, capture it, report per-parameter errors");
@@ -383,6 +486,7 @@ int main(int argc, char** argv) {
     if (*syn_cmd) synthesize(syn);
     if (*render_cmd) render_command(maps_dir, render_capture, render_out);
     if (*capture_cmd) capture_command(cap);
+    if (*eval_cmd) eval_command(ev, cap);
     for (auto& [command, action] : actions)
       if (*command) action();
     if (*demo_cmd) {

@@ -117,6 +117,16 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK(r.output.find("fresnel.exr") != std::string::npos);
     CHECK_FALSE(fs::exists(t.path / "out"));
   }
+  SUBCASE("network stages without weights") {
+    fs::create_directories(t.path / "empty_models");
+    auto r = run("capture syn/capture.json -o out --stages all --models empty_models", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("estimator.safetensors") != std::string::npos);
+    CHECK(run("eval -o ev --models empty_models", t.path).status != 0);
+    CHECK(run("capture syn/capture.json -o out --stages estimate,polish", t.path).output.find("polish") != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path / "out"));
+    CHECK_FALSE(fs::exists(t.path / "ev"));
+  }
   SUBCASE("impossible options") {
     CHECK(run("capture syn/capture.json -o out --steps -3", t.path).status != 0);
     CHECK(run("capture syn/capture.json -o out --kernel fancy", t.path).output.find("--kernel") != std::string::npos);

@@ -87,6 +87,9 @@ struct stage_report {
 struct pipeline_result {
   material_maps maps;
   std::vector<stage_report> stages;
+  /// The maps after the fine-tune stage (before refine), when that stage ran: the paper's Table 1
+  /// reports both.
+  std::optional<material_maps> after_finetune;
 };
 
 namespace pipeline_detail {
@@ -265,6 +268,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
         auto y = decode_maps(t);
         maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
       }
+      result.after_finetune = maps;
       fine.ran = true;
       fine.steps = step - first;
       fine.loss = image_loss(maps);
