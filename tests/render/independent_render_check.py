@@ -177,9 +177,10 @@ def main():
         with open(os.path.join(report_dir, "report.json")) as f:
             report = json.load(f)
         try:
-            cpp_loss = float(report["stages"]["refine"]["loss_initial"])
+            # With --steps 0 the maps are OTHER's unchanged, and "loss" is their image loss.
+            cpp_loss = float(report["loss"])
         except (KeyError, TypeError, ValueError):
-            print("FAIL: report.json of `anisocap capture` has no stages.refine.loss_initial")
+            print("FAIL: report.json of `anisocap capture` has no loss")
             return 1
         capture = ward.read_capture(os.path.join(case0, "capture.json"))
         targets = np.stack([exr.read_rgb(os.path.join(case0, im["file"])) for im in capture])
