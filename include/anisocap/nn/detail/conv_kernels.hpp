@@ -350,13 +350,16 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
 template <int NV, class T>
 void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   constexpr int W = lanes<T>;
-  // Input channels per register block: CIB x NV accumulators, NV loads and CIB broadcasts per pixel.
-  constexpr int CIB = NV == 4 ? 4 : (accumulator_budget<T> / NV >= 8 ? 8 : 4);
+  // Input channels per register block: CIB x NV accumulators (24 of the 32 AVX-512 registers:
+  // 16 measured about 1.4x slower), NV loads and CIB broadcasts per pixel. A remainder of 4 or
+  // more channels runs as one 4-channel block, the rest one channel at a time.
+  constexpr int CIB = NV == 4 ? (accumulator_budget<T> >= 24 ? 6 : 4) : (accumulator_budget<T> / NV >= 8 ? 8 : 4);
   const int block = NV * W;
   const int coblocks = (Cb + block - 1) / block;
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
   const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
-  const int ci_items = ciblocks + ci_rest;
+  const int quads = CIB > 4 && ci_rest >= 4 ? 1 : 0;  // one 4-channel block of the remainder
+  const int ci_items = ciblocks + quads + (ci_rest - 4 * quads);
   const int threads = omp_get_max_threads();
   // Split the input channels when (block, tap) pairs alone would not feed every thread.
   const int pairs = coblocks * ps.taps;
@@ -394,8 +397,13 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
             const int ci0 = ck * CIB;
             weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
                                  gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+          } else if (ck < ciblocks + quads) {
+            const int ci0 = ciblocks * CIB;
+            if constexpr (CIB > 4)
+              weight_tile<4, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
+                                 gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
           } else {
-            const int ci0 = ciblocks * CIB + (ck - ciblocks);
+            const int ci0 = ciblocks * CIB + 4 * quads + (ck - ciblocks - quads);
             weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
                                gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
           }
