@@ -33,11 +33,12 @@ def main():
         for steps in [int(s) for s in args.steps.split(",")]:
             out = os.path.join(tmp, f"out{steps}")
             subprocess.run([args.program, "capture", os.path.join(syn, "capture.json"), "-o", out, "--steps", str(steps),
-                            "--lr", args.lr, "--kernel", args.kernel, "--truth", os.path.join(syn, "truth")],
+                            "--lr", args.lr, "--kernel", args.kernel, "--stages", "refine", "--truth", os.path.join(syn, "truth")],
                            check=True, stderr=subprocess.DEVNULL)
             with open(os.path.join(out, "report.json")) as f:
                 rep = json.load(f)
-            rows.append((steps, rep["timings"]["refine"], rep["loss"], rep["errors"]))
+            refine = [s for s in rep["stages"] if s["name"] == "refine"]
+            rows.append((steps, refine[0]["seconds"] if refine else 0.0, rep["loss"], rep["errors"]))
     print(f"\n{args.size} x {args.size}, {args.images} inputs (set alpha), seed {args.seed}, kernel {args.kernel}, lr {args.lr}\n")
     print("| steps | refine s | image loss | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic texels | F0 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
