@@ -4,11 +4,14 @@
 /// Deschaintre 2018/2019) and the map auto-encoder (after Gao 2019). Widths are compile-time
 /// presets: `paper` (the paper's widths) and `compact` (trains on 2 CPU cores; the shipped weights
 /// in models/compact/). Both work on NHWC tensors in network space (pipeline/network_space.hpp).
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 #include "anisocap/ad/reverse/tape.hpp"
@@ -89,24 +92,24 @@ class decoder_track {
  public:
   /// The track's six widths.
   static constexpr std::array<int, 6> widths = D;
-  nn::conv_transpose2d<E[5], D[0], T> up0;
-  nn::conv_transpose2d<D[0] + E[4], D[1], T> up1;
-  nn::conv_transpose2d<D[1] + E[3], D[2], T> up2;
-  nn::conv_transpose2d<D[2] + E[2], D[3], T> up3;
-  nn::conv_transpose2d<D[3] + E[1], D[4], T> up4;
-  nn::conv_transpose2d<D[4] + E[0], D[5], T> up5;
-  nn::instance_norm<D[0], T> n0;
-  nn::instance_norm<D[1], T> n1;
-  nn::instance_norm<D[2], T> n2;
-  nn::instance_norm<D[3], T> n3;
-  nn::instance_norm<D[4], T> n4;
-  nn::instance_norm<D[5], T> n5;
-  nn::linear<E[5], D[0], T> g0;
-  nn::linear<E[5], D[1], T> g1;
-  nn::linear<E[5], D[2], T> g2;
-  nn::linear<E[5], D[3], T> g3;
-  nn::linear<E[5], D[4], T> g4;
-  nn::linear<E[5], D[5], T> g5;
+  nn::conv_transpose2d<E[5], D[0], T> up0;  ///< transposed convolution 0 (4x4, stride 2)
+  nn::conv_transpose2d<D[0] + E[4], D[1], T> up1;  ///< transposed convolution 1 (4x4, stride 2)
+  nn::conv_transpose2d<D[1] + E[3], D[2], T> up2;  ///< transposed convolution 2 (4x4, stride 2)
+  nn::conv_transpose2d<D[2] + E[2], D[3], T> up3;  ///< transposed convolution 3 (4x4, stride 2)
+  nn::conv_transpose2d<D[3] + E[1], D[4], T> up4;  ///< transposed convolution 4 (4x4, stride 2)
+  nn::conv_transpose2d<D[4] + E[0], D[5], T> up5;  ///< transposed convolution 5 (4x4, stride 2)
+  nn::instance_norm<D[0], T> n0;  ///< instance norm after up0
+  nn::instance_norm<D[1], T> n1;  ///< instance norm after up1
+  nn::instance_norm<D[2], T> n2;  ///< instance norm after up2
+  nn::instance_norm<D[3], T> n3;  ///< instance norm after up3
+  nn::instance_norm<D[4], T> n4;  ///< instance norm after up4
+  nn::instance_norm<D[5], T> n5;  ///< instance norm after up5
+  nn::linear<E[5], D[0], T> g0;  ///< global vector -> bias of layer 0
+  nn::linear<E[5], D[1], T> g1;  ///< global vector -> bias of layer 1
+  nn::linear<E[5], D[2], T> g2;  ///< global vector -> bias of layer 2
+  nn::linear<E[5], D[3], T> g3;  ///< global vector -> bias of layer 3
+  nn::linear<E[5], D[4], T> g4;  ///< global vector -> bias of layer 4
+  nn::linear<E[5], D[5], T> g5;  ///< global vector -> bias of layer 5
 
   /// Layers named prefix + "up0" ... ; weights seeded from `seed`.
   decoder_track(const std::string& p, std::uint64_t seed)
@@ -143,10 +146,10 @@ class decoder_track {
 template <int G, int D, int Out, class T>
 class reducing_head {
  public:
-  nn::conv2d<D, D, 3, 1, 1, T> c0;
-  nn::conv2d<D, D, 3, 1, 1, T> c1;
-  nn::conv2d<D, Out, 1, 1, 0, T> c2;
-  nn::linear<G, D, T> global;
+  nn::conv2d<D, D, 3, 1, 1, T> c0;  ///< reducing convolution 0
+  nn::conv2d<D, D, 3, 1, 1, T> c1;  ///< reducing convolution 1
+  nn::conv2d<D, Out, 1, 1, 0, T> c2;  ///< reducing convolution 2
+  nn::linear<G, D, T> global;  ///< pooled global vector -> bias of c0
 
   /// Layers named prefix + "reduce0" ... .
   reducing_head(const std::string& p, std::uint64_t seed)
@@ -191,34 +194,34 @@ class EstimationNet {
   /// Side lengths forward() accepts are multiples of this.
   static constexpr int size_multiple = 64;
 
-  nn::conv2d<3, E[0], 4, 2, 1, T> enc0;
-  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;
-  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;
-  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;
-  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;
-  nn::conv2d<E[4], E[5], 4, 2, 1, T> enc5;
-  nn::instance_norm<E[1], T> norm1;
-  nn::instance_norm<E[2], T> norm2;
-  nn::instance_norm<E[3], T> norm3;
-  nn::instance_norm<E[4], T> norm4;
-  nn::instance_norm<E[5], T> norm5;
+  nn::conv2d<3, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
+  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;  ///< encoder layer 1 (4x4, stride 2)
+  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;  ///< encoder layer 2 (4x4, stride 2)
+  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;  ///< encoder layer 3 (4x4, stride 2)
+  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;  ///< encoder layer 4 (4x4, stride 2)
+  nn::conv2d<E[4], E[5], 4, 2, 1, T> enc5;  ///< encoder layer 5 (4x4, stride 2)
+  nn::instance_norm<E[1], T> norm1;  ///< instance norm of encoder layer 1
+  nn::instance_norm<E[2], T> norm2;  ///< instance norm of encoder layer 2
+  nn::instance_norm<E[3], T> norm3;  ///< instance norm of encoder layer 3
+  nn::instance_norm<E[4], T> norm4;  ///< instance norm of encoder layer 4
+  nn::instance_norm<E[5], T> norm5;  ///< instance norm of encoder layer 5
   // Global-feature track (Deschaintre 2018): g_i = selu(W [g_{i-1}, mean(h_i)]), and g_{i-1} enters
   // layer i as a per-channel bias.
-  nn::linear<E[0], E[0], T> global0;
-  nn::linear<E[0] + E[1], E[1], T> global1;
-  nn::linear<E[1] + E[2], E[2], T> global2;
-  nn::linear<E[2] + E[3], E[3], T> global3;
-  nn::linear<E[3] + E[4], E[4], T> global4;
-  nn::linear<E[4] + E[5], E[5], T> global5;
-  nn::linear<E[0], E[1], T> bias1;
-  nn::linear<E[1], E[2], T> bias2;
-  nn::linear<E[2], E[3], T> bias3;
-  nn::linear<E[3], E[4], T> bias4;
-  nn::linear<E[4], E[5], T> bias5;
-  network_detail::decoder_track<Preset, Preset::track1, T> track1;
-  network_detail::decoder_track<Preset, Preset::track2, T> track2;
-  network_detail::reducing_head<E[5], Preset::track1[5], 9, T> head1;
-  network_detail::reducing_head<E[5], Preset::track2[5], 3, T> head2;
+  nn::linear<E[0], E[0], T> global0;  ///< global track after encoder layer 0
+  nn::linear<E[0] + E[1], E[1], T> global1;  ///< global track after encoder layer 1
+  nn::linear<E[1] + E[2], E[2], T> global2;  ///< global track after encoder layer 2
+  nn::linear<E[2] + E[3], E[3], T> global3;  ///< global track after encoder layer 3
+  nn::linear<E[3] + E[4], E[4], T> global4;  ///< global track after encoder layer 4
+  nn::linear<E[4] + E[5], E[5], T> global5;  ///< global track after encoder layer 5
+  nn::linear<E[0], E[1], T> bias1;  ///< global vector -> bias of encoder layer 1
+  nn::linear<E[1], E[2], T> bias2;  ///< global vector -> bias of encoder layer 2
+  nn::linear<E[2], E[3], T> bias3;  ///< global vector -> bias of encoder layer 3
+  nn::linear<E[3], E[4], T> bias4;  ///< global vector -> bias of encoder layer 4
+  nn::linear<E[4], E[5], T> bias5;  ///< global vector -> bias of encoder layer 5
+  network_detail::decoder_track<Preset, Preset::track1, T> track1;  ///< decoder track 1
+  network_detail::decoder_track<Preset, Preset::track2, T> track2;  ///< decoder track 2
+  network_detail::reducing_head<E[5], Preset::track1[5], 9, T> head1;  ///< reducing convolutions of track 1
+  network_detail::reducing_head<E[5], Preset::track2[5], 3, T> head2;  ///< reducing convolutions of track 2
 
   /// A network with seeded He-uniform weights (the same on every machine for the same seed).
   explicit EstimationNet(std::uint64_t seed = 1)
@@ -358,17 +361,17 @@ class AutoEncoder {
   /// Side lengths encode() accepts are multiples of this.
   static constexpr int size_multiple = 32;
 
-  nn::conv2d<parameter_count, E[0], 4, 2, 1, T> enc0;
-  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;
-  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;
-  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;
-  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;
-  nn::batch_norm<E[4], T> latent_norm;
-  nn::conv_transpose2d<E[4], E[3], T> dec0;
-  nn::conv_transpose2d<E[3], E[2], T> dec1;
-  nn::conv_transpose2d<E[2], E[1], T> dec2;
-  nn::conv_transpose2d<E[1], E[0], T> dec3;
-  nn::conv_transpose2d<E[0], parameter_count, T> dec4;
+  nn::conv2d<parameter_count, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
+  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;  ///< encoder layer 1 (4x4, stride 2)
+  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;  ///< encoder layer 2 (4x4, stride 2)
+  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;  ///< encoder layer 3 (4x4, stride 2)
+  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;  ///< encoder layer 4 (4x4, stride 2)
+  nn::batch_norm<E[4], T> latent_norm;  ///< the batch norm that ends the encoder
+  nn::conv_transpose2d<E[4], E[3], T> dec0;  ///< decoder layer 0 (4x4 transposed, stride 2)
+  nn::conv_transpose2d<E[3], E[2], T> dec1;  ///< decoder layer 1 (4x4 transposed, stride 2)
+  nn::conv_transpose2d<E[2], E[1], T> dec2;  ///< decoder layer 2 (4x4 transposed, stride 2)
+  nn::conv_transpose2d<E[1], E[0], T> dec3;  ///< decoder layer 3 (4x4 transposed, stride 2)
+  nn::conv_transpose2d<E[0], parameter_count, T> dec4;  ///< decoder layer 4 (4x4 transposed, stride 2)
 
   /// A network with seeded He-uniform weights.
   explicit AutoEncoder(std::uint64_t seed = 1)
