@@ -22,6 +22,7 @@
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/safetensors.hpp"
 #include "anisocap/pipeline/capture_pipeline.hpp"
+#include "anisocap/render/analysis.hpp"
 #include "commands/train.hpp"
 
 namespace fs = std::filesystem;
@@ -52,7 +53,7 @@ struct progress_printer {
 
 /// Kernel choice by name: which BRDF terms the optimiser evaluates.
 brdf_features features_from_name(const std::string& name) {
-  if (name == "full") return all_features;
+  if (name == "full" || name == "auto") return all_features;
   if (name == "isotropic") return {false, true, true};
   if (name == "no-fresnel") return {true, false, true};
   if (name == "flat") return {true, true, false};
@@ -71,8 +72,9 @@ nlohmann::json errors_to_json(const parameter_errors& e) {
 /// Renders `maps` under `cap` into `out`: one linear EXR per image under its capture file name
 /// (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR. All files
 /// appear together or not at all.
-void write_renders(const material_maps& maps, const capture& cap, const fs::path& out) {
-  const auto images = render(maps, cap);
+void write_renders(const material_maps& maps, const capture& cap, const fs::path& out,
+                   const brdf_features& features = all_features) {
+  const auto images = with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); });
   fs::create_directories(out);
   file_transaction files;
   for (std::size_t i = 0; i < images.size(); ++i) {
@@ -248,9 +250,16 @@ nlohmann::json capture_command(const capture_args& a) {
     stage_reports = pr.stages;
   } else {
     maps = start_maps ? *start_maps : initial_guess(cap, photos);
+    brdf_features refine_features = features;
+    if (a.kernel == "auto") {
+      // The cheapest kernel exact for the starting maps (an isotropic, flat start from --init stays so).
+      const kernel_analysis k = analyse_kernel(maps, cap);
+      refine_features = k.features;
+      std::fprintf(stderr, "capture: kernel auto -> %s\n", k.describe().c_str());
+    }
     stage_reports.push_back({"first_guess", true, false, 0, loss_and_gradient(maps, cap, targets, nullptr), init_seconds});
     if (stages.refine) {
-      const refine_result r = with_features(features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
+      const refine_result r = with_features(refine_features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
       stage_reports.push_back({"refine", true, false, r.steps, r.final_loss, r.seconds});
     }
   }
@@ -389,8 +398,12 @@ void eval_command(const eval_args& e, const capture_args& base) {
 void render_command(const fs::path& maps_dir, const fs::path& capture_file, const fs::path& out) {
   const material_maps maps = read_maps(maps_dir);
   const capture cap = read_capture(capture_file);
-  write_renders(maps, cap, out);
-  std::fprintf(stderr, "rendered %zu images of %dx%d into %s\n", cap.images.size(), maps.width(), maps.height(), out.c_str());
+  // The cheapest kernel that renders these maps exactly (within 1e-4 relative): skips anisotropy,
+  // Fresnel or the normal frame when the maps and configurations do not need them.
+  const kernel_analysis kernel = analyse_kernel(maps, cap, 1e-4);
+  write_renders(maps, cap, out, kernel.features);
+  std::fprintf(stderr, "rendered %zu images of %dx%d into %s (kernel: %s)\n", cap.images.size(), maps.width(), maps.height(),
+               out.c_str(), kernel.describe().c_str());
 }
 
 /// The paper's Table 1 row "12, refined, set alpha" (MODEL.md 9), for the demo's summary.
@@ -442,7 +455,7 @@ int main(int argc, char** argv) {
     c->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
     c->add_option("--finetune-stop", cap.finetune_stop, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
     c->add_flag("--resume", cap.resume, "continue a killed run from OUT/.checkpoint");
-    c->add_option("--kernel", cap.kernel, "BRDF terms to fit: full, isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
+    c->add_option("--kernel", cap.kernel, "BRDF terms the refine stage fits: full, auto (the cheapest kernel exact for the starting maps), isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
     c->add_option("--cull", cap.cull, "specular culling tolerance on each pixel's log loss term (0: exact)")->capture_default_str();
   };
   auto* capture_cmd = app.add_subcommand("capture", "estimate the map set from a capture (per-texel optimisation)");

@@ -23,6 +23,7 @@
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/brdf/ward.hpp"
 
+#include "anisocap/render/analysis.hpp"
 #include "anisocap/render/capture.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/renderer.hpp"
