@@ -158,20 +158,15 @@ model_files models_for(const capture_args& a) {
 pipeline_result run_network_pipeline(const capture_args& a, const capture& cap, const std::vector<image>& photos,
                                      const pipeline_options& o) {
   const model_files files = models_for(a);
-  if (a.preset == "compact") {
-    EstimationNet<estimator_compact> estimator;
-    AutoEncoder<autoencoder_compact> autoencoder;
+  auto run = [&]<class EstimatorPreset, class AutoEncoderPreset>() {
+    EstimationNet<EstimatorPreset> estimator;
+    AutoEncoder<AutoEncoderPreset> autoencoder;
     nn::load_weights(files.estimator, estimator);
     nn::load_weights(files.autoencoder, autoencoder);
     return run_pipeline(cap, photos, estimator, autoencoder, o);
-  }
-  if (a.preset == "paper") {
-    EstimationNet<estimator_paper> estimator;
-    AutoEncoder<autoencoder_paper> autoencoder;
-    nn::load_weights(files.estimator, estimator);
-    nn::load_weights(files.autoencoder, autoencoder);
-    return run_pipeline(cap, photos, estimator, autoencoder, o);
-  }
+  };
+  if (a.preset == "compact") return run.template operator()<estimator_compact, autoencoder_compact>();
+  if (a.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
   throw std::invalid_argument("unknown --preset '" + a.preset + "' (compact, paper)");
 }
 
