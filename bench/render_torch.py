@@ -108,14 +108,14 @@ def time_torch(runs, threads):
 
 
 def time_anisocap(binary):
-    cmd = [binary, "--benchmark_filter=fused/full/(simd|scalar)/[12]/0/", "--benchmark_format=json",
+    cmd = [binary, "--benchmark_filter=fused/full/(simd|scalar)/threads:[12]/cull:0/ftz:1/", "--benchmark_format=json",
            "--benchmark_repetitions=5", "--benchmark_report_aggregates_only=true"]
     out = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True).stdout
     result = {}
     for b in json.loads(out)["benchmarks"]:
         if b.get("aggregate_name") == "median":
             kind = "simd" if "/simd/" in b["name"] else "scalar"
-            threads = int(b["name"].split("/")[3])
+            threads = int(b["name"].split("/")[3].split(":")[1])
             result[kind, threads] = (b["evals_per_second"], b.get("label", ""))
     return result
 
