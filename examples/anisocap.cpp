@@ -36,8 +36,6 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
-/// Writes text to `path` atomically (temporary name, then rename).
-void write_text_atomically(const fs::path& path, const std::string& text) { write_file_atomically(path, text); }
 
 /// Prints optimisation progress on one refreshed line on a terminal, or one line per report in logs.
 struct progress_printer {
@@ -294,7 +292,7 @@ nlohmann::json capture_command(const capture_args& a) {
     report["errors"]["novel_view_image_loss"] = novel_view_error(maps, *truth, novel);
   }
   report["peak_memory_bytes"] = peak_resident_bytes();
-  write_text_atomically(a.out / "report.json", report.dump(2) + "\n");
+  write_file_atomically(a.out / "report.json", report.dump(2) + "\n");
   std::error_code ec;
   fs::remove_all(a.out / ".checkpoint", ec);  // finished: nothing left to resume
   std::fprintf(stderr, "capture:");
