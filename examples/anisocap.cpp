@@ -141,7 +141,27 @@ struct capture_args {
   bool resume = false;
   std::string kernel = "full";
   float cull = 0.0f;
+  double refine_stop = 0.0;       // refine early stopping (0: never)
+  double freeze = 0.0;            // refine only texels whose loss still moves (0: all, every step)
+  std::string precision = "float";
 };
+
+/// Applies the options every command that runs the optimisers shares (kernel, culling, precision,
+/// early stopping, freezing) after checking them.
+void apply_optimiser_options(const capture_args& a, pipeline_options& po) {
+  if (a.cull < 0 || a.cull >= 1) throw std::invalid_argument("--cull must be in [0, 1)");
+  if (a.refine_stop < 0 || a.refine_stop >= 1) throw std::invalid_argument("--refine-stop must be in [0, 1)");
+  if (a.finetune_stop < 0 || a.finetune_stop >= 1) throw std::invalid_argument("--finetune-stop must be in [0, 1)");
+  if (a.freeze < 0 || a.freeze >= 1) throw std::invalid_argument("--freeze must be in [0, 1)");
+  if (a.precision != "float" && a.precision != "double") throw std::invalid_argument("--precision must be float or double, got '" + a.precision + "'");
+  po.features = features_from_name(a.kernel);
+  po.auto_kernel_tolerance = a.kernel == "auto" ? 1e-3 : 0.0;
+  po.render.cull_tolerance = a.cull;
+  po.render.double_precision = a.precision == "double";
+  po.finetune_min_improvement = a.finetune_stop;
+  po.refine.min_relative_improvement = a.refine_stop;
+  po.refine.freeze_tolerance = a.freeze;
+}
 
 /// Where the weights of a preset live, and whether both files are there.
 struct model_files {
@@ -173,10 +193,15 @@ nlohmann::json capture_command(const capture_args& a) {
   const auto start = std::chrono::steady_clock::now();
   if (a.steps < -1) throw std::invalid_argument("--steps must be >= 0");
   if (!(a.learning_rate > 0) && a.learning_rate != -1) throw std::invalid_argument("--lr must be positive");
-  if (a.cull < 0 || a.cull >= 1) throw std::invalid_argument("--cull must be in [0, 1)");
-  const brdf_features features = features_from_name(a.kernel);
+  pipeline_options po;
+  apply_optimiser_options(a, po);
   const capture cap = read_capture(a.capture_file);
-  const auto photos = load_capture_images(cap, a.capture_file.parent_path());
+  auto photos = load_capture_images(cap, a.capture_file.parent_path());
+  // The optimisers work on a capture rescaled to a standard exposure (pipeline/exposure.hpp); the
+  // re-renders below use the capture as given, so they compare with the photographs.
+  capture work_cap = cap;
+  const double exposure = exposure_scale(cap);
+  apply_exposure(work_cap, photos, exposure);
   std::optional<material_maps> truth;
   if (a.truth) truth = read_maps(*a.truth);
   if (truth && (truth->width() != photos[0].width() || truth->height() != photos[0].height()))
@@ -217,50 +242,44 @@ nlohmann::json capture_command(const capture_args& a) {
   const loss_targets targets = make_loss_targets(photos);
   const double init_seconds = seconds_since(t_init);
 
-  refine_options ro;
-  ro.steps = refine_steps;
-  ro.learning_rate = refine_lr;
-  ro.render.cull_tolerance = a.cull;
-  ro.progress_every = std::max(1, refine_steps / 50);
-  ro.progress = progress_printer{"refine"};
+  po.refine.steps = refine_steps;
+  po.refine.learning_rate = refine_lr;
+  po.refine.render = po.render;
   material_maps maps;
   std::vector<stage_report> stage_reports;
+  brdf_features used_features = po.features;
   if (networks) {
-    pipeline_options po;
     po.stages = stages;
     po.finetune_steps = a.finetune_steps;
     po.finetune_learning_rate = a.finetune_learning_rate;
-    po.finetune_min_improvement = a.finetune_stop;
-    po.refine = ro;
-    po.refine.progress_every = 0;
-    po.render.cull_tolerance = a.cull;
+    po.normalise_exposure = false;  // done above
     po.checkpoint_dir = a.out / ".checkpoint";
     po.resume = a.resume;
     po.progress_every = 25;
     po.progress = [](const std::string& stage, const optimisation_progress& p) { progress_printer{stage}(p); };
-    pipeline_result pr = run_network_pipeline(a, cap, photos, po);
+    pipeline_result pr = run_network_pipeline(a, work_cap, photos, po);
     maps = std::move(pr.maps);
     stage_reports = pr.stages;
+    used_features = pr.features;
   } else {
-    maps = start_maps ? *start_maps : initial_guess(cap, photos);
-    brdf_features refine_features = features;
-    if (a.kernel == "auto") {
-      // The cheapest kernel exact for the starting maps (an isotropic, flat start from --init stays so).
-      const kernel_analysis k = analyse_kernel(maps, cap);
-      refine_features = k.features;
-      std::fprintf(stderr, "capture: kernel auto -> %s\n", k.describe().c_str());
-    }
-    stage_reports.push_back({"first_guess", true, false, 0, loss_and_gradient(maps, cap, targets, nullptr), init_seconds});
+    maps = start_maps ? *start_maps : initial_guess(work_cap, photos);
+    if (a.kernel == "auto") used_features = analyse_kernel(maps, work_cap).features;  // exact for the start (--init)
+    stage_reports.push_back({"first_guess", true, false, 0, loss_and_gradient(maps, work_cap, targets, nullptr, {}, po.render), init_seconds});
     if (stages.refine) {
-      const refine_result r = with_features(refine_features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
-      stage_reports.push_back({"refine", true, false, r.steps, r.final_loss, r.seconds});
+      refine_options ro = po.refine;
+      ro.progress_every = std::max(1, refine_steps / 50);
+      ro.progress = progress_printer{"refine"};
+      const refine_result r = with_features(used_features, [&]<brdf_features F>() { return refine<F>(maps, work_cap, targets, ro); });
+      stage_reports.push_back({"refine", true, false, r.steps, r.final_loss, r.seconds, r.evaluated_fraction});
     }
   }
+  if (a.kernel == "auto")
+    std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{used_features, 0, 0, 0}.describe().c_str());
   const auto t_write = std::chrono::steady_clock::now();
   fs::create_directories(a.out);
   write_maps(maps, a.out);
   write_renders(maps, cap, a.out / "renders");
-  write_capture_sheet(a.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
+  write_capture_sheet(a.out / "contact_sheet.png", photos, render(maps, work_cap), maps, truth ? &*truth : nullptr);
   const capture novel = novel_view_set(1, maps.width(), maps.height());
   write_renders(maps, novel, a.out / "novel");
   const double write_seconds = seconds_since(t_write);
@@ -271,17 +290,20 @@ nlohmann::json capture_command(const capture_args& a) {
   report["width"] = photos[0].width();
   report["height"] = photos[0].height();
   report["kernel"] = a.kernel;
+  report["kernel_used"] = kernel_analysis{used_features, 0, 0, 0}.describe();
+  report["precision"] = a.precision;
+  report["exposure_scale"] = exposure;
   report["threads"] = omp_get_max_threads();
   report["stages"] = nlohmann::json::array();
   double stage_seconds = 0;
   for (const auto& st : stage_reports) {
     report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
-                                {"loss", st.loss}, {"seconds", st.seconds}});
+                                {"loss", st.loss}, {"seconds", st.seconds}, {"evaluated_fraction", st.evaluated_fraction}});
     stage_seconds += st.seconds;
   }
-  report["refine"] = {{"steps", refine_steps}, {"learning_rate", refine_lr}};
+  report["refine"] = {{"steps", refine_steps}, {"learning_rate", refine_lr}, {"stop", a.refine_stop}, {"freeze", a.freeze}};
   if (networks) report["finetune"] = {{"steps", a.finetune_steps}, {"learning_rate", a.finetune_learning_rate}, {"preset", a.preset}};
-  const double final_loss = loss_and_gradient(maps, cap, targets, nullptr);
+  const double final_loss = loss_and_gradient(maps, work_cap, targets, nullptr, {}, po.render);
   report["loss"] = final_loss;
   report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
@@ -343,9 +365,9 @@ void eval_command(const eval_args& e, const capture_args& base) {
         const capture cap = set == "alpha" ? set_alpha(n, seed, w, h) : set_beta(n, seed, w, h);
         const auto photos = render(truth, cap);
         pipeline_options po;
+        apply_optimiser_options(base, po);
         po.finetune_steps = base.finetune_steps;
         po.finetune_learning_rate = base.finetune_learning_rate;
-        po.finetune_min_improvement = base.finetune_stop;
         po.refine.steps = base.steps >= 0 ? base.steps : 500;
         po.refine.learning_rate = base.learning_rate > 0 ? base.learning_rate : 0.003f;
         const auto t0 = std::chrono::steady_clock::now();
@@ -448,8 +470,11 @@ int main(int argc, char** argv) {
     c->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
     c->add_option("--finetune-stop", cap.finetune_stop, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
     c->add_flag("--resume", cap.resume, "continue a killed run from OUT/.checkpoint");
-    c->add_option("--kernel", cap.kernel, "BRDF terms the refine stage fits: full, auto (the cheapest kernel exact for the starting maps), isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
+    c->add_option("--kernel", cap.kernel, "BRDF terms the fine-tune and refine stages fit: full, auto (the cheapest kernel that renders the estimate, or the first guess, within 1e-3), isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
     c->add_option("--cull", cap.cull, "specular culling tolerance on each pixel's log loss term (0: exact)")->capture_default_str();
+    c->add_option("--refine-stop", cap.refine_stop, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_option("--freeze", cap.freeze, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_option("--precision", cap.precision, "arithmetic of the image-loss kernels: float or double (maps stay float)")->capture_default_str();
   };
   auto* capture_cmd = app.add_subcommand("capture", "estimate the map set from a capture (per-texel optimisation)");
   capture_cmd->add_option("capture", cap.capture_file, "capture.json")->required();
@@ -470,6 +495,9 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
   eval_cmd->add_option("--finetune-stop", cap.finetune_stop, "fine-tune early stopping threshold (0: never)")->capture_default_str();
   eval_cmd->add_option("--steps", cap.steps, "refine steps (default 500)");
+  eval_cmd->add_option("--kernel", cap.kernel, "BRDF terms fitted (see capture --help)")->capture_default_str();
+  eval_cmd->add_option("--refine-stop", cap.refine_stop, "refine early stopping threshold (0: never)")->capture_default_str();
+  eval_cmd->add_option("--freeze", cap.freeze, "refine texel freezing threshold (0: never)")->capture_default_str();
 
   synthesize_args demo_syn;
   demo_syn.out = "anisocap-demo";

@@ -78,11 +78,13 @@ struct scalar_of<xsimd::batch<T, A>> { using type = T; };
 template <class V>
 using scalar_t = typename scalar_of<V>::type;
 
-/// Loads lanes_v<V> consecutive values (aligned for batches).
-template <class V>
-inline V load(const scalar_t<V>* p) {
-  if constexpr (lanes_v<V> == 1) return *p;
-  else return V::load_aligned(p);
+/// Loads lanes_v<V> consecutive values (aligned for batches). U may differ from V's element type
+/// (floats into a double batch): the values are converted, and no alignment is needed then.
+template <class V, class U>
+inline V load(const U* p) {
+  if constexpr (lanes_v<V> == 1) return V(*p);
+  else if constexpr (std::is_same_v<U, scalar_t<V>>) return V::load_aligned(p);
+  else return V::load_unaligned(p);
 }
 /// Loads lanes_v<V> consecutive values without an alignment requirement.
 template <class V>
@@ -90,11 +92,13 @@ inline V load_unaligned(const scalar_t<V>* p) {
   if constexpr (lanes_v<V> == 1) return *p;
   else return V::load_unaligned(p);
 }
-/// Stores lanes_v<V> consecutive values (aligned for batches).
-template <class V>
-inline void store(scalar_t<V>* p, const V& v) {
-  if constexpr (lanes_v<V> == 1) *p = v;
-  else v.store_aligned(p);
+/// Stores lanes_v<V> consecutive values (aligned for batches). U may differ from V's element type
+/// (a double batch into floats): the values are converted (rounded), no alignment needed then.
+template <class V, class U>
+inline void store(U* p, const V& v) {
+  if constexpr (lanes_v<V> == 1) *p = U(v);
+  else if constexpr (std::is_same_v<U, scalar_t<V>>) v.store_aligned(p);
+  else v.store_unaligned(p);
 }
 /// Lane i holds first + i.
 template <class V>

@@ -16,10 +16,12 @@
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/nn/adam.hpp"
 #include "anisocap/nn/safetensors.hpp"
+#include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/network_space.hpp"
 #include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/pipeline/windows.hpp"
+#include "anisocap/render/analysis.hpp"
 #include "anisocap/render/renderer.hpp"
 
 namespace anisocap {
@@ -59,7 +61,15 @@ struct pipeline_options {
   int finetune_steps = 5000;        ///< paper: 5000
   float finetune_learning_rate = 7.5e-4f;  ///< paper: Adam 7.5e-4
   refine_options refine{};          ///< per-texel stage (steps, learning rate, ...)
-  render_options render{};          ///< culling etc. for every image loss
+  render_options render{};          ///< culling, double precision etc. for every image loss
+  /// BRDF terms the fine-tune and refine losses evaluate (the full kernel by default).
+  brdf_features features = all_features;
+  /// When > 0: after the estimate, pick the cheapest kernel that renders the estimate within this
+  /// relative tolerance (render/analysis.hpp analyse_kernel), replacing `features`.
+  double auto_kernel_tolerance = 0.0;
+  /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
+  /// so that the maps do not depend on the photographs' units.
+  bool normalise_exposure = true;
   /// Fine-tune early stopping: stop when the loss improved by less than this fraction over the
   /// last `finetune_patience` steps (0: run every step).
   double finetune_min_improvement = 0.0;
@@ -81,6 +91,7 @@ struct stage_report {
   int steps = 0;
   double loss = 0;        ///< image loss against the photographs after the stage
   double seconds = 0;
+  double evaluated_fraction = 1.0;  ///< refine: fraction of texel-steps evaluated (freezing)
 };
 
 /// The result: the map set and a report per stage.
@@ -90,6 +101,10 @@ struct pipeline_result {
   /// The maps after the fine-tune stage (before refine), when that stage ran: the paper's Table 1
   /// reports both.
   std::optional<material_maps> after_finetune;
+  /// The kernel the fine-tune and refine losses used (options.features, or the automatic choice).
+  brdf_features features = all_features;
+  /// The factor photographs and intensities were multiplied by (1 without normalisation).
+  double exposure_scale = 1.0;
 };
 
 namespace pipeline_detail {
@@ -120,9 +135,23 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
   using clock = std::chrono::steady_clock;
   if (photos.empty() || photos.size() != cap.images.size())
     throw std::invalid_argument("run_pipeline: need one photograph per configuration");
+  if (o.normalise_exposure) {
+    capture scaled_cap = cap;
+    std::vector<image> scaled_photos = photos;
+    const double s = exposure_scale(cap);
+    apply_exposure(scaled_cap, scaled_photos, s);
+    pipeline_options so = o;
+    so.normalise_exposure = false;
+    pipeline_result r = run_pipeline(scaled_cap, scaled_photos, estimator, autoencoder, so);
+    r.exposure_scale = s;
+    return r;
+  }
   const int W = photos[0].width(), H = photos[0].height();
   const loss_targets targets = make_loss_targets(photos);
-  auto image_loss = [&](const material_maps& m) { return loss_and_gradient(m, cap, targets, nullptr, {}, o.render); };
+  brdf_features features = o.features;
+  auto image_loss = [&](const material_maps& m) {
+    return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
+  };
   const bool checkpoints = !o.checkpoint_dir.empty();
   if (checkpoints) fs::create_directories(o.checkpoint_dir);
   auto stage_dir = [&](const char* name) { return o.checkpoint_dir / name; };
@@ -154,6 +183,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       maps = initial_guess(cap, photos);
     }
     r.ran = o.stages.estimate;
+    if (o.auto_kernel_tolerance > 0) features = analyse_kernel(maps, cap, o.auto_kernel_tolerance).features;
     r.loss = image_loss(maps);
     r.seconds = pipeline_detail::seconds_since(t0);
     result.stages.push_back(r);
@@ -228,7 +258,9 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
         auto y = decode_maps(t);
         const auto u_view = y.value.tile(0, 0, H, W);
         const material_maps m = network_space::network_to_maps(u_view, 0);
-        const double loss = loss_and_gradient(m, cap, targets, &grad, {}, o.render);
+        const double loss = with_features(features, [&]<brdf_features F>() {
+          return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
+        });
         auto g_view = y.grad.tile(0, 0, H, W);
         network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
         t.backward();
@@ -268,6 +300,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
         auto y = decode_maps(t);
         maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
       }
+      restrict_to_features(maps, features);  // what a reduced kernel fitted, as every renderer sees it
       result.after_finetune = maps;
       fine.ran = true;
       fine.steps = step - first;
@@ -286,14 +319,16 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       ro.progress = [&](const optimisation_progress& p) { o.progress("refine", p); };
       if (ro.progress_every <= 0) ro.progress_every = o.progress_every;
     }
-    const refine_result rr = refine(maps, cap, targets, ro);
+    const refine_result rr = with_features(features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
     r.ran = true;
     r.steps = rr.steps;
     r.loss = rr.final_loss;
     r.seconds = rr.seconds;
+    r.evaluated_fraction = rr.evaluated_fraction;
     result.stages.push_back(r);
   }
   result.maps = std::move(maps);
+  result.features = features;
   return result;
 }
 

@@ -11,6 +11,7 @@
 ///   rotation:      alpha = u, wrapped into [-pi/2, pi/2) on output  (alpha is pi-periodic)
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <numbers>
 #include <vector>
@@ -42,6 +43,12 @@ struct refine_options {
   /// Stop early when the loss improved by less than this fraction over the last `patience` steps (0: never).
   double min_relative_improvement = 0.0;
   int patience = 50;
+  /// Refine only texels whose loss still moves: every `freeze_every` steps, each group of
+  /// `texel_group_size` texels whose loss fell by less than this fraction since the previous check
+  /// is frozen for the rest of the run (neither evaluated nor updated; its loss term is exact, the
+  /// texels just stop moving). 0: never freeze.
+  double freeze_tolerance = 0.0;
+  int freeze_every = 25;
 };
 
 /// What `refine` did.
@@ -50,6 +57,8 @@ struct refine_result {
   double final_loss = 0;       ///< loss of the returned maps
   int steps = 0;               ///< steps run
   double seconds = 0;
+  /// Fraction of the texel-steps that were evaluated (1 without freezing).
+  double evaluated_fraction = 1.0;
 };
 
 namespace detail {
@@ -132,11 +141,30 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   if (F.fresnel) active.push_back(fresnel_f0);
   auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
   double best_window_loss = 1e300;
+  // Texel groups (freezing): which are still optimised, their loss now and at the last check.
+  const bool freezing = options.freeze_tolerance > 0 && options.freeze_every > 0;
+  const std::size_t group_count = texel_groups::count(maps);
+  std::vector<std::uint8_t> group_active(group_count, 1);
+  std::vector<double> group_loss(group_count, 0.0), group_loss_checked(group_count, 0.0);
+  const texel_groups groups{freezing ? group_active.data() : nullptr, group_loss.data()};
+  std::size_t evaluated_groups = 0, active_count = group_count;
   for (int step = 0; step < options.steps; ++step) {
-    detail::maps_from_unconstrained(u, maps, jac);
-    if (!F.anisotropic) for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0; }
-    const double loss = loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render);
+    detail::maps_from_unconstrained(u, maps, jac);  // (a reduced kernel F ignores the planes it lacks)
+    const double loss = loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
     result.losses.push_back(loss);
+    evaluated_groups += active_count;
+    if (freezing && step % options.freeze_every == 0) {
+      // Freeze before this step's update, so a frozen group's maps are those its cached loss belongs to.
+      for (std::size_t g = 0; g < group_count; ++g) {
+        if (!group_active[g]) continue;
+        if (step > 0 && group_loss_checked[g] - group_loss[g] < options.freeze_tolerance * group_loss_checked[g]) {
+          group_active[g] = 0;
+          --active_count;
+        } else {
+          group_loss_checked[g] = group_loss[g];
+        }
+      }
+    }
     // Adam on u (bias-corrected), SIMD over texels.
     using V = simd::batch<float>;
     constexpr std::size_t L = simd::lanes_v<V>;
@@ -157,6 +185,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
 #pragma omp parallel for schedule(static)
     for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
       const std::size_t i = std::size_t(bi) * L;
+      if (freezing && !group_active[i / texel_group_size]) continue;
       for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
       if constexpr (F.normal_map) {
         const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
@@ -180,9 +209,8 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     }
   }
   detail::maps_from_unconstrained(u, maps, jac);
-  if (!F.anisotropic) for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0; }
-  if (!F.fresnel) for (std::size_t i = 0; i < n; ++i) maps.plane(fresnel_f0)[i] = 1.0f;
-  if (!F.normal_map) for (std::size_t i = 0; i < n; ++i) maps.plane(normal_x)[i] = maps.plane(normal_y)[i] = 0.0f;
+  restrict_to_features(maps, F);
+  if (result.steps > 0) result.evaluated_fraction = double(evaluated_groups) / (double(group_count) * result.steps);
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
   result.seconds = elapsed();
   return result;

@@ -17,9 +17,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "anisocap/ad/forward/dual.hpp"
@@ -53,6 +55,26 @@ struct render_options {
   /// Flush denormals to zero in the kernels' threads (see simd::flush_denormals_scope); changes
   /// results only below 1.2e-38, far under the loss epsilon 0.01.
   bool flush_denormals = true;
+  /// Evaluate the fused loss and its gradient in double arithmetic (maps, targets and gradients
+  /// stay float; the loss is always summed in double). The reference for float: about 2x slower.
+  bool double_precision = false;
+};
+
+/// Texels are grouped in runs of this many (in flat row-major order) for `texel_groups`.
+inline constexpr std::size_t texel_group_size = 64;
+
+/// Lets the fused loss skip texels whose parameters no longer change (refine's "only texels whose
+/// loss still moves"). The loss is a sum of independent per-texel terms, so a group of
+/// `texel_group_size` texels whose maps are unchanged has the loss it had when last evaluated.
+struct texel_groups {
+  /// One entry per group: 0 skips the group (its loss is read from `loss`, its gradient entries are
+  /// left as they are), non-zero evaluates it. Null: evaluate every group.
+  const std::uint8_t* active = nullptr;
+  /// One entry per group: each evaluated group's loss is written here. Must not be null when
+  /// `active` is set.
+  double* loss = nullptr;
+  /// Number of groups for a map set: ceil(texels / texel_group_size).
+  static std::size_t count(const material_maps& maps) { return (maps.texel_count() + texel_group_size - 1) / texel_group_size; }
 };
 
 namespace detail {
@@ -246,6 +268,7 @@ struct loss_targets {
 };
 
 /// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels).
+/// Throws std::invalid_argument on a NaN or infinite pixel; negative values count as 0.
 inline loss_targets make_loss_targets(const std::vector<image>& photos) {
   loss_targets t;
   if (photos.empty()) throw std::invalid_argument("make_loss_targets: no images");
@@ -257,7 +280,14 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos) {
       throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a different size or channel count");
     image l(p.width(), p.height(), 3);
     for (int c = 0; c < 3; ++c)
-      for (std::size_t k = 0; k < p.pixel_count(); ++k) l.plane(c)[k] = std::log(std::max(p.plane(c)[k], 0.0f) + loss_epsilon);
+      for (std::size_t k = 0; k < p.pixel_count(); ++k) {
+        const float v = p.plane(c)[k];
+        if (!std::isfinite(v))
+          throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a non-finite value (" +
+                                      std::to_string(v) + ") at pixel (" + std::to_string(k % std::size_t(p.width())) + ", " +
+                                      std::to_string(k / std::size_t(p.width())) + "), channel " + std::to_string(c));
+        l.plane(c)[k] = std::log(std::max(v, 0.0f) + loss_epsilon);
+      }
     t.log_images.push_back(std::move(l));
   }
   return t;
@@ -295,12 +325,26 @@ inline float cull_log_bound(const render_options& o) {
 
 }  // namespace detail
 
+/// Sets the parameters a kernel without some features ignores to the values under which the full
+/// kernel renders exactly as that kernel: without anisotropy sy = sx and alpha = 0; without
+/// Fresnel F0 = 1 (F / F0 = 1); without a normal map flat normals. Optimisers that ran a reduced
+/// kernel call this on their result so that every renderer agrees with what was fitted.
+inline void restrict_to_features(material_maps& maps, const brdf_features& f) {
+  const std::size_t n = maps.texel_count();
+  if (!f.anisotropic)
+    for (std::size_t i = 0; i < n; ++i) { maps.plane(lobe_y)[i] = maps.plane(lobe_x)[i]; maps.plane(rotation)[i] = 0.0f; }
+  if (!f.fresnel)
+    for (std::size_t i = 0; i < n; ++i) maps.plane(fresnel_f0)[i] = 1.0f;
+  if (!f.normal_map)
+    for (std::size_t i = 0; i < n; ++i) maps.plane(normal_x)[i] = maps.plane(normal_y)[i] = 0.0f;
+}
+
 /// Renders every configuration of `cap` for the map set (one 3-channel image per configuration).
-/// V picks the path: `simd::batch<float>` (default) or `float` (the scalar build of the same template).
+/// V picks the path: `simd::batch<float>` (default), `float` (the scalar build of the same template),
+/// or `simd::batch<double>` / `double` (arithmetic in double, maps and images stay float).
 template <brdf_features F = all_features, class V = simd::batch<float>>
 std::vector<image> render(const material_maps& maps, const capture& cap, const tile_placement& placement = {},
                           const render_options& options = {}) {
-  static_assert(std::is_same_v<simd::scalar_t<V>, float>, "maps are float");
   constexpr std::size_t L = simd::lanes_v<V>;
   const tile_placement tp = detail::resolve(placement, maps);
   const auto configs = detail::to_constants(cap);
@@ -337,13 +381,24 @@ std::vector<image> render(const material_maps& maps, const capture& cap, const t
 /// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
 /// No rendered image is materialised. Returns the loss
 ///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|.
+/// `groups` (optional) skips unchanged texel groups and reports per-group losses (texel_groups).
+/// With `options.double_precision`, a float V dispatches to the double kernel.
 template <brdf_features F = all_features, class V = simd::batch<float>>
 double loss_and_gradient(const material_maps& maps, const capture& cap, const loss_targets& targets,
                          material_maps* gradient, const tile_placement& placement = {},
-                         const render_options& options = {}) {
+                         const render_options& options = {}, const texel_groups* groups = nullptr) {
   using slots = detail::parameter_slots<F>;
   constexpr std::size_t L = simd::lanes_v<V>;
   constexpr std::size_t N = slots::count;
+  static_assert(texel_group_size % L == 0, "a texel group holds whole blocks");
+  if constexpr (std::is_same_v<simd::scalar_t<V>, float>) {
+    if (options.double_precision) {
+      using W = std::conditional_t<(L > 1), simd::batch<double>, double>;
+      render_options o = options;
+      o.double_precision = false;
+      return loss_and_gradient<F, W>(maps, cap, targets, gradient, placement, o, groups);
+    }
+  }
   if (targets.log_images.size() != cap.images.size())
     throw std::invalid_argument("loss_and_gradient: " + std::to_string(cap.images.size()) + " configurations but " +
                                 std::to_string(targets.log_images.size()) + " target images");
@@ -351,32 +406,42 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     throw std::invalid_argument("loss_and_gradient: target images and maps differ in size");
   if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
     throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
+  if (groups && groups->active && !groups->loss)
+    throw std::invalid_argument("loss_and_gradient: texel_groups.active needs texel_groups.loss");
   const tile_placement tp = detail::resolve(placement, maps);
   const auto configs = detail::to_constants(cap);
   const std::size_t texels = maps.texel_count();
-  const std::size_t blocks = (texels + L - 1) / L;
+  const std::size_t group_count = (texels + texel_group_size - 1) / texel_group_size;
   const float cull = detail::cull_log_bound(options);
-  const float inv_pi = 1.0f / std::numbers::pi_v<float>;
+  using S = simd::scalar_t<V>;
+  const S inv_pi = S(1) / std::numbers::pi_v<S>;
   // Mean over pixels and the 3 channels of each image.
-  const float scale = 1.0f / (3.0f * float(texels));
+  const S scale = S(1) / (S(3) * S(texels));
+  const std::uint8_t* active = groups ? groups->active : nullptr;
+  double* group_loss = groups ? groups->loss : nullptr;
   double loss = 0;
 #pragma omp parallel
   {
   const simd::flush_denormals_scope denormals(options.flush_denormals);
 #pragma omp for schedule(static) reduction(+ : loss)
-  for (std::ptrdiff_t b = 0; b < std::ptrdiff_t(blocks); ++b) {
-    const std::size_t i = std::size_t(b) * L;
+  for (std::ptrdiff_t g = 0; g < std::ptrdiff_t(group_count); ++g) {
+    if (active && !active[g]) {
+      loss += group_loss[g];
+      continue;
+    }
+    V loss_acc(0);
+    const std::size_t group_end = std::min(texels, std::size_t(g + 1) * texel_group_size);
+    for (std::size_t i = std::size_t(g) * texel_group_size; i < group_end; i += L) {
     V px, py;
     detail::texel_positions<V>(i, maps.width(), tp, px, py);
     // Lanes past the last texel (padding of the final block) get weight 0.
     const V lane_weight = i + L <= texels ? V(scale)
-                                          : simd::select(simd::iota<V>(0.0f) < V(float(texels - i)), V(scale), V(0));
+                                          : simd::select(simd::iota<V>(S(0)) < V(S(texels - i)), V(scale), V(0));
     detail::texel_state<F, V, N> t;
     t.load(maps, i, px, py);
     V g_diffuse[3] = {V(0), V(0), V(0)}, g_specular[3] = {V(0), V(0), V(0)};
     std::array<V, N> g_dual;
     g_dual.fill(V(0));
-    V loss_acc(0);
     for (std::size_t k = 0; k < configs.size(); ++k) {
       const auto s = detail::shade<F, V, N>(t, configs[k], cull);
       const V geometry = s.geometry.value;
@@ -403,16 +468,15 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_geom, s.geometry.grad[p], g_dual[p]);
       }
     }
-    loss += double(simd::reduce_add(loss_acc));
     if (gradient) {
       for (int c = 0; c < 3; ++c) {
         simd::store<V>(gradient->plane(diffuse_r + c) + i, g_diffuse[c]);
         simd::store<V>(gradient->plane(specular_r + c) + i, g_specular[c]);
       }
       for (int pl : {lobe_x, lobe_y, fresnel_f0, normal_x, normal_y, rotation}) {
-        bool active = false;
-        for (std::size_t p = 0; p < N; ++p) active |= slots::plane[p] == pl;
-        if (!active) simd::store<V>(gradient->plane(pl) + i, V(0));
+        bool active_plane = false;
+        for (std::size_t p = 0; p < N; ++p) active_plane |= slots::plane[p] == pl;
+        if (!active_plane) simd::store<V>(gradient->plane(pl) + i, V(0));
       }
       for (std::size_t p = 0; p < N; ++p) {
         // Clamped parameters (sx below min_lobe, ...) get the gradient of the clamped value, which
@@ -420,6 +484,10 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         simd::store<V>(gradient->plane(slots::plane[p]) + i, g_dual[p]);
       }
     }
+    }  // blocks of the group
+    const double l = double(simd::reduce_add(loss_acc));
+    if (group_loss) group_loss[g] = l;
+    loss += l;
   }
   }  // omp parallel
   return loss;
