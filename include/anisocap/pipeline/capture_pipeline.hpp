@@ -81,6 +81,10 @@ struct pipeline_options {
   double checkpoint_seconds = 60;   ///< time between fine-tune check-points
   std::function<void(const std::string& stage, const optimisation_progress&)> progress;
   int progress_every = 50;
+  /// Called at every fine-tune step with the number of updates done so far, the image loss and the
+  /// decoded maps at that point (before the step's update). For monitoring and for studies that
+  /// read many step counts off one run (bench/sweep.cpp). Null: nothing is called.
+  std::function<void(int updates, double loss, const material_maps& maps)> finetune_observer;
 };
 
 /// What one stage did.
@@ -261,6 +265,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
         const double loss = with_features(features, [&]<brdf_features F>() {
           return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
         });
+        if (o.finetune_observer) o.finetune_observer(step, loss, m);
         auto g_view = y.grad.tile(0, 0, H, W);
         network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
         t.backward();

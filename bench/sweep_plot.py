@@ -1,0 +1,158 @@
+#!/usr/bin/env python3
+"""Run time against error from bench/sweep.cpp's CSV: a plot with the Pareto front and Markdown tables.
+
+For every configuration (input count, path, fine-tune steps / early stopping, refine variant) the
+errors and seconds are averaged over the materials (mean error, median seconds). The Pareto front
+is the set of configurations that no other configuration beats on both run time and novel-view
+error. Writes PNG (run time against novel-view error and against each per-parameter error) and
+prints Markdown: the front, the paper-default reference and the cheapest configuration that
+matches its novel-view error, the effect of each skip at one starting point, and a NaN/Inf count.
+
+usage: bench/sweep_plot.py bench/results/sweep_256.csv [--png bench/results/sweep_256.png]
+"""
+import argparse
+import csv
+import statistics
+import sys
+from collections import OrderedDict
+
+PARAMS = [("novel_view_loss", "novel-view image loss"), ("diffuse", "a_d MSE"), ("specular", "a'_s MSE"),
+          ("normal", "n_s MSE"), ("lobes", "sigma MSE"), ("rotation", "alpha MSE (mod pi)"), ("fresnel", "F0 MSE")]
+
+
+def key_of(r):
+    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"])
+
+
+def label(k):
+    n, path, ft, stop, ref = k
+    if path == "refine-only":
+        return f"N={n} no networks, refine {ref}"
+    ft_text = f"fine-tune stop {stop:g}" if stop > 0 else f"fine-tune {ft}"
+    return f"N={n} {ft_text}, refine {ref}"
+
+
+def pareto(points):
+    """Indices of points (seconds, error) not dominated by any other."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], float("inf")
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("csv")
+    ap.add_argument("--png", default=None)
+    args = ap.parse_args()
+    rows = list(csv.DictReader(open(args.csv)))
+    if not rows:
+        sys.exit(f"{args.csv}: no rows")
+    materials = sorted({r["material"] for r in rows}, key=int)
+    groups = OrderedDict()
+    for r in rows:
+        groups.setdefault(key_of(r), []).append(r)
+    # Only configurations measured on every material.
+    configs = [k for k, g in groups.items() if len({r["material"] for r in g}) == len(materials)]
+    stats = {}
+    for k in configs:
+        g = groups[k]
+        s = {p: statistics.fmean(float(r[p]) for r in g) for p, _ in PARAMS}
+        s["seconds"] = statistics.median(float(r["seconds"]) for r in g)
+        s["mean_seconds"] = statistics.fmean(float(r["seconds"]) for r in g)
+        s["evaluated"] = statistics.fmean(float(r["evaluated_fraction"]) for r in g)
+        s["ft_run"] = statistics.fmean(float(r["finetune_steps_run"]) for r in g)
+        s["refine_run"] = statistics.fmean(float(r["refine_steps_run"]) for r in g)
+        stats[k] = s
+    bad = sum(1 for r in rows if r["finite"] != "1")
+    print(f"{len(rows)} rows, {len(materials)} materials, {len(configs)} configurations; rows with NaN/Inf in the maps: {bad}\n")
+
+    pts = [(stats[k]["seconds"], stats[k]["novel_view_loss"]) for k in configs]
+    front = [configs[i] for i in pareto(pts)]
+    print("Pareto front (median seconds per material against mean novel-view loss):\n")
+    print("| configuration | fine-tune steps run | refine steps run | s / material | novel-view loss | a_d | a'_s | n_s | sigma | alpha | F0 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for k in front:
+        s = stats[k]
+        print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
+              f"{s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
+
+    ref_key = (12, "networks", 5000, 0.0, "500")
+    if ref_key in stats:
+        ref = stats[ref_key]
+        print(f"\nPaper-default step counts ({label(ref_key)}): {ref['seconds']:.1f} s, novel-view loss {ref['novel_view_loss']:.4f}.")
+        match = [k for k in configs if stats[k]["novel_view_loss"] <= ref["novel_view_loss"]]
+        if match:
+            best = min(match, key=lambda k: stats[k]["seconds"])
+            b = stats[best]
+            print(f"Cheapest configuration at or below that novel-view loss: {label(best)}: {b['seconds']:.1f} s, "
+                  f"loss {b['novel_view_loss']:.4f}: {ref['seconds'] / b['seconds']:.1f}x less run time.")
+            # Per material: same comparison, to show it is not an average effect.
+            per = []
+            for m in materials:
+                r_ref = next(r for r in groups[ref_key] if r["material"] == m)
+                r_b = next(r for r in groups[best] if r["material"] == m)
+                per.append((float(r_ref["seconds"]) / float(r_b["seconds"]), float(r_b["novel_view_loss"]) <= float(r_ref["novel_view_loss"])))
+            print(f"Per material: speed-up {min(p[0] for p in per):.1f}x to {max(p[0] for p in per):.1f}x; "
+                  f"novel-view loss at or below the reference on {sum(p[1] for p in per)} of {len(per)} materials.")
+
+    # Effect of each skip at the starting points that have every refine variant.
+    for start in [(12, "networks", 200, 0.0), (12, "networks", 5000, 0.003)]:
+        base = start + ("500",)
+        if base not in stats:
+            continue
+        b = stats[base]
+        print(f"\nSkips on the refine stage, starting from {label(base).rsplit(',', 1)[0]} (refine alone; ratios against plain refine 500):\n")
+        print("| refine variant | texel-steps evaluated | refine seconds ratio | novel-view loss | ratio | a_d | a'_s | n_s | sigma | alpha | F0 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        none = stats.get(start + ("none",))
+        for k in configs:
+            if k[:4] != start or k[4] == "none":
+                continue
+            s = stats[k]
+            ratio = (s["seconds"] - none["seconds"]) / max(b["seconds"] - none["seconds"], 1e-9) if none else float("nan")
+            print(f"| {k[4]} | {s['evaluated']:.2f} | {ratio:.2f} | {s['novel_view_loss']:.4f} | {s['novel_view_loss'] / b['novel_view_loss']:.2f} | "
+                  f"{s['diffuse']:.3g} | {s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
+
+    if args.png:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(2, 4, figsize=(20, 9.5))
+        colours = {12: "tab:blue", 8: "tab:orange"}
+        for ax, (p, name) in zip(axes.flat, PARAMS):
+            xs = [stats[k]["seconds"] for k in configs]
+            ys = [stats[k][p] for k in configs]
+            for n in (12, 8):
+                sel = [i for i, k in enumerate(configs) if k[0] == n]
+                ax.scatter([xs[i] for i in sel], [ys[i] for i in sel], s=18, c=colours[n], alpha=0.7,
+                           marker="o", label=f"N = {n}")
+            pf = pareto(list(zip(xs, ys)))
+            ax.plot([xs[i] for i in pf], [ys[i] for i in pf], "k-", lw=1.2, label="Pareto front")
+            ax.scatter([xs[i] for i in pf], [ys[i] for i in pf], s=40, facecolors="none", edgecolors="k")
+            if ref_key in stats:
+                ax.scatter([stats[ref_key]["seconds"]], [stats[ref_key][p]], s=120, marker="*", c="tab:red", label="paper step counts")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlabel("seconds per material (median)")
+            ax.set_ylabel(name + " (mean)")
+            ax.grid(True, which="both", alpha=0.3)
+        axes.flat[0].legend(fontsize=8)
+        axes.flat[-1].axis("off")
+        axes.flat[-1].text(0.0, 0.5, f"{len(materials)} procedural materials, 256 x 256, set alpha\n"
+                           "compact preset; one point per configuration\n(fine-tune steps, early stopping, refine variant, N)",
+                           fontsize=11, va="center")
+        fig.suptitle("anisocap: run time against error (bench/sweep.cpp)")
+        fig.tight_layout()
+        tmp = args.png + ".tmp.png"
+        fig.savefig(tmp, dpi=90)
+        import os
+        os.replace(tmp, args.png)
+        print(f"\nplot: {args.png}")
+
+
+if __name__ == "__main__":
+    main()
