@@ -1,0 +1,233 @@
+// Numerical stability of the capture (issue 6, part 3): the scenarios of
+// tests/pipeline/stability_test.cpp at bench size, printed as Markdown tables (bench/README.md,
+// "Numerical stability"). Every run is `run_pipeline` with the refine stage only (first guess from
+// the photographs, then per-texel Adam, as `anisocap capture --stages refine`), exposure
+// normalisation on unless a row says otherwise.
+//
+//   anisocap_bench_stability [--size 256] [--images 12] [--steps 300] [--seed 7]
+//
+// Rows: the unscaled capture against the truth; the capture with intensities and photographs
+// multiplied by a factor against the unscaled run (1 + 2^-23 shows how far one ulp of input moves
+// the refine; 2^-13 must give identical maps); photographs clipped at 1 and at their 95th
+// percentile against the truth; a capture whose cameras and lights are 75 to 88 degrees from the
+// normal against the truth; and a photograph with one NaN pixel, which must be refused.
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/core/random.hpp"
+#include "anisocap/data/procedural.hpp"
+#include "anisocap/pipeline/capture_pipeline.hpp"
+#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/configurations.hpp"
+
+using namespace anisocap;
+
+namespace {
+
+/// Smallest estimator: the refine-only runs construct but never use the networks.
+struct estimator_unused {
+  static constexpr std::array<int, 6> encoder{4, 4, 4, 4, 4, 8};
+  static constexpr std::array<int, 6> track1{8, 4, 4, 4, 4, 4};
+  static constexpr std::array<int, 6> track2{4, 4, 4, 4, 4, 4};
+  static constexpr const char* name = "unused";
+};
+/// Smallest auto-encoder, see estimator_unused.
+struct autoencoder_unused {
+  static constexpr std::array<int, 5> encoder{4, 4, 8, 8, 8};
+  static constexpr const char* name = "unused";
+};
+
+/// One refine-only pipeline run and its wall time.
+struct run_result {
+  pipeline_result pipeline;
+  double seconds = 0;
+};
+
+run_result run_refine(const capture& cap, const std::vector<image>& photos, int steps, bool normalise = true) {
+  EstimationNet<estimator_unused> estimator(1);
+  AutoEncoder<autoencoder_unused> autoencoder(2);
+  pipeline_options o;
+  o.stages = pipeline_stages{false, false, false, true};
+  o.refine.steps = steps;
+  o.normalise_exposure = normalise;
+  const auto t0 = std::chrono::steady_clock::now();
+  run_result r{run_pipeline(cap, photos, estimator, autoencoder, o), 0};
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+/// Largest |a - b| over planes [first, last] (alpha modulo pi).
+double max_difference(const material_maps& a, const material_maps& b, int first, int last) {
+  double d = 0;
+  for (int k = first; k <= last; ++k)
+    for (std::size_t i = 0; i < a.texel_count(); ++i) {
+      const double x = a.plane(k)[i], y = b.plane(k)[i];
+      d = std::max(d, k == rotation ? std::abs(rotation_difference(x, y)) : std::abs(x - y));
+    }
+  return d;
+}
+
+/// Non-finite map values.
+std::size_t non_finite(const material_maps& m) {
+  std::size_t n = 0;
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < m.texel_count(); ++i) n += !std::isfinite(m.plane(k)[i]);
+  return n;
+}
+
+/// Finite map values outside their parameter's range (MODEL.md 1).
+std::size_t out_of_range(const material_maps& m) {
+  std::size_t bad = 0;
+  for (std::size_t i = 0; i < m.texel_count(); ++i) {
+    for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0})
+      bad += m.plane(k)[i] < 0.0f || m.plane(k)[i] > 1.0f;
+    for (int k : {lobe_x, lobe_y}) bad += m.plane(k)[i] <= 0.0f || m.plane(k)[i] > 1.0f;
+    const float nx = m.plane(normal_x)[i], ny = m.plane(normal_y)[i];
+    bad += nx * nx + ny * ny >= 1.0f;
+    bad += std::abs(m.plane(rotation)[i]) > std::numbers::pi_v<float> / 2 * (1 + 1e-6f);
+  }
+  return bad;
+}
+
+std::pair<capture, std::vector<image>> scaled(const capture& cap, std::vector<image> photos, float factor) {
+  capture c = cap;
+  for (auto& im : c.images)
+    for (float& i : im.intensity) i *= factor;
+  for (image& p : photos)
+    for (int ch = 0; ch < p.channels(); ++ch)
+      for (std::size_t i = 0; i < p.pixel_count(); ++i) p.plane(ch)[i] *= factor;
+  return {std::move(c), std::move(photos)};
+}
+
+std::vector<image> clipped(std::vector<image> photos, float level) {
+  for (image& p : photos)
+    for (int c = 0; c < p.channels(); ++c)
+      for (std::size_t i = 0; i < p.pixel_count(); ++i) p.plane(c)[i] = std::min(p.plane(c)[i], level);
+  return photos;
+}
+
+float quantile(const std::vector<image>& photos, double q) {
+  std::vector<float> values;
+  for (const image& p : photos)
+    for (int c = 0; c < p.channels(); ++c) values.insert(values.end(), p.plane(c), p.plane(c) + p.pixel_count());
+  const auto k = std::size_t(q * double(values.size() - 1));
+  std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(k), values.end());
+  return values[k];
+}
+
+/// As in tests/pipeline/stability_test.cpp: cameras and lights 75 to 88 degrees from the normal at
+/// the point they aim at, 4 to 8 material sizes away; even images are mirror configurations.
+capture grazing_capture(int count, std::uint64_t seed) {
+  random_generator rng(seed);
+  auto direction = [&](double azimuth) {
+    const double zenith = rng.uniform(75.0, 88.0) * std::numbers::pi / 180.0;
+    return std::array<double, 3>{std::sin(zenith) * std::cos(azimuth), std::sin(zenith) * std::sin(azimuth), std::cos(zenith)};
+  };
+  capture c;
+  for (int i = 0; i < count; ++i) {
+    const std::array<double, 3> point{rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0.0};
+    const double azimuth = rng.uniform(0.0, 2 * std::numbers::pi);
+    const auto view = direction(azimuth);
+    const auto light = direction(i % 2 == 0 ? azimuth + std::numbers::pi : rng.uniform(0.0, 2 * std::numbers::pi));
+    const double dv = rng.uniform(4.0, 8.0), dl = rng.uniform(4.0, 8.0);
+    capture_image im;
+    im.file = input_file_name(i);
+    for (std::size_t a = 0; a < 3; ++a) {
+      im.camera[a] = float(point[a] + dv * view[a]);
+      im.light[a] = float(point[a] + dl * light[a]);
+    }
+    const auto intensity = float(configuration_irradiance * dl * dl);
+    im.intensity = {intensity, intensity, intensity};
+    c.images.push_back(im);
+  }
+  return c;
+}
+
+/// One table row: a run compared with a map set.
+void print_row(const std::string& scenario, const std::string& against, const run_result& r, const material_maps& other) {
+  const material_maps& m = r.pipeline.maps;
+  const parameter_errors e = compare_maps(m, other);
+  std::size_t bad_losses = 0;
+  for (const auto& s : r.pipeline.stages) bad_losses += !std::isfinite(s.loss);
+  std::printf("| %s | %s | %.2g | %.2g | %.2g | %.2g | %.2g | %.2g | %.1e / %.1e / %.1e | %zu | %zu | %.4f | %.1f |\n", scenario.c_str(),
+              against.c_str(), max_difference(m, other, diffuse_r, diffuse_b), max_difference(m, other, specular_r, specular_b),
+              max_difference(m, other, lobe_x, lobe_y), max_difference(m, other, fresnel_f0, fresnel_f0),
+              max_difference(m, other, normal_x, normal_y), max_difference(m, other, rotation, rotation), e.diffuse, e.normal,
+              e.lobes, non_finite(m) + bad_losses, out_of_range(m), r.pipeline.stages.back().loss, r.seconds);
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int size = 256, images = 12, steps = 300;
+  std::uint64_t seed = 7;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (i + 1 >= argc) { std::fprintf(stderr, "%s needs a value\n", a.c_str()); return 2; }
+    const char* v = argv[++i];
+    if (a == "--size") size = std::atoi(v);
+    else if (a == "--images") images = std::atoi(v);
+    else if (a == "--steps") steps = std::atoi(v);
+    else if (a == "--seed") seed = std::strtoull(v, nullptr, 10);
+    else { std::fprintf(stderr, "unknown option %s (--size, --images, --steps, --seed)\n", a.c_str()); return 2; }
+  }
+  if (size < 16 || images < 4 || steps < 1) { std::fprintf(stderr, "need --size >= 16, --images >= 4, --steps >= 1\n"); return 2; }
+
+  const material_maps truth = generate_material(seed, size, size);
+  const capture cap = set_alpha(images, seed, size, size);
+  const std::vector<image> photos = render(truth, cap);
+  std::printf("Procedural material %llu (%s), %d x %d, %d set-alpha images, refine only, %d steps, learning rate 0.03.\n\n",
+              static_cast<unsigned long long>(seed), material_kind_name(draw_procedural_parameters(seed).kind), size, size, images,
+              steps);
+  std::printf("| scenario | against | a_d | a'_s | sigma | F0 | n_s | alpha | MSE a_d / n_s / sigma | NaN/Inf | out of range | final loss | s |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+
+  const run_result reference = run_refine(cap, photos, steps);
+  print_row("unscaled", "truth", reference, truth);
+  struct factor_row { float factor; const char* name; bool normalise; };
+  for (const factor_row& f : {factor_row{std::nextafter(1.0f, 2.0f), "x (1 + 2^-23), one ulp", true},
+                              factor_row{0x1p-13f, "x 2^-13", true}, factor_row{1e-4f, "x 1e-4", true},
+                              factor_row{1e4f, "x 1e4", true}, factor_row{1e-4f, "x 1e-4, not normalised", false},
+                              factor_row{1e4f, "x 1e4, not normalised", false}}) {
+    const auto [c, p] = scaled(cap, photos, f.factor);
+    print_row(f.name, "unscaled run", run_refine(c, p, steps, f.normalise), reference.pipeline.maps);
+  }
+  for (const double q : {-1.0, 0.95}) {
+    const float level = q < 0 ? 1.0f : quantile(photos, q);
+    std::size_t at = 0, total = 0;
+    const std::vector<image> p = clipped(photos, level);
+    for (const image& im : p)
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < im.pixel_count(); ++i, ++total) at += im.plane(c)[i] >= level;
+    char name[96];
+    std::snprintf(name, sizeof name, "clipped at %.3g (%s, %.1f%% of values)", level, q < 0 ? "1" : "95th percentile",
+                  100.0 * double(at) / double(total));
+    print_row(name, "truth", run_refine(cap, p, steps), truth);
+  }
+  {
+    const capture grazing = grazing_capture(images, seed);
+    print_row("cameras and lights 75-88 deg from the normal", "truth", run_refine(grazing, render(truth, grazing), steps), truth);
+  }
+  {
+    std::vector<image> p = photos;
+    p[images / 2].at(1, size / 3, size / 5) = std::numeric_limits<float>::quiet_NaN();
+    std::string outcome = "no error (NaN maps would follow)";
+    try {
+      run_refine(cap, p, steps);
+    } catch (const std::invalid_argument& e) {
+      outcome = std::string("std::invalid_argument: ") + e.what();
+    }
+    std::printf("\nOne NaN pixel in image %d: %s\n", images / 2, outcome.c_str());
+  }
+  return 0;
+}
