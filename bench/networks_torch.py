@@ -2,7 +2,12 @@
 """The estimation network and the auto-encoder of pipeline/networks.hpp in PyTorch, beside
 anisocap_bench_networks: training steps (forward, L1 loss, backward, Adam) per second.
 
-    /usr/bin/python3 bench/networks_torch.py build/bench/anisocap_bench_networks
+    OMP_WAIT_POLICY=passive /usr/bin/python3 bench/networks_torch.py build/bench/anisocap_bench_networks
+
+Debian's PyTorch calls the system BLAS for ConvTranspose2d and Linear; the netlib reference BLAS
+makes it several times slower. bench/README.md "Against PyTorch" runs it with OpenBLAS through
+LD_LIBRARY_PATH; the header line prints which BLAS the process loaded. --transposed subpixel runs
+the transposed convolutions as oneDNN Conv2d + pixel_shuffle instead (by default both are timed).
 
 The PyTorch networks copy the presets layer by layer (widths, 4x4 stride-2 convolutions, 4x4
 stride-2 transposed convolutions, 3x3 and 1x1 reducing convolutions, all with biases; instance
@@ -20,7 +25,9 @@ and the ratio is taken against the L1-only step (same work on both sides).
 
 Each PyTorch step: zero_grad(set_to_none), forward, loss, backward, Adam (torch.optim.Adam,
 defaults). Timing: warm-up steps, then the median over repetitions of the mean step time of a
-loop of at least --min-time seconds (the paper presets: one step per repetition).
+loop of at least --min-time seconds (the paper presets: one step per repetition). On 1 thread it
+also compares CPU time per step (process time here, the benchmark's cpu_time there), which a
+shared, oversubscribed machine disturbs less than wall-clock time.
 With the binary, it also runs it (OMP_NUM_THREADS = each --threads value, OMP_WAIT_POLICY
 passive, --benchmark_repetitions, medians) right before the PyTorch runs of the same thread count.
 """
@@ -212,20 +219,23 @@ def make_step(kind, preset, size, batch, channels_last):
 
 
 def median_step_time(step, min_time, repetitions, warmup):
+    """Medians over repetitions of the wall-clock and the process CPU time per step."""
     for _ in range(warmup):
         step()
-    times = []
+    walls, cpus = [], []
     for _ in range(repetitions):
-        count, start = 0, time.perf_counter()
+        count, start, cpu = 0, time.perf_counter(), time.process_time()
         while True:
             step()
             count += 1
             elapsed = time.perf_counter() - start
             if elapsed >= min_time:
                 break
-        times.append(elapsed / count)
-    times.sort()
-    return times[len(times) // 2]
+        walls.append(elapsed / count)
+        cpus.append((time.process_time() - cpu) / count)
+    walls.sort()
+    cpus.sort()
+    return walls[len(walls) // 2], cpus[len(cpus) // 2]
 
 
 # (network, preset, size, batch): the L1-only rows registered in bench/networks.cpp.
@@ -286,8 +296,8 @@ def main():
     names = {"native": "PyTorch ConvTranspose2d", "subpixel": "PyTorch subpixel"}
     print("| network | preset | size x batch | threads | anisocap L1 + render samples/s | anisocap L1 samples/s | "
           + " | ".join(f"{names[v]} samples/s" for v in args.transposed)
-          + " | anisocap (L1) / best PyTorch | parameters | load |")
-    print("|" + "---|" * (8 + len(args.transposed)), flush=True)
+          + " | anisocap (L1) / best PyTorch | same, CPU time (1 thread) | parameters | load |")
+    print("|" + "---|" * (10 + len(args.transposed)), flush=True)
     for threads in args.threads:
         ours = run_anisocap(args.binary, threads, args.anisocap_repetitions) if args.binary else {}
         torch.set_num_threads(threads)
@@ -295,23 +305,29 @@ def main():
             l1 = ours.get(anisocap_name(kind, preset, size, batch, 0))
             full = ours.get(anisocap_name(kind, preset, size, batch, 1))
             paper = preset == "paper"
-            theirs = []
+            theirs, theirs_cpu = [], []
             for variant in args.transposed:
                 TRANSPOSED = SubpixelConvTranspose2d if variant == "subpixel" else nn.ConvTranspose2d
                 step, count = make_step(kind, preset, size, batch, args.channels_last)
                 if l1:
                     assert int(l1["parameters"]) == count, \
                         f"{kind} {preset}: PyTorch {count} parameters, anisocap {l1['parameters']}"
-                t = median_step_time(step, 0.0 if paper else args.min_time,
-                                     args.paper_repetitions if paper else args.repetitions, 1 if paper else 2)
+                t, cpu = median_step_time(step, 0.0 if paper else args.min_time,
+                                          args.paper_repetitions if paper else args.repetitions, 1 if paper else 2)
                 theirs.append(batch / t)
+                theirs_cpu.append(batch / cpu)
                 del step
             best = max(theirs)
             row = [kind, preset, f"{size} x {batch}", str(threads),
                    f"{full['samples_per_s']:.2f}" if full else "-",
                    f"{l1['samples_per_s']:.2f}" if l1 else "-"]
             row += [f"{v:.2f}" for v in theirs]
-            row += [f"{l1['samples_per_s'] / best:.1f}" if l1 else "-",
+            # anisocap's cpu_time is its main thread's: comparable with the process's on 1 thread.
+            cpu_ratio = "-"
+            if l1 and threads == 1:
+                unit = {"ms": 1e-3, "s": 1.0, "us": 1e-6}[l1["time_unit"]]
+                cpu_ratio = f"{batch / (l1['cpu_time'] * unit) / max(theirs_cpu):.1f}"
+            row += [f"{l1['samples_per_s'] / best:.1f}" if l1 else "-", cpu_ratio,
                     f"{count} (= anisocap)" if l1 else str(count), f"{load():.2f}"]
             print("| " + " | ".join(row) + " |", flush=True)
 
