@@ -40,7 +40,6 @@ namespace fs = std::filesystem;
 namespace {
 
 using clock_type = std::chrono::steady_clock;
-double since(clock_type::time_point t) { return std::chrono::duration<double>(clock_type::now() - t).count(); }
 
 /// One refine configuration.
 struct refine_variant {
@@ -169,7 +168,7 @@ int main(int argc, char** argv) {
         const auto t0 = clock_type::now();
         if (v.auto_kernel > 0) used = analyse_kernel(maps, cap, v.auto_kernel).features;
         rr = with_features(used, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
-        rr.seconds = since(t0);  // includes the analysis
+        rr.seconds = seconds_since(t0);  // includes the analysis
         return maps;
       };
 
@@ -194,11 +193,11 @@ int main(int argc, char** argv) {
           snapshots[updates] = maps;
           snapshot_seconds[updates] = std::chrono::duration<double>(t_in - ft_start).count() - observer_seconds;
         }
-        observer_seconds += since(t_in);
+        observer_seconds += seconds_since(t_in);
       };
       const auto t_all = clock_type::now();
       pipeline_result pr = run_pipeline(cap, photos, estimator, autoencoder, po);
-      const double total = since(t_all);
+      const double total = seconds_since(t_all);
       double pre_seconds = 0, ft_seconds = 0;
       for (const auto& st : pr.stages) {
         if (st.name == "estimate" || st.name == "encode") pre_seconds += st.seconds;
@@ -231,7 +230,7 @@ int main(int argc, char** argv) {
       {
         const auto t0 = clock_type::now();
         const material_maps guess = initial_guess(cap, photos);
-        const double guess_seconds = since(t0);
+        const double guess_seconds = seconds_since(t0);
         for (const refine_variant& v : {refine_variant{"1000", 1000}, refine_variant{"1000 stop+freeze", 1000, 1e-3, 1e-2}}) {
           if (n != 12 && v.freeze > 0) continue;
           brdf_features used;

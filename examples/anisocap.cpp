@@ -32,9 +32,6 @@ namespace {
 
 // ---- small helpers ------------------------------------------------------------------------------
 
-double seconds_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-}
 
 
 /// Prints optimisation progress on one refreshed line on a terminal, or one line per report in logs.

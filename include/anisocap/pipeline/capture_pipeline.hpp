@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/core/system.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/nn/adam.hpp"
 #include "anisocap/nn/safetensors.hpp"
@@ -113,10 +114,6 @@ struct pipeline_result {
 
 namespace pipeline_detail {
 
-inline double seconds_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-}
-
 /// `maps` mirrored out to `width` x `height` (at the right and bottom).
 inline material_maps pad_maps(const material_maps& maps, int width, int height) {
   material_maps out(width, height);
@@ -177,7 +174,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
                                    optimisation_progress p;
                                    p.step = done;
                                    p.steps = total;
-                                   p.seconds = pipeline_detail::seconds_since(t0);
+                                   p.seconds = seconds_since(t0);
                                    p.steps_per_second = done / std::max(p.seconds, 1e-9);
                                    p.seconds_left = (total - done) / std::max(p.steps_per_second, 1e-9);
                                    o.progress("estimate", p);
@@ -189,10 +186,9 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
     r.ran = o.stages.estimate;
     if (o.auto_kernel_tolerance > 0) features = analyse_kernel(maps, cap, o.auto_kernel_tolerance).features;
     r.loss = image_loss(maps);
-    r.seconds = pipeline_detail::seconds_since(t0);
+    r.seconds = seconds_since(t0);
     result.stages.push_back(r);
   }
-  using pipeline_detail::seconds_since;
 
   // 2. Encode (8.2) and 3. fine-tune the decoder (8.3).
   if (o.stages.encode) {

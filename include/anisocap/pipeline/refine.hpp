@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/system.hpp"
 #include "anisocap/render/renderer.hpp"
 
 namespace anisocap {
@@ -139,7 +140,6 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   std::vector<int> active = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, lobe_x};
   if (F.anisotropic) { active.push_back(lobe_y); active.push_back(rotation); }
   if (F.fresnel) active.push_back(fresnel_f0);
-  auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
   double best_window_loss = 1e300;
   // Texel groups (freezing): which are still optimised, their loss now and at the last check.
   const bool freezing = options.freeze_tolerance > 0 && options.freeze_every > 0;
@@ -198,7 +198,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     result.steps = step + 1;
     if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0) {
       optimisation_progress p;
-      p.step = step + 1; p.steps = options.steps; p.loss = loss; p.seconds = elapsed();
+      p.step = step + 1; p.steps = options.steps; p.loss = loss; p.seconds = seconds_since(start);
       p.steps_per_second = p.step / std::max(p.seconds, 1e-9);
       p.seconds_left = (options.steps - p.step) / std::max(p.steps_per_second, 1e-9);
       options.progress(p);
@@ -212,7 +212,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   restrict_to_features(maps, F);
   if (result.steps > 0) result.evaluated_fraction = double(evaluated_groups) / (double(group_count) * result.steps);
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
-  result.seconds = elapsed();
+  result.seconds = seconds_since(start);
   return result;
 }
 
