@@ -12,7 +12,8 @@
 // excluded). Early stopping is read off the same trajectory with the pipeline's rule.
 //
 // usage: anisocap_bench_sweep [--materials 10] [--size 256] [--max-finetune 5000]
-//                             [--models DIR] [--out FILE.csv]
+//                             [--finetune-lr 7.5e-4] [--finetune-points 0,200,500,1000,2000,5000]
+//                             [--images 12,8] [--networks-only] [--models DIR] [--out FILE.csv]
 #include <omp.h>
 
 #include <chrono>
@@ -75,7 +76,7 @@ struct row_writer {
   std::ostringstream out;
   row_writer() {
     out << "material,seed,truth,images,path,finetune_steps,finetune_stop,finetune_steps_run,refine,refine_steps_run,"
-           "evaluated_fraction,kernel,seconds,novel_view_loss,diffuse,specular,normal,lobes,rotation,fresnel,finite\n";
+           "evaluated_fraction,kernel,seconds,novel_view_loss,diffuse,specular,normal,lobes,rotation,fresnel,finite,finetune_lr\n";
   }
 };
 
@@ -83,6 +84,15 @@ struct row_writer {
 
 int main(int argc, char** argv) {
   int materials = 10, size = 256, max_finetune = 5000;
+  float finetune_lr = 7.5e-4f;
+  bool networks_only = false;
+  std::vector<int> finetune_points = {0, 200, 500, 1000, 2000, 5000}, image_counts = {12, 8};
+  auto int_list = [](const std::string& text) {
+    std::vector<int> v;
+    std::stringstream in(text);
+    for (std::string item; std::getline(in, item, ',');) v.push_back(std::stoi(item));
+    return v;
+  };
   fs::path models = ANISOCAP_SWEEP_MODELS, out_file = "sweep.csv";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -94,6 +104,10 @@ int main(int argc, char** argv) {
     else if (a == "--size") size = std::stoi(next());
     else if (a == "--max-finetune") max_finetune = std::stoi(next());
     else if (a == "--models") models = next();
+    else if (a == "--finetune-lr") finetune_lr = std::stof(next());
+    else if (a == "--finetune-points") finetune_points = int_list(next());
+    else if (a == "--images") image_counts = int_list(next());
+    else if (a == "--networks-only") networks_only = true;
     else if (a == "--out") out_file = next();
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
@@ -108,12 +122,10 @@ int main(int argc, char** argv) {
   }
   const fs::path ae_file = models / "compact" / "autoencoder.safetensors";
 
-  const std::vector<int> finetune_points = [&] {
-    std::vector<int> p;
-    for (int k : {0, 200, 500, 1000, 2000, 5000})
-      if (k <= max_finetune) p.push_back(k);
-    return p;
-  }();
+  std::erase_if(finetune_points, [&](int k) { return k > max_finetune || k % 100 != 0; });  // snapshots every 100 steps
+  int rich_point = 0;  // the first non-zero fine-tune point gets every refine variant
+  for (int k : finetune_points)
+    if (k > 0) { rich_point = k; break; }
   const std::vector<double> finetune_stops = {1e-3, 3e-3, 1e-2};
   const refine_variant none{"none", 0};
   const refine_variant paper{"500", 500};
@@ -129,8 +141,8 @@ int main(int argc, char** argv) {
       {"500 double", 500, 0, 0, 0, true},
   };
   row_writer rows;
-  std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps\n", materials, size, size, omp_get_max_threads(),
-               max_finetune);
+  std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps at learning rate %g\n", materials, size, size,
+               omp_get_max_threads(), max_finetune, double(finetune_lr));
   for (int m = 0; m < materials; ++m) {
     const std::uint64_t seed = 920000 + std::uint64_t(m);  // disjoint from training (< 2^62 hashes) and eval (900000+)
     material_maps truth = generate_material(seed, size, size);
@@ -140,7 +152,7 @@ int main(int argc, char** argv) {
     if (isotropic) restrict_to_features(truth, brdf_features{false, true, false});
     const std::string truth_name = std::string(material_kind_name(kind_for_seed(seed))) + (isotropic ? " (isotropic, flat)" : "");
     const capture novel = novel_view_set(seed, size, size);
-    for (int n : {12, 8}) {
+    for (int n : image_counts) {
       capture cap = set_alpha(n, seed, size, size);
       std::vector<image> photos = render(truth, cap);
       apply_exposure(cap, photos, exposure_scale(cap));
@@ -152,7 +164,8 @@ int main(int argc, char** argv) {
         rows.out << m << ',' << seed << ",\"" << truth_name << "\"," << n << ',' << path << ',' << ft_planned << ',' << ft_stop << ','
                  << ft_run << ",\"" << refine_name << "\"," << refine_run << ',' << evaluated << ",\""
                  << kernel_analysis{f, 0, 0, 0}.describe() << "\"," << seconds << ',' << nv << ',' << e.diffuse << ',' << e.specular << ','
-                 << e.normal << ',' << e.lobes << ',' << e.rotation << ',' << e.fresnel << ',' << (all_finite(maps) ? 1 : 0) << '\n';
+                 << e.normal << ',' << e.lobes << ',' << e.rotation << ',' << e.fresnel << ',' << (all_finite(maps) ? 1 : 0) << ','
+                 << finetune_lr << '\n';
       };
       auto run_refine = [&](const material_maps& start, const refine_variant& v, float lr, brdf_features& used, refine_result& rr) {
         material_maps maps = start;
@@ -178,6 +191,7 @@ int main(int argc, char** argv) {
       pipeline_options po;
       po.stages = pipeline_stages{true, true, true, false};
       po.finetune_steps = ft_max;
+      po.finetune_learning_rate = finetune_lr;
       po.normalise_exposure = false;  // done above, identically for every path
       std::vector<double> losses;
       std::map<int, material_maps> snapshots;
@@ -216,7 +230,7 @@ int main(int argc, char** argv) {
         const material_maps& start = snapshots.at(sp.run);
         const double t_start = pre_seconds + snapshot_seconds.at(sp.run);
         std::vector<refine_variant> variants = {none, paper};
-        const bool rich = n == 12 && ((sp.planned == 200 && sp.stop == 0) || sp.stop == 3e-3);
+        const bool rich = n == 12 && ((sp.planned == rich_point && sp.stop == 0) || sp.stop == 3e-3);
         if (rich) variants.insert(variants.end(), extra.begin(), extra.end());
         for (const auto& v : variants) {
           brdf_features used;
@@ -227,7 +241,7 @@ int main(int argc, char** argv) {
         }
       }
       // Network-free path: first guess from the photographs + refine (lr 0.03, the program's default alone).
-      {
+      if (!networks_only) {
         const auto t0 = clock_type::now();
         const material_maps guess = initial_guess(cap, photos);
         const double guess_seconds = seconds_since(t0);

@@ -20,15 +20,21 @@ PARAMS = [("novel_view_loss", "novel-view image loss"), ("diffuse", "a_d MSE"), 
           ("normal", "n_s MSE"), ("lobes", "sigma MSE"), ("rotation", "alpha MSE (mod pi)"), ("fresnel", "F0 MSE")]
 
 
+PAPER_LR = 7.5e-4
+
+
 def key_of(r):
-    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"])
+    lr = float(r.get("finetune_lr") or PAPER_LR)
+    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr)
 
 
 def label(k):
-    n, path, ft, stop, ref = k
+    n, path, ft, stop, ref, lr = k
     if path == "refine-only":
         return f"N={n} no networks, refine {ref}"
     ft_text = f"fine-tune stop {stop:g}" if stop > 0 else f"fine-tune {ft}"
+    if abs(lr - PAPER_LR) > 1e-9:
+        ft_text += f" (lr {lr:g})"
     return f"N={n} {ft_text}, refine {ref}"
 
 
@@ -45,10 +51,13 @@ def pareto(points):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("csv")
+    ap.add_argument("csv", nargs="+", help="one or more CSVs of bench/sweep.cpp (same materials)")
     ap.add_argument("--png", default=None)
+    ap.add_argument("--finetune-step-ms", type=float, default=23.0,
+                    help="quiet-machine fine-tune step (bench/README.md, capture pipeline) for the step-count cost model")
+    ap.add_argument("--refine-step-ms", type=float, default=9.3, help="quiet-machine refine step, same source")
     args = ap.parse_args()
-    rows = list(csv.DictReader(open(args.csv)))
+    rows = [r for f in args.csv for r in csv.DictReader(open(f))]
     if not rows:
         sys.exit(f"{args.csv}: no rows")
     materials = sorted({r["material"] for r in rows}, key=int)
@@ -66,6 +75,9 @@ def main():
         s["evaluated"] = statistics.fmean(float(r["evaluated_fraction"]) for r in g)
         s["ft_run"] = statistics.fmean(float(r["finetune_steps_run"]) for r in g)
         s["refine_run"] = statistics.fmean(float(r["refine_steps_run"]) for r in g)
+        # Step-count cost model: independent of the machine's load while the sweep ran.
+        s["model_seconds"] = (s["ft_run"] * args.finetune_step_ms +
+                              s["refine_run"] * s["evaluated"] * args.refine_step_ms) / 1000.0
         stats[k] = s
     bad = sum(1 for r in rows if r["finite"] != "1")
     print(f"{len(rows)} rows, {len(materials)} materials, {len(configs)} configurations; rows with NaN/Inf in the maps: {bad}\n")
@@ -80,7 +92,7 @@ def main():
         print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
               f"{s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
 
-    ref_key = (12, "networks", 5000, 0.0, "500")
+    ref_key = (12, "networks", 5000, 0.0, "500", PAPER_LR)
     if ref_key in stats:
         ref = stats[ref_key]
         print(f"\nPaper-default step counts ({label(ref_key)}): {ref['seconds']:.1f} s, novel-view loss {ref['novel_view_loss']:.4f}.")
@@ -89,7 +101,15 @@ def main():
             best = min(match, key=lambda k: stats[k]["seconds"])
             b = stats[best]
             print(f"Cheapest configuration at or below that novel-view loss: {label(best)}: {b['seconds']:.1f} s, "
-                  f"loss {b['novel_view_loss']:.4f}: {ref['seconds'] / b['seconds']:.1f}x less run time.")
+                  f"loss {b['novel_view_loss']:.4f}: {ref['seconds'] / b['seconds']:.1f}x less run time measured "
+                  f"({ref['model_seconds'] / max(b['model_seconds'], 1e-9):.1f}x by the step-count model: "
+                  f"{ref['model_seconds']:.0f} s against {b['model_seconds']:.0f} s at {args.finetune_step_ms:g} ms per fine-tune "
+                  f"and {args.refine_step_ms:g} ms per refine step).")
+            best_m = min(match, key=lambda k: stats[k]["model_seconds"])
+            if best_m != best:
+                bm = stats[best_m]
+                print(f"Cheapest by the step-count model: {label(best_m)}: {bm['seconds']:.1f} s measured, loss {bm['novel_view_loss']:.4f}: "
+                      f"{ref['model_seconds'] / max(bm['model_seconds'], 1e-9):.1f}x by the model, {ref['seconds'] / bm['seconds']:.1f}x measured.")
             # Per material: same comparison, to show it is not an average effect.
             per = []
             for m in materials:
@@ -100,17 +120,20 @@ def main():
                   f"novel-view loss at or below the reference on {sum(p[1] for p in per)} of {len(per)} materials.")
 
     # Effect of each skip at the starting points that have every refine variant.
-    for start in [(12, "networks", 200, 0.0), (12, "networks", 5000, 0.003)]:
-        base = start + ("500",)
+    starts = sorted({k[:4] + (k[5],) for k in configs if k[4] == "500 freeze 1e-2"})
+    for start5 in starts:
+        start = start5[:4]
+        lr = start5[4]
+        base = start + ("500", lr)
         if base not in stats:
             continue
         b = stats[base]
         print(f"\nSkips on the refine stage, starting from {label(base).rsplit(',', 1)[0]} (refine alone; ratios against plain refine 500):\n")
         print("| refine variant | texel-steps evaluated | refine seconds ratio | novel-view loss | ratio | a_d | a'_s | n_s | sigma | alpha | F0 |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
-        none = stats.get(start + ("none",))
+        none = stats.get(start + ("none", lr))
         for k in configs:
-            if k[:4] != start or k[4] == "none":
+            if k[:4] != start or k[5] != lr or k[4] == "none":
                 continue
             s = stats[k]
             ratio = (s["seconds"] - none["seconds"]) / max(b["seconds"] - none["seconds"], 1e-9) if none else float("nan")
