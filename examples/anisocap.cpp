@@ -150,6 +150,8 @@ void apply_optimiser_options(const capture_args& a, pipeline_options& po) {
   if (a.refine_stop < 0 || a.refine_stop >= 1) throw std::invalid_argument("--refine-stop must be in [0, 1)");
   if (a.finetune_stop < 0 || a.finetune_stop >= 1) throw std::invalid_argument("--finetune-stop must be in [0, 1)");
   if (a.freeze < 0 || a.freeze >= 1) throw std::invalid_argument("--freeze must be in [0, 1)");
+  if (a.finetune_steps < 0) throw std::invalid_argument("--finetune-steps must be >= 0");
+  if (!(a.finetune_learning_rate > 0)) throw std::invalid_argument("--finetune-lr must be positive");
   if (a.precision != "float" && a.precision != "double") throw std::invalid_argument("--precision must be float or double, got '" + a.precision + "'");
   po.features = features_from_name(a.kernel);
   po.auto_kernel_tolerance = a.kernel == "auto" ? 1e-3 : 0.0;
@@ -224,8 +226,6 @@ nlohmann::json capture_command(const capture_args& a) {
     throw std::invalid_argument("--stages " + stages_text + " needs the " + a.preset + " weights: " + files.estimator.string() +
                                 " and " + files.autoencoder.string() + " (not found)");
   if (networks && a.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
-  if (a.finetune_steps < 0) throw std::invalid_argument("--finetune-steps must be >= 0");
-  if (!(a.finetune_learning_rate > 0)) throw std::invalid_argument("--finetune-lr must be positive");
   const int refine_steps = a.steps >= 0 ? a.steps : (networks ? 500 : 1000);
   const float refine_lr = a.learning_rate > 0 ? a.learning_rate : (networks ? 0.003f : 0.03f);
 
@@ -337,6 +337,10 @@ void eval_command(const eval_args& e, const capture_args& base) {
     if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
   for (int n : e.image_counts)
     if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
+  {
+    pipeline_options check;
+    apply_optimiser_options(base, check);  // reject impossible options before any work
+  }
   const model_files files = models_for(base);
   if (!files.present()) throw std::invalid_argument("eval needs the " + base.preset + " weights in " + (base.models / base.preset).string());
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
@@ -490,6 +494,7 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
   eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
+  eval_cmd->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
   eval_cmd->add_option("--finetune-stop", cap.finetune_stop, "fine-tune early stopping threshold (0: never)")->capture_default_str();
   eval_cmd->add_option("--steps", cap.steps, "refine steps (default 500)");
   eval_cmd->add_option("--kernel", cap.kernel, "BRDF terms fitted (see capture --help)")->capture_default_str();

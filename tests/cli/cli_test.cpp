@@ -70,6 +70,19 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(s.str().find("\"novel_view_image_loss\"") != std::string::npos);
   CHECK(fs::exists(t.path / "out/contact_sheet.png"));
   CHECK(fs::exists(t.path / "out/novel/novel_02.exr"));
+  CHECK(s.str().find("\"exposure_scale\"") != std::string::npos);
+  // The time/accuracy options run and are reported.
+  r = run("capture syn/capture.json -o fast --stages refine --steps 60 --freeze 0.01 --refine-stop 1e-3 --precision double "
+          "--kernel auto --cull 1e-3",
+          t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  std::ifstream rep2(t.path / "fast/report.json");
+  std::stringstream s2;
+  s2 << rep2.rdbuf();
+  CHECK(s2.str().find("\"precision\": \"double\"") != std::string::npos);
+  CHECK(s2.str().find("\"kernel_used\"") != std::string::npos);
+  CHECK(s2.str().find("\"evaluated_fraction\"") != std::string::npos);
   r = run("render --maps syn/truth --capture syn/capture.json -o again", t.path);
   REQUIRE(r.status == 0);
   // Rendering the true maps reproduces the inputs exactly (same renderer, same configuration).
@@ -133,6 +146,11 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK(run("capture syn/capture.json -o out --steps -3", t.path).status != 0);
     CHECK(run("capture syn/capture.json -o out --kernel fancy", t.path).output.find("--kernel") != std::string::npos);
     CHECK(run("synthesize -o s2 --set gamma", t.path).output.find("--set") != std::string::npos);
+    CHECK(run("capture syn/capture.json -o out --precision quad", t.path).output.find("--precision") != std::string::npos);
+    CHECK(run("capture syn/capture.json -o out --freeze 2", t.path).output.find("--freeze") != std::string::npos);
+    CHECK(run("capture syn/capture.json -o out --refine-stop -1", t.path).output.find("--refine-stop") != std::string::npos);
+    CHECK(run("eval -o ev --finetune-lr 0", t.path).output.find("--finetune-lr") != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path / "ev"));
     CHECK_FALSE(fs::exists(t.path / "out"));
     CHECK_FALSE(fs::exists(t.path / "s2"));
   }
