@@ -184,8 +184,23 @@ def main():
             return 1
         capture = ward.read_capture(os.path.join(case0, "capture.json"))
         targets = np.stack([exr.read_rgb(os.path.join(case0, im["file"])) for im in capture])
-        ref_loss = float(ward.image_loss(np, ward.render(np, ward.read_map_set(os.path.join(other, "truth")), capture),
-                                         targets))
+        # `capture` optimises and reports in a standard exposure (pipeline/exposure.hpp): photographs
+        # and intensities times s = 1 / median_k(mean(I_k) cos(theta_k) / (pi |l_k|^2)), the
+        # irradiance at the material's centre. Computed here from that definition.
+        irradiance = []
+        for im in capture:
+            l = np.asarray(im["light"], dtype=np.float64)
+            r2 = float(l @ l)
+            if l[2] > 0:
+                irradiance.append(np.mean(im["intensity"]) * (l[2] / np.sqrt(r2)) / (np.pi * r2))
+        scale = 1.0 / float(np.median(irradiance))
+        cpp_scale = float(report.get("exposure_scale", float("nan")))
+        scale_err = abs(cpp_scale - scale) / scale
+        print(f"exposure scale: anisocap {cpp_scale:.8g}, reference {scale:.8g}, relative difference {scale_err:.3g}")
+        worst = max(worst, scale_err)
+        scaled = [dict(im, intensity=[v * scale for v in im["intensity"]]) for im in capture]
+        ref_loss = float(ward.image_loss(np, ward.render(np, ward.read_map_set(os.path.join(other, "truth")), scaled),
+                                         targets * scale))
         loss_err = abs(cpp_loss - ref_loss) / abs(ref_loss)
         print(f"image loss of another material's maps against case 1's inputs: anisocap {cpp_loss:.8g}, "
               f"reference {ref_loss:.8g}, relative difference {loss_err:.3g}")
