@@ -13,7 +13,10 @@
 //
 // usage: anisocap_bench_sweep [--materials 10] [--size 256] [--max-finetune 5000]
 //                             [--finetune-lr 7.5e-4] [--finetune-points 0,200,500,1000,2000,5000]
-//                             [--images 12,8] [--networks-only] [--models DIR] [--out FILE.csv]
+//                             [--images 12,8] [--networks-only] [--long-refine] [--no-stops]
+//                             [--models DIR] [--out FILE.csv]
+// --long-refine replaces the refine variants tried on the first fine-tune point by longer refines
+// (1000, 2000 steps, 2000 with freezing); --no-stops leaves out the fine-tune early-stopping points.
 #include <omp.h>
 
 #include <chrono>
@@ -85,7 +88,7 @@ struct row_writer {
 int main(int argc, char** argv) {
   int materials = 10, size = 256, max_finetune = 5000;
   float finetune_lr = 7.5e-4f;
-  bool networks_only = false;
+  bool networks_only = false, long_refine = false, no_stops = false;
   std::vector<int> finetune_points = {0, 200, 500, 1000, 2000, 5000}, image_counts = {12, 8};
   auto int_list = [](const std::string& text) {
     std::vector<int> v;
@@ -108,6 +111,8 @@ int main(int argc, char** argv) {
     else if (a == "--finetune-points") finetune_points = int_list(next());
     else if (a == "--images") image_counts = int_list(next());
     else if (a == "--networks-only") networks_only = true;
+    else if (a == "--long-refine") long_refine = true;
+    else if (a == "--no-stops") no_stops = true;
     else if (a == "--out") out_file = next();
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
@@ -140,6 +145,7 @@ int main(int argc, char** argv) {
       {"500 auto kernel 0.1", 500, 0, 0, 0, false, 0.1},
       {"500 double", 500, 0, 0, 0, true},
   };
+  if (long_refine) extra = {{"1000", 1000}, {"2000", 2000}, {"2000 freeze 1e-2", 2000, 0, 1e-2}};
   row_writer rows;
   std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps at learning rate %g\n", materials, size, size,
                omp_get_max_threads(), max_finetune, double(finetune_lr));
@@ -225,7 +231,8 @@ int main(int argc, char** argv) {
       std::vector<start_point> starts;
       for (int k : finetune_points)
         if (k <= ft_max) starts.push_back({k, 0, k});
-      for (double tol : finetune_stops) starts.push_back({ft_max, tol, stopping_step(losses, tol)});
+      if (!no_stops)
+        for (double tol : finetune_stops) starts.push_back({ft_max, tol, stopping_step(losses, tol)});
       for (const auto& sp : starts) {
         const material_maps& start = snapshots.at(sp.run);
         const double t_start = pre_seconds + snapshot_seconds.at(sp.run);
