@@ -16,7 +16,8 @@
 //                             [--images 12,8] [--networks-only] [--long-refine] [--no-stops]
 //                             [--models DIR] [--out FILE.csv]
 // --long-refine replaces the refine variants tried on the first fine-tune point by longer refines
-// (1000, 2000 steps, 2000 with freezing); --no-stops leaves out the fine-tune early-stopping points.
+// (1000, 2000 steps, 2000 with freezing); --plain-refine tries none and 500 refine steps only;
+// --no-stops leaves out the fine-tune early-stopping points.
 #include <omp.h>
 
 #include <chrono>
@@ -88,7 +89,7 @@ struct row_writer {
 int main(int argc, char** argv) {
   int materials = 10, size = 256, max_finetune = 5000;
   float finetune_lr = 7.5e-4f;
-  bool networks_only = false, long_refine = false, no_stops = false;
+  bool networks_only = false, long_refine = false, no_stops = false, plain_refine = false;
   std::vector<int> finetune_points = {0, 200, 500, 1000, 2000, 5000}, image_counts = {12, 8};
   auto int_list = [](const std::string& text) {
     std::vector<int> v;
@@ -113,6 +114,7 @@ int main(int argc, char** argv) {
     else if (a == "--networks-only") networks_only = true;
     else if (a == "--long-refine") long_refine = true;
     else if (a == "--no-stops") no_stops = true;
+    else if (a == "--plain-refine") plain_refine = true;
     else if (a == "--out") out_file = next();
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
@@ -146,6 +148,7 @@ int main(int argc, char** argv) {
       {"500 double", 500, 0, 0, 0, true},
   };
   if (long_refine) extra = {{"1000", 1000}, {"2000", 2000}, {"2000 freeze 1e-2", 2000, 0, 1e-2}};
+  if (plain_refine) extra.clear();
   row_writer rows;
   std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps at learning rate %g\n", materials, size, size,
                omp_get_max_threads(), max_finetune, double(finetune_lr));
