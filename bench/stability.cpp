@@ -28,8 +28,10 @@
 #include "anisocap/pipeline/capture_pipeline.hpp"
 #include "anisocap/pipeline/evaluate.hpp"
 #include "anisocap/render/configurations.hpp"
+#include "../tests/support/stability_scenes.hpp"
 
 using namespace anisocap;
+using namespace anisocap::testing;
 
 namespace {
 
@@ -65,17 +67,6 @@ run_result run_refine(const capture& cap, const std::vector<image>& photos, int 
   return r;
 }
 
-/// Largest |a - b| over planes [first, last] (alpha modulo pi).
-double max_difference(const material_maps& a, const material_maps& b, int first, int last) {
-  double d = 0;
-  for (int k = first; k <= last; ++k)
-    for (std::size_t i = 0; i < a.texel_count(); ++i) {
-      const double x = a.plane(k)[i], y = b.plane(k)[i];
-      d = std::max(d, k == rotation ? std::abs(rotation_difference(x, y)) : std::abs(x - y));
-    }
-  return d;
-}
-
 /// Non-finite map values.
 std::size_t non_finite(const material_maps& m) {
   std::size_t n = 0;
@@ -98,59 +89,6 @@ std::size_t out_of_range(const material_maps& m) {
   return bad;
 }
 
-std::pair<capture, std::vector<image>> scaled(const capture& cap, std::vector<image> photos, float factor) {
-  capture c = cap;
-  for (auto& im : c.images)
-    for (float& i : im.intensity) i *= factor;
-  for (image& p : photos)
-    for (int ch = 0; ch < p.channels(); ++ch)
-      for (std::size_t i = 0; i < p.pixel_count(); ++i) p.plane(ch)[i] *= factor;
-  return {std::move(c), std::move(photos)};
-}
-
-std::vector<image> clipped(std::vector<image> photos, float level) {
-  for (image& p : photos)
-    for (int c = 0; c < p.channels(); ++c)
-      for (std::size_t i = 0; i < p.pixel_count(); ++i) p.plane(c)[i] = std::min(p.plane(c)[i], level);
-  return photos;
-}
-
-float quantile(const std::vector<image>& photos, double q) {
-  std::vector<float> values;
-  for (const image& p : photos)
-    for (int c = 0; c < p.channels(); ++c) values.insert(values.end(), p.plane(c), p.plane(c) + p.pixel_count());
-  const auto k = std::size_t(q * double(values.size() - 1));
-  std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(k), values.end());
-  return values[k];
-}
-
-/// As in tests/pipeline/stability_test.cpp: cameras and lights 75 to 88 degrees from the normal at
-/// the point they aim at, 4 to 8 material sizes away; even images are mirror configurations.
-capture grazing_capture(int count, std::uint64_t seed) {
-  random_generator rng(seed);
-  auto direction = [&](double azimuth) {
-    const double zenith = rng.uniform(75.0, 88.0) * std::numbers::pi / 180.0;
-    return std::array<double, 3>{std::sin(zenith) * std::cos(azimuth), std::sin(zenith) * std::sin(azimuth), std::cos(zenith)};
-  };
-  capture c;
-  for (int i = 0; i < count; ++i) {
-    const std::array<double, 3> point{rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), 0.0};
-    const double azimuth = rng.uniform(0.0, 2 * std::numbers::pi);
-    const auto view = direction(azimuth);
-    const auto light = direction(i % 2 == 0 ? azimuth + std::numbers::pi : rng.uniform(0.0, 2 * std::numbers::pi));
-    const double dv = rng.uniform(4.0, 8.0), dl = rng.uniform(4.0, 8.0);
-    capture_image im;
-    im.file = input_file_name(i);
-    for (std::size_t a = 0; a < 3; ++a) {
-      im.camera[a] = float(point[a] + dv * view[a]);
-      im.light[a] = float(point[a] + dl * light[a]);
-    }
-    const auto intensity = float(configuration_irradiance * dl * dl);
-    im.intensity = {intensity, intensity, intensity};
-    c.images.push_back(im);
-  }
-  return c;
-}
 
 /// One table row: a run compared with a map set.
 void print_row(const std::string& scenario, const std::string& against, const run_result& r, const material_maps& other) {
