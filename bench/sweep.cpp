@@ -14,10 +14,13 @@
 // usage: anisocap_bench_sweep [--materials 10] [--size 256] [--max-finetune 5000]
 //                             [--finetune-lr 7.5e-4] [--finetune-points 0,200,500,1000,2000,5000]
 //                             [--images 12,8] [--networks-only] [--long-refine] [--no-stops]
+//                             [--finetune-crop K] [--finetune-warmup W] [--finetune-half-life H]
 //                             [--models DIR] [--out FILE.csv]
 // --long-refine replaces the refine variants tried on the first fine-tune point by longer refines
 // (1000, 2000 steps, 2000 with freezing); --plain-refine tries none and 500 refine steps only;
-// --no-stops leaves out the fine-tune early-stopping points.
+// --no-stops leaves out the fine-tune early-stopping points. --finetune-crop, --finetune-warmup and
+// --finetune-half-life set the pipeline options of the same names (crop mini-batches, learning-rate
+// warm-up and decay) for the fine-tune trajectory.
 #include <omp.h>
 
 #include <chrono>
@@ -66,13 +69,18 @@ bool all_finite(const material_maps& m) {
 
 /// The pipeline's fine-tune early-stopping rule (capture_pipeline.hpp) applied to a recorded loss
 /// curve: the number of updates after which it stops.
-int stopping_step(const std::vector<double>& losses, double tolerance, int patience = 200) {
-  double best = 1e300;
-  for (int step = 0; step < int(losses.size()); ++step)
+/// With crops (`window_mean`) the pipeline compares each window's mean crop loss instead.
+int stopping_step(const std::vector<double>& losses, double tolerance, bool window_mean, int patience = 200) {
+  double best = 1e300, sum = 0;
+  for (int step = 0; step < int(losses.size()); ++step) {
+    sum += losses[std::size_t(step)];
     if ((step + 1) % patience == 0) {
-      if (losses[std::size_t(step)] > best * (1.0 - tolerance)) return step + 1;
-      best = std::min(best, losses[std::size_t(step)]);
+      const double compared = window_mean ? sum / patience : losses[std::size_t(step)];
+      sum = 0;
+      if (compared > best * (1.0 - tolerance)) return step + 1;
+      best = std::min(best, compared);
     }
+  }
   return int(losses.size());
 }
 
@@ -80,14 +88,15 @@ struct row_writer {
   std::ostringstream out;
   row_writer() {
     out << "material,seed,truth,images,path,finetune_steps,finetune_stop,finetune_steps_run,refine,refine_steps_run,"
-           "evaluated_fraction,kernel,seconds,novel_view_loss,diffuse,specular,normal,lobes,rotation,fresnel,finite,finetune_lr\n";
+           "evaluated_fraction,kernel,seconds,novel_view_loss,diffuse,specular,normal,lobes,rotation,fresnel,finite,finetune_lr,"
+           "finetune_crop,finetune_warmup,finetune_half_life\n";
   }
 };
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  int materials = 10, size = 256, max_finetune = 5000;
+  int materials = 10, size = 256, max_finetune = 5000, finetune_crop = 0, finetune_warmup = 0, finetune_half_life = 0;
   float finetune_lr = 7.5e-4f;
   bool networks_only = false, long_refine = false, no_stops = false, plain_refine = false;
   std::vector<int> finetune_points = {0, 200, 500, 1000, 2000, 5000}, image_counts = {12, 8};
@@ -109,6 +118,9 @@ int main(int argc, char** argv) {
     else if (a == "--max-finetune") max_finetune = std::stoi(next());
     else if (a == "--models") models = next();
     else if (a == "--finetune-lr") finetune_lr = std::stof(next());
+    else if (a == "--finetune-crop") finetune_crop = std::stoi(next());
+    else if (a == "--finetune-warmup") finetune_warmup = std::stoi(next());
+    else if (a == "--finetune-half-life") finetune_half_life = std::stoi(next());
     else if (a == "--finetune-points") finetune_points = int_list(next());
     else if (a == "--images") image_counts = int_list(next());
     else if (a == "--networks-only") networks_only = true;
@@ -174,7 +186,7 @@ int main(int argc, char** argv) {
                  << ft_run << ",\"" << refine_name << "\"," << refine_run << ',' << evaluated << ",\""
                  << kernel_analysis{f, 0, 0, 0}.describe() << "\"," << seconds << ',' << nv << ',' << e.diffuse << ',' << e.specular << ','
                  << e.normal << ',' << e.lobes << ',' << e.rotation << ',' << e.fresnel << ',' << (all_finite(maps) ? 1 : 0) << ','
-                 << finetune_lr << '\n';
+                 << finetune_lr << ',' << finetune_crop << ',' << finetune_warmup << ',' << finetune_half_life << '\n';
       };
       auto run_refine = [&](const material_maps& start, const refine_variant& v, float lr, brdf_features& used, refine_result& rr) {
         material_maps maps = start;
@@ -201,6 +213,9 @@ int main(int argc, char** argv) {
       po.stages = pipeline_stages{true, true, true, false};
       po.finetune_steps = ft_max;
       po.finetune_learning_rate = finetune_lr;
+      po.finetune_crop = finetune_crop;
+      po.finetune_warmup = finetune_warmup;
+      po.finetune_half_life = finetune_half_life;
       po.normalise_exposure = false;  // done above, identically for every path
       std::vector<double> losses;
       std::map<int, material_maps> snapshots;
@@ -208,12 +223,12 @@ int main(int argc, char** argv) {
       double observer_seconds = 0;
       auto ft_start = clock_type::now();
       bool started = false;
-      po.finetune_observer = [&](int updates, double loss, const material_maps& maps) {
+      po.finetune_observer = [&](int updates, double loss, const std::function<material_maps()>& maps) {
         const auto t_in = clock_type::now();
         if (!started) { started = true; ft_start = t_in; }
         losses.push_back(loss);
         if (updates % 100 == 0) {
-          snapshots[updates] = maps;
+          snapshots[updates] = maps();
           snapshot_seconds[updates] = std::chrono::duration<double>(t_in - ft_start).count() - observer_seconds;
         }
         observer_seconds += seconds_since(t_in);
@@ -235,7 +250,7 @@ int main(int argc, char** argv) {
       for (int k : finetune_points)
         if (k <= ft_max) starts.push_back({k, 0, k});
       if (!no_stops)
-        for (double tol : finetune_stops) starts.push_back({ft_max, tol, stopping_step(losses, tol)});
+        for (double tol : finetune_stops) starts.push_back({ft_max, tol, stopping_step(losses, tol, finetune_crop > 0)});
       for (const auto& sp : starts) {
         const material_maps& start = snapshots.at(sp.run);
         const double t_start = pre_seconds + snapshot_seconds.at(sp.run);

@@ -24,17 +24,28 @@ PAPER_LR = 7.5e-4
 
 
 def key_of(r):
+    """(N, path, fine-tune steps, stop, refine variant, lr, (warm-up, half-life, crop))."""
     lr = float(r.get("finetune_lr") or PAPER_LR)
-    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr)
+    schedule = tuple(int(r.get(c) or 0) for c in ("finetune_warmup", "finetune_half_life", "finetune_crop"))
+    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr, schedule)
 
 
 def label(k):
-    n, path, ft, stop, ref, lr = k
+    n, path, ft, stop, ref, lr, (warmup, half_life, crop) = k
     if path == "refine-only":
         return f"N={n} no networks, refine {ref}"
     ft_text = f"fine-tune stop {stop:g}" if stop > 0 else f"fine-tune {ft}"
+    extra = []
     if abs(lr - PAPER_LR) > 1e-9:
-        ft_text += f" (lr {lr:g})"
+        extra.append(f"lr {lr:g}")
+    if warmup:
+        extra.append(f"warm-up {warmup}")
+    if half_life:
+        extra.append(f"half-life {half_life}")
+    if crop:
+        extra.append(f"crop {crop}")
+    if extra:
+        ft_text += " (" + ", ".join(extra) + ")"
     return f"N={n} {ft_text}, refine {ref}"
 
 
@@ -56,6 +67,11 @@ def main():
     ap.add_argument("--finetune-step-ms", type=float, default=23.0,
                     help="quiet-machine fine-tune step (bench/README.md, capture pipeline) for the step-count cost model")
     ap.add_argument("--refine-step-ms", type=float, default=9.3, help="quiet-machine refine step, same source")
+    ap.add_argument("--crop-step-ms", type=float, default=6.9,
+                    help="quiet-machine fine-tune step on a crop of 4 latent cells (bench/finetune_step.cpp)")
+    ap.add_argument("--x", choices=["model", "measured"], default="model",
+                    help="seconds on the plot's x axis and for the front: the step-count model (load-independent, "
+                         "comparable across CSVs) or the measured median")
     args = ap.parse_args()
     rows = [r for f in args.csv for r in csv.DictReader(open(f))]
     if not rows:
@@ -64,6 +80,12 @@ def main():
     groups = OrderedDict()
     for r in rows:
         groups.setdefault(key_of(r), []).append(r)
+    def row_model(r):
+        """The step-count model's seconds for one row."""
+        step_ms = args.crop_step_ms if int(r.get("finetune_crop") or 0) else args.finetune_step_ms
+        return (float(r["finetune_steps_run"]) * step_ms +
+                float(r["refine_steps_run"]) * float(r["evaluated_fraction"]) * args.refine_step_ms) / 1000.0
+
     # Only configurations measured on every material.
     configs = [k for k, g in groups.items() if len({r["material"] for r in g}) == len(materials)]
     stats = {}
@@ -76,64 +98,67 @@ def main():
         s["ft_run"] = statistics.fmean(float(r["finetune_steps_run"]) for r in g)
         s["refine_run"] = statistics.fmean(float(r["refine_steps_run"]) for r in g)
         # Step-count cost model: independent of the machine's load while the sweep ran.
-        s["model_seconds"] = (s["ft_run"] * args.finetune_step_ms +
+        step_ms = args.crop_step_ms if k[6][2] else args.finetune_step_ms
+        s["model_seconds"] = (s["ft_run"] * step_ms +
                               s["refine_run"] * s["evaluated"] * args.refine_step_ms) / 1000.0
         stats[k] = s
     bad = sum(1 for r in rows if r["finite"] != "1")
     print(f"{len(rows)} rows, {len(materials)} materials, {len(configs)} configurations; rows with NaN/Inf in the maps: {bad}\n")
 
-    pts = [(stats[k]["seconds"], stats[k]["novel_view_loss"]) for k in configs]
+    X = "model_seconds" if args.x == "model" else "seconds"
+    x_name = "step-count model seconds" if args.x == "model" else "measured seconds (median)"
+    pts = [(stats[k][X], stats[k]["novel_view_loss"]) for k in configs]
     front = [configs[i] for i in pareto(pts)]
-    print("Pareto front (median seconds per material against mean novel-view loss):\n")
-    print("| configuration | fine-tune steps run | refine steps run | s / material | novel-view loss | a_d | a'_s | n_s | sigma | alpha | F0 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"Pareto front ({x_name} per material against mean novel-view loss):\n")
+    print("| configuration | fine-tune steps run | refine steps run | model s | measured s (median) | novel-view loss | a_d | a'_s | n_s | sigma | alpha | F0 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for k in front:
         s = stats[k]
-        print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
+        print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {s['model_seconds']:.1f} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
               f"{s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
 
-    ref_key = (12, "networks", 5000, 0.0, "500", PAPER_LR)
+    ref_key = (12, "networks", 5000, 0.0, "500", PAPER_LR, (0, 0, 0))
     if ref_key in stats:
         ref = stats[ref_key]
         print(f"\nPaper-default step counts ({label(ref_key)}): {ref['seconds']:.1f} s, novel-view loss {ref['novel_view_loss']:.4f}.")
         match = [k for k in configs if stats[k]["novel_view_loss"] <= ref["novel_view_loss"]]
         if match:
-            best = min(match, key=lambda k: stats[k]["seconds"])
+            best = min(match, key=lambda k: stats[k]["model_seconds"])
             b = stats[best]
             print(f"Cheapest configuration at or below that novel-view loss: {label(best)}: {b['seconds']:.1f} s, "
                   f"loss {b['novel_view_loss']:.4f}: {ref['seconds'] / b['seconds']:.1f}x less run time measured "
                   f"({ref['model_seconds'] / max(b['model_seconds'], 1e-9):.1f}x by the step-count model: "
                   f"{ref['model_seconds']:.0f} s against {b['model_seconds']:.0f} s at {args.finetune_step_ms:g} ms per fine-tune "
                   f"and {args.refine_step_ms:g} ms per refine step).")
-            best_m = min(match, key=lambda k: stats[k]["model_seconds"])
+            best_m = min(match, key=lambda k: stats[k]["seconds"])
             if best_m != best:
                 bm = stats[best_m]
-                print(f"Cheapest by the step-count model: {label(best_m)}: {bm['seconds']:.1f} s measured, loss {bm['novel_view_loss']:.4f}: "
+                print(f"Cheapest by measured time: {label(best_m)}: {bm['seconds']:.1f} s measured, loss {bm['novel_view_loss']:.4f}: "
                       f"{ref['model_seconds'] / max(bm['model_seconds'], 1e-9):.1f}x by the model, {ref['seconds'] / bm['seconds']:.1f}x measured.")
             # Per material: same comparison, to show it is not an average effect.
             per = []
             for m in materials:
                 r_ref = next(r for r in groups[ref_key] if r["material"] == m)
                 r_b = next(r for r in groups[best] if r["material"] == m)
-                per.append((float(r_ref["seconds"]) / float(r_b["seconds"]), float(r_b["novel_view_loss"]) <= float(r_ref["novel_view_loss"])))
-            print(f"Per material: speed-up {min(p[0] for p in per):.1f}x to {max(p[0] for p in per):.1f}x; "
+                per.append((row_model(r_ref) / max(row_model(r_b), 1e-9), float(r_b["novel_view_loss"]) <= float(r_ref["novel_view_loss"])))
+            print(f"Per material: speed-up by the step-count model {min(p[0] for p in per):.1f}x to {max(p[0] for p in per):.1f}x; "
                   f"novel-view loss at or below the reference on {sum(p[1] for p in per)} of {len(per)} materials.")
 
     # Effect of each skip at the starting points that have every refine variant.
-    starts = sorted({k[:4] + (k[5],) for k in configs if k[4] == "500 freeze 1e-2"})
-    for start5 in starts:
-        start = start5[:4]
-        lr = start5[4]
-        base = start + ("500", lr)
+    starts = sorted({k[:4] + k[5:] for k in configs if k[4] == "500 freeze 1e-2"})
+    for start6 in starts:
+        start = start6[:4]
+        lr = start6[4:]
+        base = start + ("500",) + lr
         if base not in stats:
             continue
         b = stats[base]
         print(f"\nSkips on the refine stage, starting from {label(base).rsplit(',', 1)[0]} (refine alone; ratios against plain refine 500):\n")
         print("| refine variant | texel-steps evaluated | refine seconds ratio | novel-view loss | ratio | a_d | a'_s | n_s | sigma | alpha | F0 |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
-        none = stats.get(start + ("none", lr))
+        none = stats.get(start + ("none",) + lr)
         for k in configs:
-            if k[:4] != start or k[5] != lr or k[4] == "none":
+            if k[:4] != start or k[5:] != lr or k[4] == "none":
                 continue
             s = stats[k]
             ratio = (s["seconds"] - none["seconds"]) / max(b["seconds"] - none["seconds"], 1e-9) if none else float("nan")
@@ -147,7 +172,7 @@ def main():
         fig, axes = plt.subplots(2, 4, figsize=(20, 9.5))
         colours = {12: "tab:blue", 8: "tab:orange"}
         for ax, (p, name) in zip(axes.flat, PARAMS):
-            xs = [stats[k]["seconds"] for k in configs]
+            xs = [stats[k][X] for k in configs]
             ys = [stats[k][p] for k in configs]
             for n in (12, 8):
                 sel = [i for i, k in enumerate(configs) if k[0] == n]
@@ -157,10 +182,10 @@ def main():
             ax.plot([xs[i] for i in pf], [ys[i] for i in pf], "k-", lw=1.2, label="Pareto front")
             ax.scatter([xs[i] for i in pf], [ys[i] for i in pf], s=40, facecolors="none", edgecolors="k")
             if ref_key in stats:
-                ax.scatter([stats[ref_key]["seconds"]], [stats[ref_key][p]], s=120, marker="*", c="tab:red", label="paper step counts")
+                ax.scatter([stats[ref_key][X]], [stats[ref_key][p]], s=120, marker="*", c="tab:red", label="paper step counts")
             ax.set_xscale("log")
             ax.set_yscale("log")
-            ax.set_xlabel("seconds per material (median)")
+            ax.set_xlabel(x_name + " per material")
             ax.set_ylabel(name + " (mean)")
             ax.grid(True, which="both", alpha=0.3)
         axes.flat[0].legend(fontsize=8)

@@ -135,6 +135,9 @@ struct capture_args {
   int finetune_steps = 5000;
   float finetune_learning_rate = 7.5e-4f;
   double finetune_stop = 0.0;
+  int finetune_warmup = 0;        // learning-rate warm-up steps (0: none)
+  int finetune_half_life = 0;     // learning-rate half-life in steps (0: constant)
+  int finetune_crop = 0;          // crop mini-batches of this many latent cells per side (0: whole tile)
   bool resume = false;
   std::string kernel = "full";
   float cull = 0.0f;
@@ -152,12 +155,19 @@ void apply_optimiser_options(const capture_args& a, pipeline_options& po) {
   if (a.freeze < 0 || a.freeze >= 1) throw std::invalid_argument("--freeze must be in [0, 1)");
   if (a.finetune_steps < 0) throw std::invalid_argument("--finetune-steps must be >= 0");
   if (!(a.finetune_learning_rate > 0)) throw std::invalid_argument("--finetune-lr must be positive");
+  if (a.finetune_warmup < 0) throw std::invalid_argument("--finetune-warmup must be >= 0");
+  if (a.finetune_half_life < 0) throw std::invalid_argument("--finetune-half-life must be >= 0");
+  if (a.finetune_crop < 0) throw std::invalid_argument("--finetune-crop must be >= 0");
   if (a.precision != "float" && a.precision != "double") throw std::invalid_argument("--precision must be float or double, got '" + a.precision + "'");
   po.features = features_from_name(a.kernel);
   po.auto_kernel_tolerance = a.kernel == "auto" ? 1e-3 : 0.0;
   po.render.cull_tolerance = a.cull;
   po.render.double_precision = a.precision == "double";
   po.finetune_min_improvement = a.finetune_stop;
+  po.finetune_learning_rate = a.finetune_learning_rate;
+  po.finetune_warmup = a.finetune_warmup;
+  po.finetune_half_life = a.finetune_half_life;
+  po.finetune_crop = a.finetune_crop;
   po.refine.min_relative_improvement = a.refine_stop;
   po.refine.freeze_tolerance = a.freeze;
 }
@@ -248,7 +258,6 @@ nlohmann::json capture_command(const capture_args& a) {
   if (networks) {
     po.stages = stages;
     po.finetune_steps = a.finetune_steps;
-    po.finetune_learning_rate = a.finetune_learning_rate;
     po.normalise_exposure = false;  // done above
     po.checkpoint_dir = a.out / ".checkpoint";
     po.resume = a.resume;
@@ -299,7 +308,9 @@ nlohmann::json capture_command(const capture_args& a) {
     stage_seconds += st.seconds;
   }
   report["refine"] = {{"steps", refine_steps}, {"learning_rate", refine_lr}, {"stop", a.refine_stop}, {"freeze", a.freeze}};
-  if (networks) report["finetune"] = {{"steps", a.finetune_steps}, {"learning_rate", a.finetune_learning_rate}, {"preset", a.preset}};
+  if (networks)
+    report["finetune"] = {{"steps", a.finetune_steps}, {"learning_rate", a.finetune_learning_rate}, {"warmup", a.finetune_warmup},
+                          {"half_life", a.finetune_half_life}, {"crop", a.finetune_crop}, {"preset", a.preset}};
   const double final_loss = loss_and_gradient(maps, work_cap, targets, nullptr, {}, po.render);
   report["loss"] = final_loss;
   report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
@@ -368,7 +379,6 @@ void eval_command(const eval_args& e, const capture_args& base) {
         pipeline_options po;
         apply_optimiser_options(base, po);
         po.finetune_steps = base.finetune_steps;
-        po.finetune_learning_rate = base.finetune_learning_rate;
         po.refine.steps = base.steps >= 0 ? base.steps : 500;
         po.refine.learning_rate = base.learning_rate > 0 ? base.learning_rate : 0.003f;
         const auto t0 = std::chrono::steady_clock::now();
@@ -460,6 +470,19 @@ int main(int argc, char** argv) {
   render_cmd->add_option("-o,--out", render_out, "output folder")->required();
 
   capture_args cap;
+  // The optimisers' options, shared by capture, demo and eval.
+  auto add_optimiser_options = [&](CLI::App* c) {
+    c->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
+    c->add_option("--finetune-stop", cap.finetune_stop, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_option("--finetune-warmup", cap.finetune_warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (0: none)")->capture_default_str();
+    c->add_option("--finetune-half-life", cap.finetune_half_life, "fine-tune learning rate halves every this many steps (0: constant)")->capture_default_str();
+    c->add_option("--finetune-crop", cap.finetune_crop, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->capture_default_str();
+    c->add_option("--kernel", cap.kernel, "BRDF terms the fine-tune and refine stages fit: full, auto (the cheapest kernel that renders the estimate, or the first guess, within 1e-3), isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
+    c->add_option("--cull", cap.cull, "specular culling tolerance on each pixel's log loss term (0: exact)")->capture_default_str();
+    c->add_option("--refine-stop", cap.refine_stop, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_option("--freeze", cap.freeze, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->capture_default_str();
+    c->add_option("--precision", cap.precision, "arithmetic of the image-loss kernels: float or double (maps stay float)")->capture_default_str();
+  };
   auto add_capture_options = [&](CLI::App* c) {
     c->add_option("-o,--out", cap.out, "output folder")->capture_default_str();
     c->add_option("--stages", cap.stages, "stages to run: auto (all when the weights are there, else refine), all, or a list of estimate,encode,finetune,refine")->capture_default_str();
@@ -468,14 +491,8 @@ int main(int argc, char** argv) {
     c->add_option("--steps", cap.steps, "refine steps (default 500 after the networks, 1000 alone)");
     c->add_option("--lr", cap.learning_rate, "refine learning rate, Adam in unconstrained parameters (default 0.003 after the networks, 0.03 alone)");
     c->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps (paper: 5000)")->capture_default_str();
-    c->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
-    c->add_option("--finetune-stop", cap.finetune_stop, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
     c->add_flag("--resume", cap.resume, "continue a killed run from OUT/.checkpoint");
-    c->add_option("--kernel", cap.kernel, "BRDF terms the fine-tune and refine stages fit: full, auto (the cheapest kernel that renders the estimate, or the first guess, within 1e-3), isotropic, no-fresnel, flat, isotropic-flat, lambert-like")->capture_default_str();
-    c->add_option("--cull", cap.cull, "specular culling tolerance on each pixel's log loss term (0: exact)")->capture_default_str();
-    c->add_option("--refine-stop", cap.refine_stop, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->capture_default_str();
-    c->add_option("--freeze", cap.freeze, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->capture_default_str();
-    c->add_option("--precision", cap.precision, "arithmetic of the image-loss kernels: float or double (maps stay float)")->capture_default_str();
+    add_optimiser_options(c);
   };
   auto* capture_cmd = app.add_subcommand("capture", "estimate the map set from a capture (per-texel optimisation)");
   capture_cmd->add_option("capture", cap.capture_file, "capture.json")->required();
@@ -494,12 +511,8 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
   eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
-  eval_cmd->add_option("--finetune-lr", cap.finetune_learning_rate, "decoder fine-tune learning rate (paper: 7.5e-4)")->capture_default_str();
-  eval_cmd->add_option("--finetune-stop", cap.finetune_stop, "fine-tune early stopping threshold (0: never)")->capture_default_str();
   eval_cmd->add_option("--steps", cap.steps, "refine steps (default 500)");
-  eval_cmd->add_option("--kernel", cap.kernel, "BRDF terms fitted (see capture --help)")->capture_default_str();
-  eval_cmd->add_option("--refine-stop", cap.refine_stop, "refine early stopping threshold (0: never)")->capture_default_str();
-  eval_cmd->add_option("--freeze", cap.freeze, "refine texel freezing threshold (0: never)")->capture_default_str();
+  add_optimiser_options(eval_cmd);
 
   synthesize_args demo_syn;
   demo_syn.out = "anisocap-demo";
@@ -512,6 +525,7 @@ int main(int argc, char** argv) {
   int demo_finetune_steps = 400;
   demo_cmd->add_option("--finetune-steps", demo_finetune_steps, "decoder fine-tune steps (short, to finish in minutes; the paper uses 5000)")->capture_default_str();
   demo_cmd->add_option("--stages", cap.stages, "stages to run (see capture --help)")->capture_default_str();
+  add_optimiser_options(demo_cmd);
 
   std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
   commands::add_train_commands(app, actions);

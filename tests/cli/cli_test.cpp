@@ -83,6 +83,21 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(s2.str().find("\"precision\": \"double\"") != std::string::npos);
   CHECK(s2.str().find("\"kernel_used\"") != std::string::npos);
   CHECK(s2.str().find("\"evaluated_fraction\"") != std::string::npos);
+  // The network stages with the fine-tune's schedule and crop options (shipped compact weights;
+  // 72 x 40 pads to 96 x 64: 3 x 2 latent cells, crops of 1 x 1).
+  r = run("synthesize -o syn2 --width 72 --height 40 --images 6 --seed 4", t.path);
+  REQUIRE(r.status == 0);
+  r = run("capture syn2/capture.json -o nets --stages all --finetune-steps 6 --finetune-crop 1 --finetune-warmup 3 "
+          "--finetune-half-life 100 --finetune-lr 4e-3 --steps 5",
+          t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  std::ifstream rep3(t.path / "nets/report.json");
+  std::stringstream s3;
+  s3 << rep3.rdbuf();
+  CHECK(s3.str().find("\"crop\": 1") != std::string::npos);
+  CHECK(s3.str().find("\"warmup\": 3") != std::string::npos);
+  CHECK(s3.str().find("\"half_life\": 100") != std::string::npos);
   r = run("render --maps syn/truth --capture syn/capture.json -o again", t.path);
   REQUIRE(r.status == 0);
   // Rendering the true maps reproduces the inputs exactly (same renderer, same configuration).
@@ -150,6 +165,9 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK(run("capture syn/capture.json -o out --freeze 2", t.path).output.find("--freeze") != std::string::npos);
     CHECK(run("capture syn/capture.json -o out --refine-stop -1", t.path).output.find("--refine-stop") != std::string::npos);
     CHECK(run("eval -o ev --finetune-lr 0", t.path).output.find("--finetune-lr") != std::string::npos);
+    CHECK(run("capture syn/capture.json -o out --finetune-crop -2", t.path).output.find("--finetune-crop") != std::string::npos);
+    CHECK(run("capture syn/capture.json -o out --finetune-warmup -1", t.path).output.find("--finetune-warmup") != std::string::npos);
+    CHECK(run("eval -o ev --finetune-half-life -5", t.path).output.find("--finetune-half-life") != std::string::npos);
     CHECK_FALSE(fs::exists(t.path / "ev"));
     CHECK_FALSE(fs::exists(t.path / "out"));
     CHECK_FALSE(fs::exists(t.path / "s2"));

@@ -58,6 +58,14 @@ TEST_CASE("adam: frozen parameters are skipped; schedules") {
   CHECK(e(0) == 2.0);
   CHECK(e(2) == doctest::Approx(2.0 * std::sqrt(0.5)));
   CHECK(e(8) == doctest::Approx(0.5));
+  // Warm-up: linear ramp over the first steps, then the schedule as before.
+  auto w = e.with_warmup(4);
+  CHECK(w(0) == doctest::Approx(0.25 * 2.0));
+  CHECK(w(2) == doctest::Approx(0.75 * 2.0 * std::sqrt(0.5)));
+  CHECK(w(3) == doctest::Approx(e(3)));
+  CHECK(w(8) == doctest::Approx(e(8)));
+  CHECK(nn::learning_rate_schedule::constant(1.0).with_warmup(0)(0) == 1.0);
+  CHECK_THROWS_AS(e.with_warmup(-1), std::invalid_argument);
 }
 
 TEST_CASE("adam: converges on least squares through the tape") {

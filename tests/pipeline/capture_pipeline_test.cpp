@@ -87,6 +87,137 @@ TEST_CASE("pipeline: the decoder fine-tune touches only the decoder and resumes 
   std::filesystem::remove_all(dir);
 }
 
+TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed over all windows, losses and gradients are the whole tile's") {
+  // 100 x 70 texels pad to 128 x 96: 4 x 3 latent cells; crops of 2 x 2 cells (one-cell margins
+  // where the grid goes on), clipped at the borders and at the material's edge.
+  const scene s(100, 70);
+  const loss_targets targets = make_loss_targets(s.photos);
+  AutoEncoder<autoencoder_tiny> ae(3);
+  constexpr int M = AutoEncoder<autoencoder_tiny>::size_multiple;
+  tensor<parameter_count, float> u(1, 96, 128);
+  network_space::maps_to_network(pipeline_detail::pad_maps(s.truth, 128, 96), u, 0);
+  ae.set_training(false);
+  ae.freeze_encoder(true);
+  tensor<AutoEncoder<autoencoder_tiny>::latent_channels, float> z;
+  {
+    ad::tape t;
+    ad::tape::no_grad_guard guard(t);
+    z = ae.encode(t, t.leaf(u)).value.clone();
+  }
+  REQUIRE(z.height() == 3);
+  REQUIRE(z.width() == 4);
+  std::vector<nn::parameter*> params;
+  ae.for_each_decoder_parameter([&](nn::parameter& p) { params.push_back(&p); });
+  auto gradients = [&]() {
+    std::vector<double> g;
+    for (auto* p : params)
+      for (float v : p->grad) g.push_back(v);
+    return g;
+  };
+  auto zero = [&]() { for (auto* p : params) p->zero_grad(); };
+
+  // The whole tile, as the pipeline's uncropped step computes it.
+  zero();
+  ad::tape t;
+  auto y = ae.decode(t, t.leaf(z));
+  const auto u_view = y.value.tile(0, 0, 70, 100);
+  const material_maps whole = network_space::network_to_maps(u_view, 0);
+  material_maps grad(100, 70);
+  const double whole_loss = loss_and_gradient(whole, s.cap, targets, &grad);
+  auto g_view = y.grad.tile(0, 0, 70, 100);
+  network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+  t.backward();
+  const std::vector<double> whole_grad = gradients();
+
+  // Every window, gradients accumulated.
+  zero();
+  double loss_sum = 0;
+  int windows = 0;
+  pipeline_detail::crop_scratch scratch;
+  const int k = 2;
+  for (int sy = -(k - 1); sy < 3; ++sy)
+    for (int sx = -(k - 1); sx < 4; ++sx) {
+      const auto win = pipeline_detail::clipped_window(3, 4, k, k, sy, sx);
+      // The window's decode equals the whole decode on its texels.
+      {
+        ad::tape tw;
+        ad::tape::no_grad_guard guard(tw);
+        const int mr = win.r0 > 0, mc = win.c0 > 0;
+        const int lr1 = std::min(win.r1 + 1, 3), lc1 = std::min(win.c1 + 1, 4);
+        auto yw = ae.decode(tw, tw.leaf(z.tile(win.r0 - mr, win.c0 - mc, lr1 - (win.r0 - mr), lc1 - (win.c0 - mc)).clone()));
+        const int h = std::min(win.r1 * M, 70) - win.r0 * M, w = std::min(win.c1 * M, 100) - win.c0 * M;
+        for (int yy = 0; yy < h; ++yy)
+          for (int xx = 0; xx < w; ++xx)
+            for (int c = 0; c < parameter_count; ++c)
+              REQUIRE(yw.value(0, mr * M + yy, mc * M + xx, c) ==
+                      doctest::Approx(y.value(0, win.r0 * M + yy, win.c0 * M + xx, c)).epsilon(1e-5));
+      }
+      ad::tape tc;
+      const double l = pipeline_detail::decoder_crop_step<all_features>(tc, ae, z, win, k, k, 100, 70, s.cap, targets, {}, scratch);
+      const int h = std::min(win.r1 * M, 70) - win.r0 * M, w = std::min(win.c1 * M, 100) - win.c0 * M;
+      loss_sum += l * h * w / double(k * k * M * M);
+      ++windows;
+    }
+  CHECK(windows == (3 + k - 1) * (4 + k - 1));
+  const double factor = 100.0 * 70.0 / (M * M);
+  CHECK(loss_sum == doctest::Approx(factor * whole_loss).epsilon(1e-5));
+  const std::vector<double> crop_grad = gradients();
+  REQUIRE(crop_grad.size() == whole_grad.size());
+  double norm = 0, diff = 0;
+  for (std::size_t i = 0; i < crop_grad.size(); ++i) {
+    norm += whole_grad[i] * whole_grad[i] * factor * factor;
+    diff += (crop_grad[i] - factor * whole_grad[i]) * (crop_grad[i] - factor * whole_grad[i]);
+  }
+  CHECK(norm > 0);
+  CHECK(std::sqrt(diff / norm) < 1e-4);
+}
+
+TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-tune resumes exactly") {
+  // Coverage: over many steps each latent cell is in a crop about k / (cells + k - 1) of the time.
+  std::vector<int> count(5 * 7, 0);
+  const int steps = 20000;
+  for (int step = 0; step < steps; ++step) {
+    const auto w = pipeline_detail::random_window(5, 7, 3, 3, 9, step);
+    REQUIRE(w.r0 < w.r1);
+    REQUIRE(w.c0 < w.c1);
+    for (int r = w.r0; r < w.r1; ++r)
+      for (int c = w.c0; c < w.c1; ++c) ++count[std::size_t(r * 7 + c)];
+  }
+  const double expected = steps * (3.0 / 7.0) * (3.0 / 9.0);
+  for (int v : count) CHECK(std::abs(v - expected) < 0.06 * expected);
+
+  const scene s(96, 64);
+  const auto dir = std::filesystem::temp_directory_path() / ("anisocap_crop_" + std::to_string(std::random_device{}()));
+  pipeline_options o;
+  o.stages.estimate = false;
+  o.stages.refine = false;
+  o.finetune_steps = 8;
+  o.finetune_crop = 1;
+  o.finetune_warmup = 3;
+  o.checkpoint_dir = dir;
+  o.checkpoint_seconds = 0;
+  EstimationNet<estimator_tiny> estimator(1);
+  AutoEncoder<autoencoder_tiny> straight(2);
+  std::vector<double> losses;
+  o.finetune_observer = [&](int, double loss, const std::function<material_maps()>&) { losses.push_back(loss); };
+  const pipeline_result a = run_pipeline(s.cap, s.photos, estimator, straight, o);
+  CHECK(losses.size() == 8);
+  o.finetune_observer = nullptr;
+  std::filesystem::remove_all(dir);
+  AutoEncoder<autoencoder_tiny> first(2);
+  o.finetune_steps = 5;
+  run_pipeline(s.cap, s.photos, estimator, first, o);
+  AutoEncoder<autoencoder_tiny> second(2);
+  o.finetune_steps = 8;
+  o.resume = true;
+  const pipeline_result b = run_pipeline(s.cap, s.photos, estimator, second, o);
+  CHECK(b.stages[2].steps == 3);
+  for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
+    REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
+  CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
+  std::filesystem::remove_all(dir);
+}
+
 TEST_CASE("pipeline stages parse from text and reject nonsense") {
   const pipeline_stages s = pipeline_stages::parse("estimate,refine");
   CHECK(s.estimate);

@@ -31,12 +31,22 @@ class learning_rate_schedule {
     return {rate, every, factor, kind::exponential};
   }
 
+  /// The same schedule with a linear warm-up: step s < `steps` gets (s + 1) / steps of its rate
+  /// (large rates that diverge from a cold start become usable). 0: no warm-up.
+  learning_rate_schedule with_warmup(long steps) const {
+    if (steps < 0) throw std::invalid_argument("learning_rate_schedule::with_warmup: steps must not be negative");
+    learning_rate_schedule s = *this;
+    s.warmup_ = steps;
+    return s;
+  }
+
   /// The learning rate of step `step` (counted from 0).
   double operator()(long step) const {
+    const double ramp = step < warmup_ ? double(step + 1) / double(warmup_) : 1.0;
     switch (kind_) {
-      case kind::constant: return rate_;
-      case kind::step: return rate_ * std::pow(factor_, double(step / every_));
-      case kind::exponential: return rate_ * std::pow(factor_, double(step) / double(every_));
+      case kind::constant: return ramp * rate_;
+      case kind::step: return ramp * rate_ * std::pow(factor_, double(step / every_));
+      case kind::exponential: return ramp * rate_ * std::pow(factor_, double(step) / double(every_));
     }
     return rate_;
   }
@@ -49,6 +59,7 @@ class learning_rate_schedule {
   long every_;
   double factor_;
   kind kind_;
+  long warmup_ = 0;
 };
 
 /// Adam over a set of parameters. State (first and second moments, step count) is kept per

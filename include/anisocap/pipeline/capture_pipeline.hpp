@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/core/random.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/nn/adam.hpp"
@@ -72,9 +73,22 @@ struct pipeline_options {
   /// so that the maps do not depend on the photographs' units.
   bool normalise_exposure = true;
   /// Fine-tune early stopping: stop when the loss improved by less than this fraction over the
-  /// last `finetune_patience` steps (0: run every step).
+  /// last `finetune_patience` steps (0: run every step). With crops the compared loss is the mean
+  /// over each window of `finetune_patience` steps (one crop's loss is noisy).
   double finetune_min_improvement = 0.0;
   int finetune_patience = 200;
+  /// Fine-tune learning-rate warm-up: the rate ramps up linearly over this many steps (0: none).
+  int finetune_warmup = 0;
+  /// Fine-tune learning-rate decay: the rate halves every this many steps (0: constant).
+  int finetune_half_life = 0;
+  /// Fine-tune on random crops (mini-batches) of this many latent cells (32 texels each) per side
+  /// instead of the whole tile (0: whole tile, the paper). Each step decodes the crop plus a
+  /// one-cell margin (so the crop's maps equal the whole decode's, exactly) and evaluates the loss
+  /// on the crop only. Crop starts are uniform over [-(k-1), cells-1] and clipped to the tile, so
+  /// every texel is in a crop equally often; each crop's gradient is weighted by its share of a
+  /// full k x k crop, so clipped crops count per texel as much as whole ones.
+  int finetune_crop = 0;
+  std::uint64_t finetune_seed = 1;  ///< seed of the crop positions (a resumed run draws the same)
   /// Check-point folder (empty: none). With `resume`, completed stages are read back and the
   /// fine-tune continues from its last saved step.
   std::filesystem::path checkpoint_dir;
@@ -82,10 +96,12 @@ struct pipeline_options {
   double checkpoint_seconds = 60;   ///< time between fine-tune check-points
   std::function<void(const std::string& stage, const optimisation_progress&)> progress;
   int progress_every = 50;
-  /// Called at every fine-tune step with the number of updates done so far, the image loss and the
-  /// decoded maps at that point (before the step's update). For monitoring and for studies that
-  /// read many step counts off one run (bench/sweep.cpp). Null: nothing is called.
-  std::function<void(int updates, double loss, const material_maps& maps)> finetune_observer;
+  /// Called at every fine-tune step with the number of updates done so far, the step's image loss
+  /// (with `finetune_crop`, the crop's: noisy) and a function that returns the
+  /// whole decoded maps at that point (before the step's update; with crops it decodes the whole
+  /// tile, so call it only when needed). For monitoring and for studies that read many step counts
+  /// off one run (bench/sweep.cpp). Null: nothing is called.
+  std::function<void(int updates, double loss, const std::function<material_maps()>& maps)> finetune_observer;
 };
 
 /// What one stage did.
@@ -123,6 +139,65 @@ inline material_maps pad_maps(const material_maps& maps, int width, int height) 
       for (int x = 0; x < width; ++x) out.at(k, x, y) = maps.at(k, mirror_index(x, maps.width()), sy);
     }
   return out;
+}
+
+/// A window of latent cells: rows [r0, r1) x columns [c0, c1).
+struct latent_window {
+  int r0 = 0, r1 = 0, c0 = 0, c1 = 0;
+};
+
+/// The fine-tune crop of k_y x k_x cells whose start is (start_y, start_x), clipped to the
+/// cells_y x cells_x latent grid; starts range over [-(k-1), cells-1] so that every cell is in
+/// exactly k of them per axis.
+inline latent_window clipped_window(int cells_y, int cells_x, int k_y, int k_x, int start_y, int start_x) {
+  if (start_y <= -k_y || start_y >= cells_y || start_x <= -k_x || start_x >= cells_x)
+    throw std::invalid_argument("clipped_window: the crop lies outside the latent grid");
+  return {std::max(start_y, 0), std::min(start_y + k_y, cells_y), std::max(start_x, 0), std::min(start_x + k_x, cells_x)};
+}
+
+/// The crop of fine-tune step `step`: starts uniform over [-(k-1), cells-1] per axis, drawn from
+/// (seed, step) alone, so a resumed run draws the same crops.
+inline latent_window random_window(int cells_y, int cells_x, int k_y, int k_x, std::uint64_t seed, std::int64_t step) {
+  const int sy = int(hash64(seed, step, 0) % std::uint64_t(cells_y + k_y - 1)) - (k_y - 1);
+  const int sx = int(hash64(seed, step, 1) % std::uint64_t(cells_x + k_x - 1)) - (k_x - 1);
+  return clipped_window(cells_y, cells_x, k_y, k_x, sy, sx);
+}
+
+/// Scratch buffers of decoder_crop_step, reused from step to step.
+struct crop_scratch {
+  loss_targets targets;
+  material_maps gradient;
+};
+
+/// One fine-tune pass on a crop: decodes the window's latent cells plus a one-cell margin inside
+/// the grid (with 4x4 stride-2 transposed convolutions an output texel depends on the latent cells
+/// within one cell of its own, so the window's maps equal the whole decode's), evaluates the image
+/// loss on the window's texels inside the W x H material, puts its gradient, weighted by the
+/// window's share of a whole k_y x k_x crop, on the decoder's parameters (accumulating) and returns
+/// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
+/// gradients are (W H / 32^2) times the whole tile's.
+template <brdf_features F, class P>
+double decoder_crop_step(ad::tape& t, AutoEncoder<P>& autoencoder,
+                         const tensor<AutoEncoder<P>::latent_channels, float>& z, const latent_window& win, int k_y, int k_x,
+                         int width, int height, const capture& cap, const loss_targets& targets, const render_options& render,
+                         crop_scratch& scratch) {
+  constexpr int M = AutoEncoder<P>::size_multiple;
+  const int cells_y = z.height(), cells_x = z.width();
+  const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
+  const int lr1 = std::min(win.r1 + 1, cells_y), lc1 = std::min(win.c1 + 1, cells_x);
+  auto y = autoencoder.decode(t, t.leaf(z.tile(win.r0 - mr, win.c0 - mc, lr1 - (win.r0 - mr), lc1 - (win.c0 - mc)).clone()));
+  const int y0 = win.r0 * M, x0 = win.c0 * M;
+  const int h = std::min(win.r1 * M, height) - y0, w = std::min(win.c1 * M, width) - x0;
+  if (h <= 0 || w <= 0) throw std::invalid_argument("decoder_crop_step: the window holds no texel of the material");
+  const auto u_view = y.value.tile(mr * M, mc * M, h, w);
+  const material_maps m = network_space::network_to_maps(u_view, 0);
+  crop_loss_targets(targets, x0, y0, w, h, scratch.targets);
+  if (scratch.gradient.width() != w || scratch.gradient.height() != h) scratch.gradient = material_maps(w, h);
+  const double loss = loss_and_gradient<F>(m, cap, scratch.targets, &scratch.gradient, tile_placement{width, height, x0, y0}, render);
+  auto g_view = y.grad.tile(mr * M, mc * M, h, w);
+  network_space::add_network_gradient(u_view, 0, scratch.gradient, double(h) * w / (double(k_y) * k_x * M * M), g_view);
+  t.backward();
+  return loss;
 }
 
 }  // namespace pipeline_detail
@@ -224,7 +299,12 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
     if (o.stages.finetune) {
       const auto t1 = clock::now();
       autoencoder.freeze_encoder(true);
-      nn::adam adam(nn::learning_rate_schedule::constant(o.finetune_learning_rate));
+      if (o.finetune_warmup < 0 || o.finetune_half_life < 0 || o.finetune_crop < 0)
+        throw std::invalid_argument("run_pipeline: fine-tune warm-up, half-life and crop must not be negative");
+      const auto schedule = o.finetune_half_life > 0
+                                ? nn::learning_rate_schedule::exponential_decay(o.finetune_learning_rate, 0.5, o.finetune_half_life)
+                                : nn::learning_rate_schedule::constant(o.finetune_learning_rate);
+      nn::adam adam(schedule.with_warmup(o.finetune_warmup));
       autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
       const fs::path ft_dir = checkpoints ? stage_dir("finetune") : fs::path();
       int first = 0;
@@ -250,21 +330,47 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       }
       material_maps grad(W, H);
       auto last_checkpoint = clock::now();
-      double window_best = 1e300;
+      double window_best = 1e300, window_sum = 0;
       int step = first;
       ad::tape t;
+      // Crops: k x k latent cells (k = finetune_crop), only where the tile has more cells than that.
+      const int cells_y = Hp / M, cells_x = Wp / M;
+      const int crop_y = o.finetune_crop > 0 && o.finetune_crop < cells_y ? o.finetune_crop : cells_y;
+      const int crop_x = o.finetune_crop > 0 && o.finetune_crop < cells_x ? o.finetune_crop : cells_x;
+      const bool cropping = crop_y < cells_y || crop_x < cells_x;
+      pipeline_detail::crop_scratch scratch;
+      auto whole_maps = [&]() {
+        ad::tape t2;
+        ad::tape::no_grad_guard guard(t2);
+        return network_space::network_to_maps(decode_maps(t2).value.tile(0, 0, H, W), 0);
+      };
       for (; step < o.finetune_steps; ++step) {
         t.clear();
-        auto y = decode_maps(t);
-        const auto u_view = y.value.tile(0, 0, H, W);
-        const material_maps m = network_space::network_to_maps(u_view, 0);
-        const double loss = with_features(features, [&]<brdf_features F>() {
-          return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
-        });
-        if (o.finetune_observer) o.finetune_observer(step, loss, m);
-        auto g_view = y.grad.tile(0, 0, H, W);
-        network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
-        t.backward();
+        double loss = 0;
+        if (!cropping) {
+          auto y = decode_maps(t);
+          const auto u_view = y.value.tile(0, 0, H, W);
+          const material_maps m = network_space::network_to_maps(u_view, 0);
+          loss = with_features(features, [&]<brdf_features F>() {
+            return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
+          });
+          if (o.finetune_observer) o.finetune_observer(step, loss, [&]() { return m; });
+          auto g_view = y.grad.tile(0, 0, H, W);
+          network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+          t.backward();
+        } else {
+          const auto win = pipeline_detail::random_window(cells_y, cells_x, crop_y, crop_x, o.finetune_seed, step);
+          loss = with_features(features, [&]<brdf_features F>() {
+            return pipeline_detail::decoder_crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, o.render, scratch);
+          });
+          if (o.finetune_observer) {  // weights not yet updated; the tape is no longer needed
+            std::optional<material_maps> whole;
+            o.finetune_observer(step, loss, [&]() {
+              if (!whole) whole = whole_maps();
+              return *whole;
+            });
+          }
+        }
         adam.step();
         if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0) {
           const double s = seconds_since(t1);
@@ -290,9 +396,12 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           nn::write_safetensors(ft_dir / "adam.safetensors", state);
           last_checkpoint = clock::now();
         }
+        window_sum += loss;
         if (o.finetune_min_improvement > 0 && o.finetune_patience > 0 && (step + 1) % o.finetune_patience == 0) {
-          if (loss > window_best * (1.0 - o.finetune_min_improvement)) { ++step; break; }
-          window_best = std::min(window_best, loss);
+          const double compared = cropping ? window_sum / o.finetune_patience : loss;
+          window_sum = 0;
+          if (compared > window_best * (1.0 - o.finetune_min_improvement)) { ++step; break; }
+          window_best = std::min(window_best, compared);
         }
       }
       {

@@ -81,6 +81,7 @@ void maps_to_network(const material_maps& maps, tensor<parameter_count, T>& out,
 template <class T>
 material_maps network_to_maps(const tensor<parameter_count, T>& u, int b) {
   material_maps maps(u.width(), u.height());
+#pragma omp parallel for schedule(static) if (std::size_t(u.height()) * u.width() >= 16384)
   for (int y = 0; y < u.height(); ++y)
     for (int x = 0; x < u.width(); ++x) {
       const T* p = u.pixel(b, y, x);
@@ -100,6 +101,7 @@ template <class T>
 void add_network_gradient(const tensor<parameter_count, T>& u, int b, const material_maps& grad_maps, double scale,
                           tensor<parameter_count, T>& grad_u) {
   const double half = 0.5, lobe_factor = -log_min_lobe / 2, rotation_factor = std::numbers::pi / 2;
+#pragma omp parallel for schedule(static) if (std::size_t(u.height()) * u.width() >= 16384)
   for (int y = 0; y < u.height(); ++y)
     for (int x = 0; x < u.width(); ++x) {
       const T* p = u.pixel(b, y, x);

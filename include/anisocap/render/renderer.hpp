@@ -267,6 +267,24 @@ struct loss_targets {
   int width = 0, height = 0;
 };
 
+/// The targets of the window [x0, x0 + width) x [y0, y0 + height) of `from`, written into `out`
+/// (whose images are reused when they already have that size): the targets of a tile, for a loss
+/// evaluated with the matching tile_placement.
+inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int width, int height, loss_targets& out) {
+  if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 + width > from.width || y0 + height > from.height)
+    throw std::invalid_argument("crop_loss_targets: window outside the targets");
+  if (out.width != width || out.height != height || out.log_images.size() != from.log_images.size()) {
+    out.log_images.assign(from.log_images.size(), image(width, height, 3));
+    out.width = width;
+    out.height = height;
+  }
+  for (std::size_t k = 0; k < from.log_images.size(); ++k)
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y < height; ++y)
+        std::copy_n(from.log_images[k].plane(c) + std::size_t(y0 + y) * from.width + x0, width,
+                    out.log_images[k].plane(c) + std::size_t(y) * width);
+}
+
 /// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels).
 /// Throws std::invalid_argument on a NaN or infinite pixel; negative values count as 0.
 inline loss_targets make_loss_targets(const std::vector<image>& photos) {

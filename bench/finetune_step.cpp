@@ -1,0 +1,149 @@
+// The decoder fine-tune step (MODEL.md 8.3), taken apart: decode forward, maps from the network
+// outputs, fused image loss + gradient, the chain rule back to the network outputs, backward
+// through the decoder, Adam. For the compact preset (shipped weights) and the paper preset
+// (seeded initial weights: the step's cost does not depend on the weights' values), on a
+// 256 x 256 procedural tile with 12 inputs (set alpha), whole-tile steps and crop steps
+// (pipeline_options::finetune_crop). Prints medians of --repeats steps after --warmup steps, in ms,
+// and the ratios that matter: a crop step against a whole step, the paper preset against compact.
+//
+// usage: anisocap_bench_finetune_step [--size 256] [--repeats 40] [--warmup 8] [--crop 4] [--models DIR]
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "anisocap/data/procedural.hpp"
+#include "anisocap/pipeline/capture_pipeline.hpp"
+#include "anisocap/render/configurations.hpp"
+
+using namespace anisocap;
+using clock_type = std::chrono::steady_clock;
+
+#ifndef ANISOCAP_SWEEP_MODELS
+#define ANISOCAP_SWEEP_MODELS "models"
+#endif
+
+namespace {
+
+double ms_between(clock_type::time_point a, clock_type::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+struct step_times {
+  std::vector<double> decode, to_maps, loss, chain, backward, adam, total, crop;
+};
+
+template <class P>
+step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int crop) {
+  const std::uint64_t seed = 920000;
+  const material_maps truth = generate_material(seed, size, size);
+  capture cap = set_alpha(12, seed, size, size);
+  std::vector<image> photos = render(truth, cap);
+  apply_exposure(cap, photos, exposure_scale(cap));
+  const loss_targets targets = make_loss_targets(photos);
+  constexpr int M = AutoEncoder<P>::size_multiple;
+  const int padded = (size + M - 1) / M * M;
+  tensor<parameter_count, float> u(1, padded, padded);
+  network_space::maps_to_network(pipeline_detail::pad_maps(truth, padded, padded), u, 0);
+  ae.set_training(false);
+  ae.freeze_encoder(true);
+  tensor<AutoEncoder<P>::latent_channels, float> z;
+  {
+    ad::tape t;
+    ad::tape::no_grad_guard guard(t);
+    z = ae.encode(t, t.leaf(u)).value.clone();
+  }
+  nn::adam adam(nn::learning_rate_schedule::constant(1e-5));  // small: the weights barely move while timing
+  ae.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
+  material_maps grad(size, size);
+  step_times st;
+  ad::tape t;
+  for (int s = 0; s < warmup + repeats; ++s) {
+    const auto t0 = clock_type::now();
+    t.clear();
+    auto y = ae.decode(t, t.leaf(z));
+    const auto t1 = clock_type::now();
+    const auto u_view = y.value.tile(0, 0, size, size);
+    const material_maps m = network_space::network_to_maps(u_view, 0);
+    const auto t2 = clock_type::now();
+    loss_and_gradient(m, cap, targets, &grad);
+    const auto t3 = clock_type::now();
+    auto g_view = y.grad.tile(0, 0, size, size);
+    network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+    const auto t4 = clock_type::now();
+    t.backward();
+    const auto t5 = clock_type::now();
+    adam.step();
+    const auto t6 = clock_type::now();
+    if (s >= warmup) {
+      st.decode.push_back(ms_between(t0, t1));
+      st.to_maps.push_back(ms_between(t1, t2));
+      st.loss.push_back(ms_between(t2, t3));
+      st.chain.push_back(ms_between(t3, t4));
+      st.backward.push_back(ms_between(t4, t5));
+      st.adam.push_back(ms_between(t5, t6));
+      st.total.push_back(ms_between(t0, t6));
+    }
+  }
+  // Crop steps, windows as the pipeline draws them.
+  const int cells = padded / M, k = std::min(crop, cells);
+  pipeline_detail::crop_scratch scratch;
+  for (int s = 0; s < warmup + repeats; ++s) {
+    const auto t0 = clock_type::now();
+    t.clear();
+    const auto win = pipeline_detail::random_window(cells, cells, k, k, 1, s);
+    pipeline_detail::decoder_crop_step<all_features>(t, ae, z, win, k, k, size, size, cap, targets, {}, scratch);
+    adam.step();
+    if (s >= warmup) st.crop.push_back(ms_between(t0, clock_type::now()));
+  }
+  return st;
+}
+
+void print(const char* name, const step_times& s, int crop) {
+  std::printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f | **%.2f** | %.2f (k = %d) | %.2f |\n", name, median(s.decode), median(s.to_maps),
+              median(s.loss), median(s.chain), median(s.backward), median(s.adam), median(s.total), median(s.crop), crop,
+              median(s.crop) / median(s.total));
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int size = 256, repeats = 40, warmup = 8, crop = 4;
+  std::filesystem::path models = ANISOCAP_SWEEP_MODELS;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (i + 1 >= argc) { std::fprintf(stderr, "finetune_step: %s needs a value\n", a.c_str()); return 2; }
+    if (a == "--size") size = std::stoi(argv[++i]);
+    else if (a == "--repeats") repeats = std::stoi(argv[++i]);
+    else if (a == "--warmup") warmup = std::stoi(argv[++i]);
+    else if (a == "--crop") crop = std::stoi(argv[++i]);
+    else if (a == "--models") models = argv[++i];
+    else { std::fprintf(stderr, "finetune_step: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
+  }
+  if (size < 32 || repeats < 1 || warmup < 0 || crop < 1) { std::fprintf(stderr, "finetune_step: bad option values\n"); return 2; }
+  std::printf("fine-tune step, %d x %d, 12 inputs, %d threads, medians of %d steps (ms)\n\n", size, size, omp_get_max_threads(), repeats);
+  std::printf("| preset | decode | to maps | loss + gradient | chain rule | backward | Adam | whole step | crop step | crop / whole |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
+  AutoEncoder<autoencoder_compact> compact;
+  try {
+    nn::load_weights(models / "compact" / "autoencoder.safetensors", compact);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "finetune_step: %s\n", e.what());
+    return 1;
+  }
+  const step_times c = time_steps(compact, size, repeats, warmup, crop);
+  print("compact", c, crop);
+  auto paper = std::make_unique<AutoEncoder<autoencoder_paper>>(1);
+  const step_times p = time_steps(*paper, size, repeats, warmup, crop);
+  print("paper", p, crop);
+  std::printf("\npaper / compact whole step: %.2fx\n", median(p.total) / median(c.total));
+  std::printf("5000 whole steps: compact %.0f s, paper %.0f s; 5000 crop steps: compact %.0f s, paper %.0f s\n",
+              5 * median(c.total), 5 * median(p.total), 5 * median(c.crop), 5 * median(p.crop));
+  return 0;
+}
