@@ -243,8 +243,10 @@ int main(int argc, char** argv) {
       }
       snapshots[ft_max] = *pr.after_finetune;
       snapshot_seconds[ft_max] = ft_seconds;
-      std::fprintf(stderr, "sweep: material %d/%d (%s) N=%d: estimate+encode %.1f s, fine-tune %d steps %.1f s (run %.1f s)\n", m + 1,
-                   materials, truth_name.c_str(), n, pre_seconds, ft_max, ft_seconds, total);
+      int restarts = 0;
+      for (const auto& st : pr.stages) restarts += st.restarts;
+      std::fprintf(stderr, "sweep: material %d/%d (%s) N=%d: estimate+encode %.1f s, fine-tune %d steps %.1f s (run %.1f s), guard restarts %d\n", m + 1,
+                   materials, truth_name.c_str(), n, pre_seconds, ft_max, ft_seconds, total, restarts);
       struct start_point { int planned; double stop; int run; };
       std::vector<start_point> starts;
       for (int k : finetune_points)

@@ -40,6 +40,13 @@ class learning_rate_schedule {
     return s;
   }
 
+  /// The same schedule with every rate multiplied by `factor`.
+  learning_rate_schedule scaled(double factor) const {
+    learning_rate_schedule s = *this;
+    s.rate_ *= factor;
+    return s;
+  }
+
   /// The learning rate of step `step` (counted from 0).
   double operator()(long step) const {
     const double ramp = step < warmup_ ? double(step + 1) / double(warmup_) : 1.0;

@@ -5,9 +5,11 @@
 /// image loss against the photographs, z fixed, encoder frozen), refine (per texel). Each stage can
 /// be skipped; stages check-point into a folder so that a killed run resumes.
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -89,6 +91,12 @@ struct pipeline_options {
   /// full k x k crop, so clipped crops count per texel as much as whole ones.
   int finetune_crop = 0;
   std::uint64_t finetune_seed = 1;  ///< seed of the crop positions (a resumed run draws the same)
+  /// Fine-tune divergence guard (whole-tile steps): when a step's loss exceeds this factor times the
+  /// lowest loss so far, the decoder and Adam go back to their last snapshot (taken every
+  /// `finetune_guard_every` steps) and the learning rate halves. Large learning rates diverge on
+  /// some materials after hundreds of good steps; this keeps what those steps gained. 0: off.
+  double finetune_guard = 1.5;
+  int finetune_guard_every = 50;   ///< steps between the guard's snapshots
   /// Check-point folder (empty: none). With `resume`, completed stages are read back and the
   /// fine-tune continues from its last saved step.
   std::filesystem::path checkpoint_dir;
@@ -113,6 +121,7 @@ struct stage_report {
   double loss = 0;        ///< image loss against the photographs after the stage
   double seconds = 0;
   double evaluated_fraction = 1.0;  ///< refine: fraction of texel-steps evaluated (freezing)
+  int restarts = 0;                 ///< fine-tune: times the divergence guard went back and halved the rate
 };
 
 /// The result: the map set and a report per stage.
@@ -301,6 +310,8 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       autoencoder.freeze_encoder(true);
       if (o.finetune_warmup < 0 || o.finetune_half_life < 0 || o.finetune_crop < 0)
         throw std::invalid_argument("run_pipeline: fine-tune warm-up, half-life and crop must not be negative");
+      if (o.finetune_guard < 0 || (o.finetune_guard > 0 && (o.finetune_guard <= 1 || o.finetune_guard_every < 1)))
+        throw std::invalid_argument("run_pipeline: finetune_guard must be 0 (off) or above 1, with finetune_guard_every >= 1");
       const auto schedule = o.finetune_half_life > 0
                                 ? nn::learning_rate_schedule::exponential_decay(o.finetune_learning_rate, 0.5, o.finetune_half_life)
                                 : nn::learning_rate_schedule::constant(o.finetune_learning_rate);
@@ -308,6 +319,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
       const fs::path ft_dir = checkpoints ? stage_dir("finetune") : fs::path();
       int first = 0;
+      double lr_scale = 1.0, best_loss = std::numeric_limits<double>::infinity();  // divergence guard
       if (checkpoints && o.resume && fs::exists(ft_dir / "decoder.safetensors")) {
         nn::load_weights(ft_dir / "decoder.safetensors", autoencoder);
         const fs::path state_file = ft_dir / "adam.safetensors";
@@ -322,8 +334,12 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           }
           count = 0;
         });
-        for (const auto& [key, value] : state.metadata)
+        for (const auto& [key, value] : state.metadata) {
           if (key == "step") first = std::stoi(value);
+          if (key == "lr_scale") lr_scale = std::stod(value);
+          if (key == "best_loss") best_loss = std::stod(value);
+        }
+        adam.schedule = schedule.with_warmup(o.finetune_warmup).scaled(lr_scale);
         adam.for_each_state([&](nn::parameter&, aligned_buffer<float>&, aligned_buffer<float>&, long& count) { count = first; });
         adam.set_steps(first);
         fine.resumed = true;
@@ -339,6 +355,29 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       const int crop_x = o.finetune_crop > 0 && o.finetune_crop < cells_x ? o.finetune_crop : cells_x;
       const bool cropping = crop_y < cells_y || crop_x < cells_x;
       pipeline_detail::crop_scratch scratch;
+      // Divergence guard: snapshots of the decoder's weights and Adam's state.
+      const bool guarding = o.finetune_guard > 0 && !cropping;
+      std::vector<std::vector<float>> snapshot;
+      std::vector<long> snapshot_counts;
+      long snapshot_steps = 0;
+      double snapshot_loss = 0;  // the loss of the snapshot's weights
+      auto take_snapshot = [&]() {
+        snapshot.clear();
+        snapshot_counts.clear();
+        adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m, aligned_buffer<float>& v, long& count) {
+          for (const auto* b : {&p.value, &m, &v}) snapshot.emplace_back(b->begin(), b->end());
+          snapshot_counts.push_back(count);
+        });
+        snapshot_steps = adam.steps();
+      };
+      auto restore_snapshot = [&]() {
+        std::size_t i = 0, j = 0;
+        adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m, aligned_buffer<float>& v, long& count) {
+          for (auto* b : {&p.value, &m, &v}) std::copy(snapshot[i].begin(), snapshot[i].end(), b->begin()), ++i;
+          count = snapshot_counts[j++];
+        });
+        adam.set_steps(snapshot_steps);
+      };
       auto whole_maps = [&]() {
         ad::tape t2;
         ad::tape::no_grad_guard guard(t2);
@@ -347,6 +386,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       for (; step < o.finetune_steps; ++step) {
         t.clear();
         double loss = 0;
+        bool restarted = false;
         if (!cropping) {
           auto y = decode_maps(t);
           const auto u_view = y.value.tile(0, 0, H, W);
@@ -355,9 +395,27 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
             return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
           });
           if (o.finetune_observer) o.finetune_observer(step, loss, [&]() { return m; });
-          auto g_view = y.grad.tile(0, 0, H, W);
-          network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
-          t.backward();
+          if (guarding) {
+            if (loss > o.finetune_guard * best_loss && !snapshot.empty()) {
+              restore_snapshot();  // back to weights whose loss was near the best, at half the rate
+              best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
+              lr_scale *= 0.5;
+              adam.schedule = schedule.with_warmup(o.finetune_warmup).scaled(lr_scale);
+              ++fine.restarts;
+              restarted = true;
+            } else {
+              best_loss = std::min(best_loss, loss);
+              if ((step - first) % o.finetune_guard_every == 0 && loss <= 1.1 * best_loss) {
+                take_snapshot();
+                snapshot_loss = loss;
+              }
+            }
+          }
+          if (!restarted) {
+            auto g_view = y.grad.tile(0, 0, H, W);
+            network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+            t.backward();
+          }
         } else {
           const auto win = pipeline_detail::random_window(cells_y, cells_x, crop_y, crop_x, o.finetune_seed, step);
           loss = with_features(features, [&]<brdf_features F>() {
@@ -371,7 +429,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
             });
           }
         }
-        adam.step();
+        if (!restarted) adam.step();
         if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0) {
           const double s = seconds_since(t1);
           const double rate = (step + 1 - first) / std::max(s, 1e-9);
@@ -393,6 +451,13 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
             state.add<float>(p.name + ".v", {std::int64_t(v1.size())}, v1.data(), v1.size());
           });
           state.metadata.emplace_back("step", std::to_string(step + 1));
+          auto exact = [](double v) {
+            char text[40];
+            std::snprintf(text, sizeof text, "%.17g", v);
+            return std::string(text);
+          };
+          state.metadata.emplace_back("lr_scale", exact(lr_scale));
+          state.metadata.emplace_back("best_loss", exact(best_loss));
           nn::write_safetensors(ft_dir / "adam.safetensors", state);
           last_checkpoint = clock::now();
         }
