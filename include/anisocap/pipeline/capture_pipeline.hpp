@@ -93,7 +93,9 @@ struct pipeline_options {
   std::uint64_t finetune_seed = 1;  ///< seed of the crop positions (a resumed run draws the same)
   /// Fine-tune divergence guard (whole-tile steps): when a step's loss exceeds this factor times the
   /// lowest loss so far, the decoder and Adam go back to their last snapshot (taken every
-  /// `finetune_guard_every` steps) and the learning rate halves. Large learning rates diverge on
+  /// `finetune_guard_every` steps) and the learning rate halves; so does a NaN or infinite loss.
+  /// The snapshot costs a copy of the decoder's weights and Adam moments (3x the decoder's size)
+  /// every `finetune_guard_every` steps. Large learning rates diverge on
   /// some materials after hundreds of good steps; this keeps what those steps gained. 0: off.
   double finetune_guard = 1.5;
   int finetune_guard_every = 50;   ///< steps between the guard's snapshots
@@ -396,7 +398,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           });
           if (o.finetune_observer) o.finetune_observer(step, loss, [&]() { return m; });
           if (guarding) {
-            if (loss > o.finetune_guard * best_loss && !snapshot.empty()) {
+            if (!(loss <= o.finetune_guard * best_loss) && !snapshot.empty()) {  // also a NaN or infinite loss
               restore_snapshot();  // back to weights whose loss was near the best, at half the rate
               best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
               lr_scale *= 0.5;
