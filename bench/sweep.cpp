@@ -67,20 +67,12 @@ bool all_finite(const material_maps& m) {
   return true;
 }
 
-/// The pipeline's fine-tune early-stopping rule (capture_pipeline.hpp) applied to a recorded loss
-/// curve: the number of updates after which it stops.
-/// With crops (`window_mean`) the pipeline compares each window's mean crop loss instead.
+/// The number of updates after which the pipeline's fine-tune early stopping (early_stopping in
+/// capture_pipeline.hpp; window means with crops) ends a run with this loss curve.
 int stopping_step(const std::vector<double>& losses, double tolerance, bool window_mean, int patience = 200) {
-  double best = 1e300, sum = 0;
-  for (int step = 0; step < int(losses.size()); ++step) {
-    sum += losses[std::size_t(step)];
-    if ((step + 1) % patience == 0) {
-      const double compared = window_mean ? sum / patience : losses[std::size_t(step)];
-      sum = 0;
-      if (compared > best * (1.0 - tolerance)) return step + 1;
-      best = std::min(best, compared);
-    }
-  }
+  early_stopping rule(tolerance, patience, window_mean);
+  for (int step = 0; step < int(losses.size()); ++step)
+    if (rule.stop_after(step, losses[std::size_t(step)])) return step + 1;
   return int(losses.size());
 }
 

@@ -68,6 +68,34 @@ TEST_CASE("adam: frozen parameters are skipped; schedules") {
   CHECK_THROWS_AS(e.with_warmup(-1), std::invalid_argument);
 }
 
+TEST_CASE("adam: a snapshot restores values, moments and counters exactly") {
+  nn::parameter a("a", {37}), b("b", {5});
+  for (std::size_t i = 0; i < a.size(); ++i) a.value[i] = float(i) * 0.1f;
+  nn::adam adam(nn::learning_rate_schedule::constant(0.05));
+  adam.add(a);
+  adam.add(b);
+  auto step = [&](float g) {
+    for (auto& x : a.grad) x = g;
+    for (auto& x : b.grad) x = -g;
+    adam.step();
+  };
+  step(1.0f);
+  const auto snap = adam.take_snapshot();
+  const std::vector<float> a_then(a.value.begin(), a.value.end());
+  step(0.5f);  // what follows the snapshot, remembered
+  const std::vector<float> a_next(a.value.begin(), a.value.end());
+  step(-3.0f);
+  step(2.0f);
+  adam.restore(snap);
+  CHECK(adam.steps() == 1);
+  for (std::size_t i = 0; i < a.size(); ++i) REQUIRE(a.value[i] == a_then[i]);
+  step(0.5f);  // same moments and counts: the same update as the first time
+  for (std::size_t i = 0; i < a.size(); ++i) REQUIRE(a.value[i] == a_next[i]);
+  nn::adam other;
+  other.add(a);
+  CHECK_THROWS_AS(other.restore(snap), std::invalid_argument);
+}
+
 TEST_CASE("adam: converges on least squares through the tape") {
   // Fit y = A x + c with a linear layer: the optimum is exact, so the loss must go to ~0.
   nn::random_generator g(42);

@@ -128,6 +128,39 @@ class basic_adam {
   /// The learning rate the next step will use.
   double learning_rate() const { return schedule(steps_); }
 
+  /// A copy of every added parameter's values and of the optimiser's state (moments, update
+  /// counts, step counter); restore() goes back to it exactly. The schedule is not part of it.
+  struct snapshot {
+    std::vector<std::vector<T>> buffers;  ///< per parameter: values, first and second moments
+    std::vector<long> counts;             ///< per parameter: update count
+    long steps = 0;                       ///< the step counter
+    bool empty() const noexcept { return buffers.empty(); }
+  };
+  snapshot take_snapshot() const {
+    snapshot s;
+    for (const auto& st : states_) {
+      for (const aligned_buffer<T>* b : {static_cast<const aligned_buffer<T>*>(&st.parameter->value), &st.m, &st.v})
+        s.buffers.emplace_back(b->begin(), b->end());
+      s.counts.push_back(st.steps);
+    }
+    s.steps = steps_;
+    return s;
+  }
+  /// Puts back a snapshot taken from this optimiser (same parameters).
+  void restore(const snapshot& s) {
+    if (s.counts.size() != states_.size()) throw std::invalid_argument("basic_adam::restore: the snapshot is of other parameters");
+    std::size_t i = 0;
+    for (std::size_t k = 0; k < states_.size(); ++k) {
+      for (auto* b : {&states_[k].parameter->value, &states_[k].m, &states_[k].v}) {
+        if (s.buffers[i].size() != b->size()) throw std::invalid_argument("basic_adam::restore: the snapshot is of other parameters");
+        std::copy(s.buffers[i].begin(), s.buffers[i].end(), b->begin());
+        ++i;
+      }
+      states_[k].steps = s.counts[k];
+    }
+    steps_ = s.steps;
+  }
+
  private:
   struct state {
     basic_parameter<T>* parameter;

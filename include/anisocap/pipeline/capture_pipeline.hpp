@@ -57,6 +57,32 @@ struct pipeline_stages {
   }
 };
 
+/// The fine-tune's early-stopping rule: every `patience` steps the loss (the step's own, or with
+/// `window_mean` the mean over the last `patience` steps) is compared with the lowest such value
+/// so far; the run stops when it improved by less than `tolerance` (0: never stops).
+/// bench/sweep.cpp replays recorded loss curves with the same rule.
+class early_stopping {
+ public:
+  early_stopping(double tolerance, int patience, bool window_mean)
+      : tolerance_(tolerance), patience_(patience), window_mean_(window_mean) {}
+  /// Feeds the loss of step `step` (counted from 0 over the whole run); true: stop after it.
+  bool stop_after(int step, double loss) {
+    sum_ += loss;
+    if (tolerance_ <= 0 || patience_ <= 0 || (step + 1) % patience_ != 0) return false;
+    const double compared = window_mean_ ? sum_ / patience_ : loss;
+    sum_ = 0;
+    if (compared > best_ * (1.0 - tolerance_)) return true;
+    best_ = std::min(best_, compared);
+    return false;
+  }
+
+ private:
+  double tolerance_;
+  int patience_;
+  bool window_mean_;
+  double best_ = 1e300, sum_ = 0;
+};
+
 /// Options of the pipeline (paper defaults where the paper gives them, MODEL.md 8).
 struct pipeline_options {
   pipeline_stages stages{};
@@ -298,12 +324,13 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       auto y = autoencoder.decode(t, t.leaf(z));
       return y;
     };
-    {
+    // The decoder's maps of the whole tile, without gradients (cropped to the material).
+    auto whole_maps = [&]() {
       ad::tape t;
       ad::tape::no_grad_guard guard(t);
-      auto y = decode_maps(t);
-      maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
-    }
+      return network_space::network_to_maps(decode_maps(t).value.tile(0, 0, H, W), 0);
+    };
+    maps = whole_maps();
     enc.loss = image_loss(maps);
     result.stages.push_back(enc);
 
@@ -314,10 +341,11 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
         throw std::invalid_argument("run_pipeline: fine-tune warm-up, half-life and crop must not be negative");
       if (o.finetune_guard < 0 || (o.finetune_guard > 0 && (o.finetune_guard <= 1 || o.finetune_guard_every < 1)))
         throw std::invalid_argument("run_pipeline: finetune_guard must be 0 (off) or above 1, with finetune_guard_every >= 1");
-      const auto schedule = o.finetune_half_life > 0
-                                ? nn::learning_rate_schedule::exponential_decay(o.finetune_learning_rate, 0.5, o.finetune_half_life)
-                                : nn::learning_rate_schedule::constant(o.finetune_learning_rate);
-      nn::adam adam(schedule.with_warmup(o.finetune_warmup));
+      const auto schedule = (o.finetune_half_life > 0
+                                 ? nn::learning_rate_schedule::exponential_decay(o.finetune_learning_rate, 0.5, o.finetune_half_life)
+                                 : nn::learning_rate_schedule::constant(o.finetune_learning_rate))
+                                .with_warmup(o.finetune_warmup);
+      nn::adam adam(schedule);
       autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
       const fs::path ft_dir = checkpoints ? stage_dir("finetune") : fs::path();
       int first = 0;
@@ -341,14 +369,13 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           if (key == "lr_scale") lr_scale = std::stod(value);
           if (key == "best_loss") best_loss = std::stod(value);
         }
-        adam.schedule = schedule.with_warmup(o.finetune_warmup).scaled(lr_scale);
+        adam.schedule = schedule.scaled(lr_scale);
         adam.for_each_state([&](nn::parameter&, aligned_buffer<float>&, aligned_buffer<float>&, long& count) { count = first; });
         adam.set_steps(first);
         fine.resumed = true;
       }
       material_maps grad(W, H);
       auto last_checkpoint = clock::now();
-      double window_best = 1e300, window_sum = 0;
       int step = first;
       ad::tape t;
       // Crops: k x k latent cells (k = finetune_crop), only where the tile has more cells than that.
@@ -356,35 +383,12 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       const int crop_y = o.finetune_crop > 0 && o.finetune_crop < cells_y ? o.finetune_crop : cells_y;
       const int crop_x = o.finetune_crop > 0 && o.finetune_crop < cells_x ? o.finetune_crop : cells_x;
       const bool cropping = crop_y < cells_y || crop_x < cells_x;
+      early_stopping stopper(o.finetune_min_improvement, o.finetune_patience, cropping);  // crop losses are noisy: window means
       pipeline_detail::crop_scratch scratch;
-      // Divergence guard: snapshots of the decoder's weights and Adam's state.
+      // Divergence guard: a snapshot of the decoder's weights and Adam's state, and its loss.
       const bool guarding = o.finetune_guard > 0 && !cropping;
-      std::vector<std::vector<float>> snapshot;
-      std::vector<long> snapshot_counts;
-      long snapshot_steps = 0;
-      double snapshot_loss = 0;  // the loss of the snapshot's weights
-      auto take_snapshot = [&]() {
-        snapshot.clear();
-        snapshot_counts.clear();
-        adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m, aligned_buffer<float>& v, long& count) {
-          for (const auto* b : {&p.value, &m, &v}) snapshot.emplace_back(b->begin(), b->end());
-          snapshot_counts.push_back(count);
-        });
-        snapshot_steps = adam.steps();
-      };
-      auto restore_snapshot = [&]() {
-        std::size_t i = 0, j = 0;
-        adam.for_each_state([&](nn::parameter& p, aligned_buffer<float>& m, aligned_buffer<float>& v, long& count) {
-          for (auto* b : {&p.value, &m, &v}) std::copy(snapshot[i].begin(), snapshot[i].end(), b->begin()), ++i;
-          count = snapshot_counts[j++];
-        });
-        adam.set_steps(snapshot_steps);
-      };
-      auto whole_maps = [&]() {
-        ad::tape t2;
-        ad::tape::no_grad_guard guard(t2);
-        return network_space::network_to_maps(decode_maps(t2).value.tile(0, 0, H, W), 0);
-      };
+      nn::adam::snapshot snapshot;
+      double snapshot_loss = 0;
       for (; step < o.finetune_steps; ++step) {
         t.clear();
         double loss = 0;
@@ -399,16 +403,16 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           if (o.finetune_observer) o.finetune_observer(step, loss, [&]() { return m; });
           if (guarding) {
             if (!(loss <= o.finetune_guard * best_loss) && !snapshot.empty()) {  // also a NaN or infinite loss
-              restore_snapshot();  // back to weights whose loss was near the best, at half the rate
+              adam.restore(snapshot);  // back to weights whose loss was near the best, at half the rate
               best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
               lr_scale *= 0.5;
-              adam.schedule = schedule.with_warmup(o.finetune_warmup).scaled(lr_scale);
+              adam.schedule = schedule.scaled(lr_scale);
               ++fine.restarts;
               restarted = true;
             } else {
               best_loss = std::min(best_loss, loss);
               if ((step - first) % o.finetune_guard_every == 0 && loss <= 1.1 * best_loss) {
-                take_snapshot();
+                snapshot = adam.take_snapshot();
                 snapshot_loss = loss;
               }
             }
@@ -463,20 +467,9 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
           nn::write_safetensors(ft_dir / "adam.safetensors", state);
           last_checkpoint = clock::now();
         }
-        window_sum += loss;
-        if (o.finetune_min_improvement > 0 && o.finetune_patience > 0 && (step + 1) % o.finetune_patience == 0) {
-          const double compared = cropping ? window_sum / o.finetune_patience : loss;
-          window_sum = 0;
-          if (compared > window_best * (1.0 - o.finetune_min_improvement)) { ++step; break; }
-          window_best = std::min(window_best, compared);
-        }
+        if (stopper.stop_after(step, loss)) { ++step; break; }
       }
-      {
-        ad::tape::no_grad_guard guard(t);
-        t.clear();
-        auto y = decode_maps(t);
-        maps = network_space::network_to_maps(y.value.tile(0, 0, H, W), 0);
-      }
+      maps = whole_maps();
       restrict_to_features(maps, features);  // what a reduced kernel fitted, as every renderer sees it
       result.after_finetune = maps;
       fine.ran = true;
