@@ -366,6 +366,28 @@ void eval_command(const eval_args& e, const capture_args& base) {
     r.e.diffuse += pe.diffuse; r.e.specular += pe.specular; r.e.normal += pe.normal; r.e.lobes += pe.lobes;
     r.e.rotation += pe.rotation; r.e.fresnel += pe.fresnel; r.novel += novel; r.seconds += sec; ++r.n;
   };
+  // Rewritten (atomically) after every material, so a long run that is stopped keeps its rows so far.
+  auto write_tables = [&]() -> std::string {
+    std::ostringstream md;
+    md << "| N | stage | set | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss | s / material |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for (const auto& key : order) {
+      const auto& r = rows[key];
+      const double k = r.n;
+      const auto p1 = key.find('|'), p2 = key.rfind('|');
+      char line[400];
+      std::snprintf(line, sizeof line, "| %s | %s | %s | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f | %.1f |\n", key.substr(0, p1).c_str(),
+                    key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(), r.e.diffuse / k, r.e.specular / k,
+                    r.e.normal / k, r.e.lobes / k, r.e.rotation / k, r.e.fresnel / k, r.novel / k, r.seconds / k);
+      md << line;
+    }
+    fs::create_directories(e.out);
+    file_transaction files_out;
+    const std::string table = md.str(), rows_csv = csv.str();
+    files_out.stage(e.out / "table.md", table.data(), table.size());
+    files_out.stage(e.out / "table.csv", rows_csv.data(), rows_csv.size());
+    files_out.commit();
+    return table;
+  };
   for (int m = 0; m < e.count; ++m) {
     const std::uint64_t seed = e.first_seed + std::uint64_t(m);
     random_generator rng(hash64(seed ^ 0x6576616cULL));
@@ -399,25 +421,10 @@ void eval_command(const eval_args& e, const capture_args& base) {
         if (pr.after_finetune) record("fine-tuned", *pr.after_finetune);
         record("refined", pr.maps);
       }
+    write_tables();
+    std::fprintf(stderr, "eval: %d/%d materials done, tables in %s\n", m + 1, e.count, e.out.c_str());
   }
-  std::ostringstream md;
-  md << "| N | stage | set | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss | s / material |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
-  for (const auto& key : order) {
-    const auto& r = rows[key];
-    const double k = r.n;
-    const auto p1 = key.find('|'), p2 = key.rfind('|');
-    char line[400];
-    std::snprintf(line, sizeof line, "| %s | %s | %s | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f | %.1f |\n", key.substr(0, p1).c_str(),
-                  key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(), r.e.diffuse / k, r.e.specular / k,
-                  r.e.normal / k, r.e.lobes / k, r.e.rotation / k, r.e.fresnel / k, r.novel / k, r.seconds / k);
-    md << line;
-  }
-  fs::create_directories(e.out);
-  file_transaction files_out;
-  const std::string table = md.str(), rows_csv = csv.str();
-  files_out.stage(e.out / "table.md", table.data(), table.size());
-  files_out.stage(e.out / "table.csv", rows_csv.data(), rows_csv.size());
-  files_out.commit();
+  const std::string table = write_tables();
   std::printf("%s\n(%d materials, %d to %d texels a side; per-material rows in %s)\n", table.c_str(), e.count, e.min_size, e.max_size,
               (e.out / "table.csv").c_str());
 }
