@@ -64,12 +64,10 @@ nlohmann::json errors_to_json(const parameter_errors& e) {
           {"fresnel", e.fresnel}};
 }
 
-/// Renders `maps` under `cap` into `out`: one linear EXR per image under its capture file name
-/// (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR. All files
-/// appear together or not at all.
-void write_renders(const material_maps& maps, const capture& cap, const fs::path& out,
-                   const brdf_features& features = all_features) {
-  const auto images = with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); });
+/// Writes `images` (one per capture image) into `out`: one linear EXR per image under its capture
+/// file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR.
+/// All files appear together or not at all.
+void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out) {
   fs::create_directories(out);
   file_transaction files;
   for (std::size_t i = 0; i < images.size(); ++i) {
@@ -86,6 +84,12 @@ void write_renders(const material_maps& maps, const capture& cap, const fs::path
   files.commit();
 }
 
+/// Renders `maps` under `cap` into `out` (write_images).
+void write_renders(const material_maps& maps, const capture& cap, const fs::path& out,
+                   const brdf_features& features = all_features) {
+  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out);
+}
+
 // ---- commands -----------------------------------------------------------------------------------
 
 struct synthesize_args {
@@ -94,6 +98,7 @@ struct synthesize_args {
   std::string set = "alpha";
   std::uint64_t seed = 1;
   std::string kind;
+  sensor_noise noise;  // simulated sensor noise on the rendered inputs (none by default)
 };
 
 /// A procedural material, its map set (truth/), N rendered inputs and capture.json.
@@ -112,7 +117,10 @@ void synthesize(const synthesize_args& a) {
   else throw std::invalid_argument("--set must be alpha or beta, got '" + a.set + "'");
   fs::create_directories(a.out);
   write_maps(truth, a.out / "truth");
-  write_renders(truth, cap, a.out);
+  a.noise.validate();
+  std::vector<image> photos = render(truth, cap);
+  add_sensor_noise(photos, a.noise, a.seed);
+  write_images(photos, cap, a.out);
   write_capture(cap, a.out / "capture.json");
   std::fprintf(stderr, "synthesized %s (%s, seed %llu, %dx%d) with %d inputs (set %s) in %s\n",
                material_kind_name(kind_for_seed(a.seed)), a.kind.empty() ? "kind from seed" : a.kind.c_str(),
@@ -338,7 +346,8 @@ struct eval_args {
   int count = 20, min_size = 256, max_size = 640;
   std::vector<int> image_counts{8, 10, 12};
   std::vector<std::string> sets{"alpha", "beta"};
-  std::uint64_t first_seed = 900000;  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
+  std::uint64_t first_seed = 900000;
+  sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
 };
 
 /// The paper's Table 1 on procedural validation materials (MODEL.md 9): per N, set and stage the
@@ -349,6 +358,7 @@ void eval_command(const eval_args& e, const capture_args& base) {
     if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
   for (int n : e.image_counts)
     if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
+  e.noise.validate();
   {
     pipeline_options check;
     apply_optimiser_options(base, check);  // reject impossible options before any work
@@ -398,7 +408,8 @@ void eval_command(const eval_args& e, const capture_args& base) {
     for (int n : e.image_counts)
       for (const auto& set : e.sets) {
         const capture cap = set == "alpha" ? set_alpha(n, seed, w, h) : set_beta(n, seed, w, h);
-        const auto photos = render(truth, cap);
+        auto photos = render(truth, cap);
+        add_sensor_noise(photos, e.noise, seed ^ hash64(std::uint64_t(n) * 2 + (set == "beta")));
         pipeline_options po;
         apply_optimiser_options(base, po);
         po.finetune_steps = base.finetune_steps;
@@ -470,6 +481,8 @@ int main(int argc, char** argv) {
   syn_cmd->add_option("--set", syn.set, "configuration set: alpha (Fresnel + anisotropic pairs + independent) or beta (independent + mirror)")->capture_default_str();
   syn_cmd->add_option("--seed", syn.seed, "material and configuration seed")->capture_default_str();
   syn_cmd->add_option("--kind", syn.kind, "force a material kind (plain_weave, twill, satin, brushed_metal, ...)");
+  syn_cmd->add_option("--shot-noise", syn.noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1")->capture_default_str()->check(CLI::NonNegativeNumber);
+  syn_cmd->add_option("--read-noise", syn.noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->capture_default_str()->check(CLI::NonNegativeNumber);
 
   fs::path maps_dir, render_capture, render_out;
   auto* render_cmd = app.add_subcommand("render", "render a map set under a capture's configurations");
@@ -516,6 +529,8 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--max-size", ev.max_size, "largest side in texels")->capture_default_str();
   eval_cmd->add_option("--images", ev.image_counts, "input counts N")->delimiter(',')->capture_default_str();
   eval_cmd->add_option("--sets", ev.sets, "configuration sets")->delimiter(',')->capture_default_str();
+  eval_cmd->add_option("--shot-noise", ev.noise.shot, "simulated sensor shot noise: relative standard deviation at pixel value 1 (0: exact renders)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  eval_cmd->add_option("--read-noise", ev.noise.read, "simulated sensor read noise: standard deviation independent of the pixel value")->capture_default_str()->check(CLI::NonNegativeNumber);
   eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
   eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();

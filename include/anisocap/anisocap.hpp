@@ -27,6 +27,7 @@
 #include "anisocap/render/capture.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/renderer.hpp"
+#include "anisocap/render/sensor_noise.hpp"
 
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/contact_sheet.hpp"

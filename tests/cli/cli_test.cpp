@@ -2,6 +2,7 @@
 // that must give one clear message naming the file, a non-zero exit, and no output.
 #include <doctest/doctest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -106,6 +107,25 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   for (std::size_t i = 0; i < a.pixel_count(); ++i) REQUIRE(a.plane(1)[i] == b.plane(1)[i]);
 }
 
+TEST_CASE("synthesize --shot-noise: inputs are the exact renders plus non-negative noise of the stated size") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 24 --height 20 --images 4 --seed 3 --shot-noise 0.05", t.path).status == 0);
+  REQUIRE(run("render --maps syn/truth --capture syn/capture.json -o exact", t.path).status == 0);
+  const auto noisy = anisocap::read_exr(t.path / "syn/input_01.exr");
+  const auto exact = anisocap::read_exr(t.path / "exact/input_01.exr");
+  double sum2 = 0, expected = 0;
+  int differ = 0;
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t i = 0; i < exact.pixel_count(); ++i) {
+      CHECK(noisy.plane(c)[i] >= 0.0f);
+      differ += noisy.plane(c)[i] != exact.plane(c)[i];
+      sum2 += std::pow(double(noisy.plane(c)[i]) - exact.plane(c)[i], 2);
+      expected += 0.05 * 0.05 * exact.plane(c)[i];
+    }
+  CHECK(differ > int(exact.pixel_count()));
+  CHECK(sum2 == doctest::Approx(expected).epsilon(0.3));
+}
+
 TEST_CASE("bad input: one clear message naming the file, non-zero exit, no output") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
@@ -168,6 +188,8 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK(run("capture syn/capture.json -o out --finetune-crop -2", t.path).output.find("--finetune-crop") != std::string::npos);
     CHECK(run("capture syn/capture.json -o out --finetune-warmup -1", t.path).output.find("--finetune-warmup") != std::string::npos);
     CHECK(run("eval -o ev --finetune-half-life -5", t.path).output.find("--finetune-half-life") != std::string::npos);
+    CHECK(run("eval -o ev --read-noise -1", t.path).output.find("--read-noise") != std::string::npos);
+    CHECK(run("synthesize -o s2 --shot-noise -0.1", t.path).output.find("--shot-noise") != std::string::npos);
     CHECK_FALSE(fs::exists(t.path / "ev"));
     CHECK_FALSE(fs::exists(t.path / "out"));
     CHECK_FALSE(fs::exists(t.path / "s2"));
