@@ -117,9 +117,12 @@ struct pipeline_options {
   /// full k x k crop, so clipped crops count per texel as much as whole ones.
   int finetune_crop = 0;
   std::uint64_t finetune_seed = 1;  ///< seed of the crop positions (a resumed run draws the same)
-  /// Fine-tune divergence guard (whole-tile steps): when a step's loss exceeds this factor times the
-  /// lowest loss so far, the decoder and Adam go back to their last snapshot (taken every
-  /// `finetune_guard_every` steps) and the learning rate halves; so does a NaN or infinite loss.
+  /// Fine-tune divergence guard: when a step's loss exceeds this factor times the lowest loss so
+  /// far, the decoder and Adam go back to their last snapshot (taken every `finetune_guard_every`
+  /// steps) and the learning rate halves; so does a NaN or infinite loss. With crops the guard
+  /// compares the mean crop loss of each `finetune_guard_every` steps instead of single steps
+  /// (one crop's loss says little about the tile), the first snapshot is the start, and the
+  /// fine-tune ends with the last snapshot's decoder when the whole tile renders better with it.
   /// The snapshot costs a copy of the decoder's weights and Adam moments (3x the decoder's size)
   /// every `finetune_guard_every` steps. Large learning rates diverge on
   /// some materials after hundreds of good steps; this keeps what those steps gained. 0: off.
@@ -385,10 +388,39 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       const bool cropping = crop_y < cells_y || crop_x < cells_x;
       early_stopping stopper(o.finetune_min_improvement, o.finetune_patience, cropping);  // crop losses are noisy: window means
       pipeline_detail::crop_scratch scratch;
-      // Divergence guard: a snapshot of the decoder's weights and Adam's state, and its loss.
-      const bool guarding = o.finetune_guard > 0 && !cropping;
+      // Divergence guard: a snapshot of the decoder's weights and Adam's state, and its loss. The
+      // whole tile's loss is checked every step; crop losses are noisy (each is one window's), so
+      // with crops the guard checks the mean loss of every finetune_guard_every steps instead (a
+      // whole-tile decode would cost as much as the crops on large materials).
+      const bool guarding = o.finetune_guard > 0;
       nn::adam::snapshot snapshot;
       double snapshot_loss = 0;
+      // Returns true when `guard_loss` (NaN and infinity included) exceeds the guard: the weights
+      // and Adam's state go back to the snapshot and the learning rate halves.
+      auto guard_restarts = [&](double guard_loss, bool may_snapshot) {
+        if (!(guard_loss <= o.finetune_guard * best_loss) && !snapshot.empty()) {
+          adam.restore(snapshot);  // back to weights whose loss was near the best, at half the rate
+          adam.zero_grad();
+          best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
+          lr_scale *= 0.5;
+          adam.schedule = schedule.scaled(lr_scale);
+          ++fine.restarts;
+          return true;
+        }
+        best_loss = std::min(best_loss, guard_loss);
+        if (may_snapshot && guard_loss <= 1.1 * best_loss) {
+          snapshot = adam.take_snapshot();
+          snapshot_loss = guard_loss;
+        }
+        return false;
+      };
+      double window_sum = 0;  // crops: the losses of the guard's current window of steps
+      int window_steps = 0;
+      if (guarding && cropping) {  // the start, at the whole tile's loss, is the first place to come back to
+        snapshot = adam.take_snapshot();
+        snapshot_loss = first == 0 ? enc.loss : best_loss;
+        best_loss = std::min(best_loss, snapshot_loss);
+      }
       for (; step < o.finetune_steps; ++step) {
         t.clear();
         double loss = 0;
@@ -401,22 +433,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
             return loss_and_gradient<F>(m, cap, targets, &grad, {}, o.render);
           });
           if (o.finetune_observer) o.finetune_observer(step, loss, [&]() { return m; });
-          if (guarding) {
-            if (!(loss <= o.finetune_guard * best_loss) && !snapshot.empty()) {  // also a NaN or infinite loss
-              adam.restore(snapshot);  // back to weights whose loss was near the best, at half the rate
-              best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
-              lr_scale *= 0.5;
-              adam.schedule = schedule.scaled(lr_scale);
-              ++fine.restarts;
-              restarted = true;
-            } else {
-              best_loss = std::min(best_loss, loss);
-              if ((step - first) % o.finetune_guard_every == 0 && loss <= 1.1 * best_loss) {
-                snapshot = adam.take_snapshot();
-                snapshot_loss = loss;
-              }
-            }
-          }
+          if (guarding) restarted = guard_restarts(loss, (step - first) % o.finetune_guard_every == 0);
           if (!restarted) {
             auto g_view = y.grad.tile(0, 0, H, W);
             network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
@@ -433,6 +450,14 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
               if (!whole) whole = whole_maps();
               return *whole;
             });
+          }
+          if (guarding) {
+            window_sum += loss;
+            if (++window_steps == o.finetune_guard_every) {
+              restarted = guard_restarts(window_sum / window_steps, true);
+              window_sum = 0;
+              window_steps = 0;
+            }
           }
         }
         if (!restarted) adam.step();
@@ -471,10 +496,25 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       }
       maps = whole_maps();
       restrict_to_features(maps, features);  // what a reduced kernel fitted, as every renderer sees it
+      fine.loss = image_loss(maps);
+      if (guarding && cropping && !snapshot.empty()) {
+        // The crop guard watches window means, not the tile: keep the last snapshot's decoder
+        // when the whole tile renders better with it than with the last weights.
+        const auto last = adam.take_snapshot();
+        adam.restore(snapshot);
+        material_maps snapshot_maps = whole_maps();
+        restrict_to_features(snapshot_maps, features);
+        const double snapshot_tile_loss = image_loss(snapshot_maps);
+        if (snapshot_tile_loss < fine.loss) {
+          maps = std::move(snapshot_maps);
+          fine.loss = snapshot_tile_loss;
+        } else {
+          adam.restore(last);
+        }
+      }
       result.after_finetune = maps;
       fine.ran = true;
       fine.steps = step - first;
-      fine.loss = image_loss(maps);
       fine.seconds = seconds_since(t1);
       result.stages.push_back(fine);
     }
