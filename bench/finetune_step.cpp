@@ -47,18 +47,8 @@ step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int
   std::vector<image> photos = render(truth, cap);
   apply_exposure(cap, photos, exposure_scale(cap));
   const loss_targets targets = make_loss_targets(photos);
-  constexpr int M = AutoEncoder<P>::size_multiple;
-  const int padded = (size + M - 1) / M * M;
-  tensor<parameter_count, float> u(1, padded, padded);
-  network_space::maps_to_network(pipeline_detail::pad_maps(truth, padded, padded), u, 0);
-  ae.set_training(false);
+  const auto z = pipeline_detail::encode_maps(ae, truth);
   ae.freeze_encoder(true);
-  tensor<AutoEncoder<P>::latent_channels, float> z;
-  {
-    ad::tape t;
-    ad::tape::no_grad_guard guard(t);
-    z = ae.encode(t, t.leaf(u)).value.clone();
-  }
   nn::adam adam(nn::learning_rate_schedule::constant(1e-5));  // small: the weights barely move while timing
   ae.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
   material_maps grad(size, size);
@@ -92,7 +82,7 @@ step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int
     }
   }
   // Crop steps, windows as the pipeline draws them.
-  const int cells = padded / M, k = std::min(crop, cells);
+  const int cells = z.width(), k = std::min(crop, cells);  // a square tile: z.height() too
   pipeline_detail::crop_scratch scratch;
   for (int s = 0; s < warmup + repeats; ++s) {
     const auto t0 = clock_type::now();

@@ -346,8 +346,8 @@ struct eval_args {
   int count = 20, min_size = 256, max_size = 640;
   std::vector<int> image_counts{8, 10, 12};
   std::vector<std::string> sets{"alpha", "beta"};
-  std::uint64_t first_seed = 900000;
-  sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
+  std::uint64_t first_seed = 900000;  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
+  sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)
 };
 
 /// The paper's Table 1 on procedural validation materials (MODEL.md 9): per N, set and stage the
@@ -472,6 +472,12 @@ int main(int argc, char** argv) {
   int threads = 0;
   app.add_option("--threads", threads, "worker threads (default: all cores)")->check(CLI::NonNegativeNumber);
 
+  // Simulated sensor noise on rendered inputs, for synthesize and eval.
+  auto add_noise_options = [](CLI::App* c, sensor_noise& noise) {
+    c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->capture_default_str()->check(CLI::NonNegativeNumber);
+    c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->capture_default_str()->check(CLI::NonNegativeNumber);
+  };
+
   synthesize_args syn;
   auto* syn_cmd = app.add_subcommand("synthesize", "make a procedural material, its map set (truth/), rendered inputs and capture.json");
   syn_cmd->add_option("-o,--out", syn.out, "output folder")->capture_default_str();
@@ -481,8 +487,7 @@ int main(int argc, char** argv) {
   syn_cmd->add_option("--set", syn.set, "configuration set: alpha (Fresnel + anisotropic pairs + independent) or beta (independent + mirror)")->capture_default_str();
   syn_cmd->add_option("--seed", syn.seed, "material and configuration seed")->capture_default_str();
   syn_cmd->add_option("--kind", syn.kind, "force a material kind (plain_weave, twill, satin, brushed_metal, ...)");
-  syn_cmd->add_option("--shot-noise", syn.noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1")->capture_default_str()->check(CLI::NonNegativeNumber);
-  syn_cmd->add_option("--read-noise", syn.noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->capture_default_str()->check(CLI::NonNegativeNumber);
+  add_noise_options(syn_cmd, syn.noise);
 
   fs::path maps_dir, render_capture, render_out;
   auto* render_cmd = app.add_subcommand("render", "render a map set under a capture's configurations");
@@ -529,8 +534,7 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--max-size", ev.max_size, "largest side in texels")->capture_default_str();
   eval_cmd->add_option("--images", ev.image_counts, "input counts N")->delimiter(',')->capture_default_str();
   eval_cmd->add_option("--sets", ev.sets, "configuration sets")->delimiter(',')->capture_default_str();
-  eval_cmd->add_option("--shot-noise", ev.noise.shot, "simulated sensor shot noise: relative standard deviation at pixel value 1 (0: exact renders)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  eval_cmd->add_option("--read-noise", ev.noise.read, "simulated sensor read noise: standard deviation independent of the pixel value")->capture_default_str()->check(CLI::NonNegativeNumber);
+  add_noise_options(eval_cmd, ev.noise);
   eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
   eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();

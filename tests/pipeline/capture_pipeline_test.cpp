@@ -20,6 +20,37 @@ struct scene {
   std::vector<image> photos;
   scene(int w, int h) : truth(random_maps(w, h, 3)), cap(random_capture(5, 4)), photos(render(truth, cap)) {}
 };
+
+/// Fine-tunes `s` with `o` (which names a check-point folder) for 8 steps uninterrupted, then again
+/// stopped after 5 steps and resumed with fresh networks, as a new process would be; checks that
+/// the encoder never moves and that the resumed run does the 3 remaining steps and ends with the
+/// uninterrupted run's decoder and loss. `o.finetune_observer` sees the uninterrupted run only.
+void check_fine_tune_resumes(const scene& s, pipeline_options o) {
+  REQUIRE_FALSE(o.checkpoint_dir.empty());
+  o.checkpoint_seconds = 0;  // check-point after every step
+  o.finetune_steps = 8;
+  EstimationNet<estimator_tiny> estimator(1);
+  AutoEncoder<autoencoder_tiny> straight(2);
+  const auto encoder_before = straight.enc0.weight.value;
+  const pipeline_result a = run_pipeline(s.cap, s.photos, estimator, straight, o);
+  for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc0.weight.value[i] == encoder_before[i]);
+  o.finetune_observer = nullptr;
+
+  std::filesystem::remove_all(o.checkpoint_dir);
+  AutoEncoder<autoencoder_tiny> first(2);
+  o.finetune_steps = 5;
+  run_pipeline(s.cap, s.photos, estimator, first, o);
+  AutoEncoder<autoencoder_tiny> second(2);
+  o.finetune_steps = 8;
+  o.resume = true;
+  const pipeline_result b = run_pipeline(s.cap, s.photos, estimator, second, o);
+  CHECK(b.stages[2].resumed);
+  CHECK(b.stages[2].steps == 3);
+  for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
+    REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
+  CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
+  std::filesystem::remove_all(o.checkpoint_dir);
+}
 }  // namespace
 
 TEST_CASE("pipeline: every stage runs on a non-square size that is not a multiple of 32, maps stay valid") {
@@ -55,37 +86,12 @@ TEST_CASE("pipeline: every stage runs on a non-square size that is not a multipl
 
 TEST_CASE("pipeline: the decoder fine-tune touches only the decoder and resumes from its check-point") {
   const scene s(32, 32);
-  const auto dir = std::filesystem::temp_directory_path() / ("anisocap_pipeline_" + std::to_string(std::random_device{}()));
   pipeline_options o;
   o.window = 64;
   o.stages.estimate = false;  // start from the first guess: the networks' estimate is not needed here
   o.stages.refine = false;
-  o.finetune_steps = 8;
-  o.checkpoint_dir = dir;
-  o.checkpoint_seconds = 0;  // check-point after every step
-
-  // Uninterrupted: 8 steps.
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> straight(2);
-  const auto encoder_before = straight.enc0.weight.value;
-  const pipeline_result a = run_pipeline(s.cap, s.photos, estimator, straight, o);
-  for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc0.weight.value[i] == encoder_before[i]);
-
-  // Interrupted after 5 steps, then resumed with a fresh network (as a new process would be).
-  std::filesystem::remove_all(dir);
-  AutoEncoder<autoencoder_tiny> first(2);
-  o.finetune_steps = 5;
-  run_pipeline(s.cap, s.photos, estimator, first, o);
-  AutoEncoder<autoencoder_tiny> second(2);
-  o.finetune_steps = 8;
-  o.resume = true;
-  const pipeline_result b = run_pipeline(s.cap, s.photos, estimator, second, o);
-  CHECK(b.stages[2].resumed);
-  CHECK(b.stages[2].steps == 3);
-  for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
-    REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
-  CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
-  std::filesystem::remove_all(dir);
+  o.checkpoint_dir = std::filesystem::temp_directory_path() / ("anisocap_pipeline_" + std::to_string(std::random_device{}()));
+  check_fine_tune_resumes(s, o);
 }
 
 TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed over all windows, losses and gradients are the whole tile's") {
@@ -95,16 +101,8 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   const loss_targets targets = make_loss_targets(s.photos);
   AutoEncoder<autoencoder_tiny> ae(3);
   constexpr int M = AutoEncoder<autoencoder_tiny>::size_multiple;
-  tensor<parameter_count, float> u(1, 96, 128);
-  network_space::maps_to_network(pipeline_detail::pad_maps(s.truth, 128, 96), u, 0);
-  ae.set_training(false);
+  const auto z = pipeline_detail::encode_maps(ae, s.truth);
   ae.freeze_encoder(true);
-  tensor<AutoEncoder<autoencoder_tiny>::latent_channels, float> z;
-  {
-    ad::tape t;
-    ad::tape::no_grad_guard guard(t);
-    z = ae.encode(t, t.leaf(u)).value.clone();
-  }
   REQUIRE(z.height() == 3);
   REQUIRE(z.width() == 4);
   std::vector<nn::parameter*> params;
@@ -188,35 +186,16 @@ TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-
   for (int v : count) CHECK(std::abs(v - expected) < 0.06 * expected);
 
   const scene s(96, 64);
-  const auto dir = std::filesystem::temp_directory_path() / ("anisocap_crop_" + std::to_string(std::random_device{}()));
   pipeline_options o;
   o.stages.estimate = false;
   o.stages.refine = false;
-  o.finetune_steps = 8;
   o.finetune_crop = 1;
   o.finetune_warmup = 3;
-  o.checkpoint_dir = dir;
-  o.checkpoint_seconds = 0;
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> straight(2);
-  std::vector<double> losses;
-  o.finetune_observer = [&](int, double loss, const std::function<material_maps()>&) { losses.push_back(loss); };
-  const pipeline_result a = run_pipeline(s.cap, s.photos, estimator, straight, o);
-  CHECK(losses.size() == 8);
-  o.finetune_observer = nullptr;
-  std::filesystem::remove_all(dir);
-  AutoEncoder<autoencoder_tiny> first(2);
-  o.finetune_steps = 5;
-  run_pipeline(s.cap, s.photos, estimator, first, o);
-  AutoEncoder<autoencoder_tiny> second(2);
-  o.finetune_steps = 8;
-  o.resume = true;
-  const pipeline_result b = run_pipeline(s.cap, s.photos, estimator, second, o);
-  CHECK(b.stages[2].steps == 3);
-  for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
-    REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
-  CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
-  std::filesystem::remove_all(dir);
+  o.checkpoint_dir = std::filesystem::temp_directory_path() / ("anisocap_crop_" + std::to_string(std::random_device{}()));
+  int observed = 0;
+  o.finetune_observer = [&](int, double, const std::function<material_maps()>&) { ++observed; };
+  check_fine_tune_resumes(s, o);
+  CHECK(observed == 8);
 }
 
 TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved back to a loss near the best, whole tiles and crops") {

@@ -181,6 +181,21 @@ inline material_maps pad_maps(const material_maps& maps, int width, int height) 
   return out;
 }
 
+/// The auto-encoder's latent code of `maps` (MODEL.md 8.2): the maps mirrored out to a multiple of
+/// the network's size multiple, taken to network space and encoded in inference mode without
+/// gradients. Leaves the auto-encoder in inference mode.
+template <class P>
+tensor<AutoEncoder<P>::latent_channels, float> encode_maps(AutoEncoder<P>& autoencoder, const material_maps& maps) {
+  constexpr int M = AutoEncoder<P>::size_multiple;
+  const int Wp = (maps.width() + M - 1) / M * M, Hp = (maps.height() + M - 1) / M * M;
+  tensor<parameter_count, float> u(1, Hp, Wp);
+  network_space::maps_to_network(pad_maps(maps, Wp, Hp), u, 0);
+  autoencoder.set_training(false);
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  return autoencoder.encode(t, t.leaf(u)).value.clone();
+}
+
 /// A window of latent cells: rows [r0, r1) x columns [c0, c1).
 struct latent_window {
   int r0 = 0, r1 = 0, c0 = 0, c1 = 0;
@@ -309,18 +324,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
   if (o.stages.encode) {
     stage_report enc{"encode"}, fine{"finetune"};
     const auto t0 = clock::now();
-    constexpr int M = AutoEncoder<AutoEncoderPreset>::size_multiple;
-    const int Wp = (W + M - 1) / M * M, Hp = (H + M - 1) / M * M;
-    const material_maps padded = pipeline_detail::pad_maps(maps, Wp, Hp);
-    tensor<parameter_count, float> u(1, Hp, Wp);
-    network_space::maps_to_network(padded, u, 0);
-    autoencoder.set_training(false);
-    tensor<AutoEncoder<AutoEncoderPreset>::latent_channels, float> z;
-    {
-      ad::tape t;
-      ad::tape::no_grad_guard guard(t);
-      z = autoencoder.encode(t, t.leaf(u)).value.clone();
-    }
+    const auto z = pipeline_detail::encode_maps(autoencoder, maps);
     enc.ran = true;
     enc.seconds = seconds_since(t0);
     auto decode_maps = [&](ad::tape& t) {
@@ -382,7 +386,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
       int step = first;
       ad::tape t;
       // Crops: k x k latent cells (k = finetune_crop), only where the tile has more cells than that.
-      const int cells_y = Hp / M, cells_x = Wp / M;
+      const int cells_y = z.height(), cells_x = z.width();
       const int crop_y = o.finetune_crop > 0 && o.finetune_crop < cells_y ? o.finetune_crop : cells_y;
       const int crop_x = o.finetune_crop > 0 && o.finetune_crop < cells_x ? o.finetune_crop : cells_x;
       const bool cropping = crop_y < cells_y || crop_x < cells_x;
