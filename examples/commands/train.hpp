@@ -29,6 +29,7 @@ struct train_settings {
   long validate_every = 250;
   int validation_count = 8;
   bool resume = false;
+  std::string init;
   double smoothness = 0.1;
   double latent_noise = 0.1;
 };
@@ -45,6 +46,7 @@ inline training::train_options to_options(const train_settings& s) {
   o.validate_every = s.validate_every;
   o.validation_count = s.validation_count;
   o.resume = s.resume;
+  o.init_weights = s.init;
   o.smoothness_weight = s.smoothness;
   o.latent_noise = s.latent_noise;
   return o;
@@ -62,6 +64,7 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--validate-every", s.validate_every, "steps between validations");
   cmd->add_option("--validation-count", s.validation_count, "validation materials");
   cmd->add_flag("--resume", s.resume, "continue from OUT/checkpoint.json");
+  cmd->add_option("--init", s.init, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
     cmd->add_option("--smoothness", s.smoothness, "weight of the latent smoothness term");
     cmd->add_option("--latent-noise", s.latent_noise, "standard deviation of the latent step delta");

@@ -120,6 +120,7 @@ struct train_options {
   long validate_every = 250;          ///< steps between validations (and one at the end)
   int validation_count = 8;           ///< validation materials
   bool resume = false;                ///< continue from out_dir/checkpoint.json
+  std::filesystem::path init_weights; ///< non-empty: a fresh run starts from these weights (not from random ones)
   double smoothness_weight = 0.1;     ///< auto-encoder: weight of the latent smoothness term
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
@@ -313,6 +314,10 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     o.log(kind + ": resumed at step " + std::to_string(step));
   } else {
     std::filesystem::remove(csv);
+    if (!o.init_weights.empty()) {
+      nn::load_weights(o.init_weights, net);
+      o.log(kind + ": starting from the weights in " + o.init_weights.string());
+    }
   }
   using clock = std::chrono::steady_clock;
   const auto start = clock::now();
