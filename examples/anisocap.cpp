@@ -23,7 +23,10 @@
 #include "anisocap/nn/safetensors.hpp"
 #include "anisocap/pipeline/capture_pipeline.hpp"
 #include "anisocap/render/analysis.hpp"
+#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/export/viewer.hpp"
 #include "commands/train.hpp"
+#include "commands/view.hpp"
 
 namespace fs = std::filesystem;
 using namespace anisocap;
@@ -110,7 +113,8 @@ void synthesize(const synthesize_args& a) {
     options.kind = material_kind_from_name(a.kind);
     if (!options.kind) throw std::invalid_argument("unknown --kind '" + a.kind + "'");
   }
-  const material_maps truth = generate_material(a.seed, a.width, a.height, options);
+  material_maps truth = generate_material(a.seed, a.width, a.height, options);
+  canonicalise(truth);
   capture cap;
   if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height);
   else if (a.set == "beta") cap = set_beta(a.images, a.seed, a.width, a.height);
@@ -147,6 +151,7 @@ struct capture_args {
   int finetune_half_life = 0;     // learning-rate half-life in steps (0: constant)
   int finetune_crop = 0;          // crop mini-batches of this many latent cells per side (0: whole tile)
   bool resume = false;
+  bool view = true;  // write material.html (the viewer page) beside the maps
   std::string kernel = "full";
   float cull = 0.0f;
   double refine_stop = 0.0;       // refine early stopping (0: never)
@@ -290,8 +295,10 @@ nlohmann::json capture_command(const capture_args& a) {
   if (a.kernel == "auto")
     std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{used_features, 0, 0, 0}.describe().c_str());
   const auto t_write = std::chrono::steady_clock::now();
+  canonicalise(maps);
   fs::create_directories(a.out);
   write_maps(maps, a.out);
+  if (a.view) write_viewer(maps, a.out / "material.html", {a.out.filename().string()});
   write_renders(maps, cap, a.out / "renders");
   write_capture_sheet(a.out / "contact_sheet.png", photos, render(maps, work_cap), maps, truth ? &*truth : nullptr);
   const capture novel = novel_view_set(1, maps.width(), maps.height());
@@ -525,6 +532,7 @@ int main(int argc, char** argv) {
   add_capture_options(capture_cmd);
   capture_cmd->add_option("--truth", cap.truth, "true map set: adds per-parameter errors to report.json");
   capture_cmd->add_option("--init", cap.init, "start from this map set instead of the built-in first guess");
+  capture_cmd->add_flag("!--no-view", cap.view, "do not write the viewer page material.html beside the maps");
 
   eval_args ev;
   auto* eval_cmd = app.add_subcommand("eval", "the paper's Table 1 on procedural validation materials (per N, set, stage)");
@@ -558,6 +566,7 @@ int main(int argc, char** argv) {
 
   std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
   commands::add_train_commands(app, actions);
+  commands::add_view_command(app);
 
   CLI11_PARSE(app, argc, argv);
   if (threads > 0) omp_set_num_threads(threads);
