@@ -25,6 +25,7 @@
 #include "anisocap/render/analysis.hpp"
 #include "anisocap/export/canonical_maps.hpp"
 #include "anisocap/export/viewer.hpp"
+#include "commands/export.hpp"
 #include "commands/train.hpp"
 #include "commands/view.hpp"
 
@@ -567,6 +568,7 @@ int main(int argc, char** argv) {
   std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
   commands::add_train_commands(app, actions);
   commands::add_view_command(app);
+  commands::add_export_command(app);
 
   CLI11_PARSE(app, argc, argv);
   if (threads > 0) omp_set_num_threads(threads);

@@ -1,14 +1,27 @@
 #!/usr/bin/env bash
 # Installs everything anisocap's build, tests and examples need, from Debian 12 packages.
 # `--bench` adds what the peer comparisons and plots need (PyTorch CPU, matplotlib).
+# `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
+# screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
+# (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
 set -euo pipefail
+web=0
+for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev)
-if [[ "${1:-}" == "--bench" ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
+if [[ " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
+if ((web)); then
+  packages+=(chromium)
+  command -v npm >/dev/null || packages+=(nodejs npm)
+fi
 missing=()
 for p in "${packages[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then
   SUDO=""; [[ $(id -u) -ne 0 ]] && SUDO=sudo
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+if ((web)) && ! (cd "$(npm root -g)" && [[ -f gltf-validator/package.json ]]); then
+  SUDO=""; [[ $(id -u) -ne 0 ]] && SUDO=sudo
+  $SUDO npm install -g --no-fund --no-audit gltf-validator
 fi

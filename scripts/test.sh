@@ -4,7 +4,7 @@
 # ANISOCAP_TEST_ARCHS overrides the list (e.g. ANISOCAP_TEST_ARCHS=native).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/install-deps.sh
+bash scripts/install-deps.sh --web
 archs=${ANISOCAP_TEST_ARCHS:-"native x86-64-v3"}
 jobs=$(nproc)
 for arch in $archs; do

@@ -23,9 +23,9 @@ namespace anisocap::exports {
 
 /// Ratios GGX alpha / Ward sigma per target (defaults: the measured minimisers, README "Exports").
 struct conversion_options {
-  double gltf_scale = 1.0;              ///< glTF KHR_materials_anisotropy
-  double blender_scale = 1.0;           ///< Blender Principled BSDF
-  double standard_surface_scale = 1.0;  ///< Standard Surface
+  double gltf_scale = 0.9;              ///< glTF KHR_materials_anisotropy
+  double blender_scale = 0.9;           ///< Blender Principled BSDF
+  double standard_surface_scale = 0.9;  ///< Standard Surface
 };
 
 namespace detail {

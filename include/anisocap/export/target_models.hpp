@@ -53,14 +53,19 @@ struct shading_frame {
   }
 };
 
+/// The anisotropic GGX distribution D(h) for a unit local h (z = normal).
+inline double ggx_distribution(const vec3& h, double ax, double ay) {
+  const double q = (h[0] / ax) * (h[0] / ax) + (h[1] / ay) * (h[1] / ay) + h[2] * h[2];
+  return 1.0 / (std::numbers::pi * ax * ay * q * q);
+}
+
 /// D * V of anisotropic GGX (file comment) for local l, v (z = normal); 0 below the horizon.
 inline double ggx_specular(const vec3& l, const vec3& v, double ax, double ay) {
   if (l[2] <= 0 || v[2] <= 0) return 0;
   vec3 h{l[0] + v[0], l[1] + v[1], l[2] + v[2]};
   const double hl = std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);
   for (double& c : h) c /= hl;
-  const double q = (h[0] / ax) * (h[0] / ax) + (h[1] / ay) * (h[1] / ay) + h[2] * h[2];
-  const double d = 1.0 / (std::numbers::pi * ax * ay * q * q);
+  const double d = ggx_distribution(h, ax, ay);
   const double gv = std::hypot(ax * v[0], ay * v[1], v[2]), gl = std::hypot(ax * l[0], ay * l[1], l[2]);
   return d * 0.5 / (l[2] * gv + v[2] * gl);
 }

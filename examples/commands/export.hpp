@@ -1,0 +1,41 @@
+#pragma once
+// `anisocap export MAPDIR --format F -o OUT`: a map set for another renderer (export/export.hpp).
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/export/export.hpp"
+#include "command_errors.hpp"
+
+namespace anisocap::commands {
+
+/// Registers `export`.
+inline void add_export_command(CLI::App& app) {
+  struct settings {
+    std::filesystem::path maps, out;
+    std::string format;
+    exports::export_options options;
+  };
+  auto s = std::make_shared<settings>();
+  auto* cmd = app.add_subcommand("export", "convert a map set for another renderer: glTF, Mitsuba 0.6, Blender, MaterialX");
+  cmd->add_option("maps", s->maps, "map set folder")->required();
+  cmd->add_option("--format", s->format, "gltf (a .gltf file), mitsuba, blender or mtlx (a folder)")
+      ->required()
+      ->check(CLI::IsMember({"gltf", "mitsuba", "blender", "mtlx"}));
+  cmd->add_option("-o,--out", s->out, "output: the .gltf file, or the folder for the other formats")->required();
+  cmd->add_option("--width", s->options.width, "glTF: physical width of the sample in metres (default: longest side 1)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->callback([s] {
+    run_reporting_errors([&] {
+      const material_maps maps = read_maps(s->maps);
+      exports::export_material(maps, *exports::export_format_from_name(s->format), s->out, s->options);
+      std::fprintf(stderr, "exported %s (%dx%d) as %s to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->format.c_str(), s->out.c_str());
+    });
+  });
+}
+
+}  // namespace anisocap::commands

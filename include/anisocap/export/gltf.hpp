@@ -1,0 +1,141 @@
+#pragma once
+/// @file
+/// glTF 2.0 export: one `.gltf` file with everything embedded (buffers and PNG textures as base64
+/// data URIs), a quad of the material's size in scene units (longest side 1; `gltf_options::width`
+/// gives a physical size in metres) in the XY plane facing +Z, UV (0,0) at the top-left texel, tangent
+/// +X. The material is metallic-roughness (metallic 0) with
+///   - KHR_materials_anisotropy: anisotropyTexture RG = direction (cos, sin) of the wide axis in the
+///     tangent frame remapped from [-1, 1] to [0, 1], B = strength (linear);
+///   - KHR_materials_specular: specularTexture A = weight w (linear), specularColorTexture RGB =
+///     F0 colour (sRGB) with specularColorFactor 25 = 1 / 0.04 (0.04: F0 of the default IOR 1.5);
+///   - baseColorTexture (sRGB), metallicRoughnessTexture G = roughness (linear), normalTexture (linear).
+/// The per-texel values come from exports::to_gltf (export/conversion.hpp).
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/data/image_io.hpp"
+#include "anisocap/export/textures.hpp"
+#include "anisocap/export/viewer.hpp"
+
+namespace anisocap::exports {
+
+/// Options of the glTF export.
+struct gltf_options {
+  double width = 0;  ///< physical width of the material in metres (0: longest side 1)
+  conversion_options conversion;
+};
+
+/// The glTF document for `maps` (canonical form expected), as JSON text.
+inline std::string gltf_document(const material_maps& maps, const gltf_options& options = {}) {
+  using nlohmann::json;
+  const int w = maps.width(), h = maps.height();
+  const std::size_t n = maps.texel_count();
+  const auto texels = convert_texels(maps, [&](const ward_parameters<float>& p) { return to_gltf(p, options.conversion); });
+  texture8 base(w, h, 3), metal_rough(w, h, 3), normal(w, h, 3), anisotropy(w, h, 3), specular(w, h, 4);
+  for (std::size_t i = 0; i < n; ++i) {
+    const gltf_texel& g = texels[i];
+    for (int c = 0; c < 3; ++c) base.set(i, c, g.base_color[c], true), specular.set(i, c, g.specular_color[c], true);
+    specular.set(i, 3, g.specular);
+    metal_rough.set(i, 0, 1.0), metal_rough.set(i, 1, g.roughness), metal_rough.set(i, 2, 0.0);
+    const double nz = std::sqrt(std::max(0.0, 1 - g.nx * g.nx - g.ny * g.ny));
+    normal.set(i, 0, 0.5 + 0.5 * g.nx), normal.set(i, 1, 0.5 + 0.5 * g.ny), normal.set(i, 2, 0.5 + 0.5 * nz);
+    anisotropy.set(i, 0, 0.5 + 0.5 * std::cos(g.anisotropy_angle)), anisotropy.set(i, 1, 0.5 + 0.5 * std::sin(g.anisotropy_angle));
+    anisotropy.set(i, 2, g.anisotropy_strength);
+  }
+  // Geometry: 4 vertices (position, normal, tangent, uv) and 6 indices in one buffer.
+  const double scale = options.width > 0 ? options.width / w : 1.0 / std::max(w, h);
+  const float hx = float(0.5 * w * scale), hy = float(0.5 * h * scale);
+  const float positions[12] = {-hx, -hy, 0, hx, -hy, 0, hx, hy, 0, -hx, hy, 0};
+  const float normals[12] = {0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1};
+  const float tangents[16] = {1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1};
+  const float uvs[8] = {0, 1, 1, 1, 1, 0, 0, 0};
+  const std::uint16_t indices[6] = {0, 1, 2, 0, 2, 3};
+  std::vector<unsigned char> buffer;
+  auto append = [&](const void* data, std::size_t size) {
+    const std::size_t offset = buffer.size();
+    buffer.resize(offset + size);
+    std::memcpy(buffer.data() + offset, data, size);
+    return offset;
+  };
+  json views = json::array(), accessors = json::array();
+  auto attribute = [&](const float* data, int count, int components, const char* type, bool bounds) {
+    const std::size_t offset = append(data, sizeof(float) * count * components);
+    views.push_back({{"buffer", 0}, {"byteOffset", offset}, {"byteLength", sizeof(float) * count * components}, {"target", 34962}});
+    json a = {{"bufferView", views.size() - 1}, {"componentType", 5126}, {"count", count}, {"type", type}};
+    if (bounds) a["min"] = {-hx, -hy, 0.0}, a["max"] = {hx, hy, 0.0};
+    accessors.push_back(a);
+    return accessors.size() - 1;
+  };
+  const auto position = attribute(positions, 4, 3, "VEC3", true);
+  const auto normal_attr = attribute(normals, 4, 3, "VEC3", false);
+  const auto tangent = attribute(tangents, 4, 4, "VEC4", false);
+  const auto uv = attribute(uvs, 4, 2, "VEC2", false);
+  const std::size_t index_offset = append(indices, sizeof indices);
+  views.push_back({{"buffer", 0}, {"byteOffset", index_offset}, {"byteLength", sizeof indices}, {"target", 34963}});
+  accessors.push_back({{"bufferView", views.size() - 1}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}});
+  const auto index_accessor = accessors.size() - 1;
+  while (buffer.size() % 4) buffer.push_back(0);
+
+  json images = json::array(), textures = json::array();
+  auto add_texture = [&](const texture8& t, const char* name) {
+    const auto png = png_bytes(t, name);
+    images.push_back({{"name", name}, {"mimeType", "image/png"}, {"uri", "data:image/png;base64," + anisocap::detail::base64(png.data(), png.size())}});
+    textures.push_back({{"sampler", 0}, {"source", images.size() - 1}});
+    return textures.size() - 1;
+  };
+  const auto base_texture = add_texture(base, "base_color");
+  const auto metal_rough_texture = add_texture(metal_rough, "metallic_roughness");
+  const auto normal_texture = add_texture(normal, "normal");
+  const auto anisotropy_texture = add_texture(anisotropy, "anisotropy");
+  const auto specular_texture = add_texture(specular, "specular");
+
+  json material = {
+      {"name", "anisocap material"},
+      {"pbrMetallicRoughness",
+       {{"baseColorTexture", {{"index", base_texture}}},
+        {"metallicFactor", 0.0},
+        {"roughnessFactor", 1.0},
+        {"metallicRoughnessTexture", {{"index", metal_rough_texture}}}}},
+      {"normalTexture", {{"index", normal_texture}}},
+      {"extensions",
+       {{"KHR_materials_anisotropy", {{"anisotropyStrength", 1.0}, {"anisotropyRotation", 0.0}, {"anisotropyTexture", {{"index", anisotropy_texture}}}}},
+        {"KHR_materials_specular",
+         {{"specularFactor", 1.0},
+          {"specularTexture", {{"index", specular_texture}}},
+          {"specularColorFactor", {25.0, 25.0, 25.0}},
+          {"specularColorTexture", {{"index", specular_texture}}}}}}}};
+  json doc = {
+      {"asset", {{"version", "2.0"}, {"generator", "anisocap export"}}},
+      {"extensionsUsed", {"KHR_materials_anisotropy", "KHR_materials_specular"}},
+      {"scene", 0},
+      {"scenes", {{{"nodes", {0}}}}},
+      {"nodes", {{{"name", "material sample"}, {"mesh", 0}}}},
+      {"meshes",
+       {{{"name", "quad"},
+         {"primitives",
+          {{{"attributes", {{"POSITION", position}, {"NORMAL", normal_attr}, {"TANGENT", tangent}, {"TEXCOORD_0", uv}}},
+            {"indices", index_accessor},
+            {"material", 0}}}}}}},
+      {"materials", {material}},
+      {"samplers", {{{"magFilter", 9729}, {"minFilter", 9987}, {"wrapS", 33071}, {"wrapT", 33071}}}},
+      {"images", images},
+      {"textures", textures},
+      {"accessors", accessors},
+      {"bufferViews", views},
+      {"buffers", {{{"byteLength", buffer.size()}, {"uri", "data:application/octet-stream;base64," + anisocap::detail::base64(buffer.data(), buffer.size())}}}}};
+  return doc.dump(1);
+}
+
+/// Writes the glTF asset of `maps` to `path` (a .gltf file) atomically.
+inline void write_gltf(const material_maps& maps, const std::filesystem::path& path, const gltf_options& options = {}) {
+  if (maps.texel_count() == 0) throw io_error(path, "cannot export an empty map set");
+  write_file_atomically(path, gltf_document(maps, options));
+}
+
+}  // namespace anisocap::exports
