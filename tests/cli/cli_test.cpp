@@ -11,6 +11,8 @@
 #include <string>
 
 #include "anisocap/data/image_io.hpp"
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/export/canonical_maps.hpp"
 
 namespace fs = std::filesystem;
 
@@ -70,14 +72,37 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(s.str().find("\"stages\"") != std::string::npos);
   CHECK(s.str().find("\"novel_view_image_loss\"") != std::string::npos);
   CHECK(fs::exists(t.path / "out/contact_sheet.png"));
+  CHECK(fs::exists(t.path / "out/material.html"));  // the viewer page, by default
   CHECK(fs::exists(t.path / "out/novel/novel_02.exr"));
+  {  // the written maps are canonical: sigma_x >= sigma_y, alpha in [-pi/2, pi/2)
+    const material_maps written = read_maps(t.path / "out");
+    for (std::size_t i = 0; i < written.texel_count(); ++i)
+      REQUIRE(is_canonical(written.plane(lobe_x)[i], written.plane(lobe_y)[i], written.plane(rotation)[i]));
+  }
   CHECK(s.str().find("\"exposure_scale\"") != std::string::npos);
   // The time/accuracy options run and are reported.
   r = run("capture syn/capture.json -o fast --stages refine --steps 60 --freeze 0.01 --refine-stop 1e-3 --precision double "
-          "--kernel auto --cull 1e-3",
+          "--kernel auto --cull 1e-3 --no-view",
           t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
+  CHECK_FALSE(fs::exists(t.path / "fast/material.html"));
+  // view and export from the program; a missing map set is one clear error and no output.
+  r = run("view out -o out/page.html", t.path);
+  CHECK(r.status == 0);
+  CHECK(fs::exists(t.path / "out/page.html"));
+  for (const char* format : {"gltf", "mitsuba", "blender", "mtlx"}) {
+    r = run(std::string("export out --format ") + format + " -o exported_" + format + (std::string(format) == "gltf" ? ".gltf" : ""), t.path);
+    CHECK_MESSAGE(r.status == 0, r.output);
+  }
+  CHECK(fs::exists(t.path / "exported_mitsuba/scene.xml"));
+  r = run("export nowhere --format gltf -o bad.gltf", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("nowhere") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "bad.gltf"));
+  r = run("view nowhere -o bad.html", t.path);
+  CHECK(r.status != 0);
+  CHECK_FALSE(fs::exists(t.path / "bad.html"));
   std::ifstream rep2(t.path / "fast/report.json");
   std::stringstream s2;
   s2 << rep2.rdbuf();

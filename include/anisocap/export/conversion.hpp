@@ -99,14 +99,17 @@ inline standard_surface_texel to_standard_surface(const ward_parameters<float>& 
 /// Mitsuba 0.6 ward (balanced): the same lobe, but axis-aligned and without Fresnel or shading
 /// normal. A rotated lobe is replaced by the axis-aligned one with the same exponent along u and v:
 /// 1/a_u^2 = cos^2/sx^2 + sin^2/sy^2, 1/a_v^2 = sin^2/sx^2 + cos^2/sy^2 (exact where alpha = 0);
-/// specularReflectance = a'_s (exact at normal incidence, the Fresnel rise to a'_s / F0 is lost).
+/// specularReflectance = a'_s alpha_u alpha_v / (sx sy), which keeps the lobe's peak at normal
+/// incidence (exact there; the Fresnel rise to a'_s / F0 at grazing angles is lost).
 inline mitsuba_texel to_mitsuba(const ward_parameters<float>& p) {
   mitsuba_texel m;
   const double c = std::cos(p.alpha), s = std::sin(p.alpha);
-  const double ix = 1.0 / (double(p.sx) * p.sx), iy = 1.0 / (double(p.sy) * p.sy);
+  const double sx = std::max<double>(p.sx, ward_limits::min_lobe), sy = std::max<double>(p.sy, ward_limits::min_lobe);
+  const double ix = 1.0 / (sx * sx), iy = 1.0 / (sy * sy);
   m.alpha_u = std::clamp(1 / std::sqrt(c * c * ix + s * s * iy), 1e-4, 1.0);
   m.alpha_v = std::clamp(1 / std::sqrt(s * s * ix + c * c * iy), 1e-4, 1.0);
-  for (int k = 0; k < 3; ++k) m.diffuse_reflectance[k] = p.diffuse[k], m.specular_reflectance[k] = p.specular[k];
+  const double peak = m.alpha_u * m.alpha_v / (sx * sy);
+  for (int k = 0; k < 3; ++k) m.diffuse_reflectance[k] = p.diffuse[k], m.specular_reflectance[k] = p.specular[k] * peak;
   return m;
 }
 
