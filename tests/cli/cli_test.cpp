@@ -75,6 +75,7 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(fs::exists(t.path / "out/material.html"));  // the viewer page, by default
   CHECK(fs::exists(t.path / "out/novel/novel_02.exr"));
   {  // the written maps are canonical: sigma_x >= sigma_y, alpha in [-pi/2, pi/2)
+    using namespace anisocap;
     const material_maps written = read_maps(t.path / "out");
     for (std::size_t i = 0; i < written.texel_count(); ++i)
       REQUIRE(is_canonical(written.plane(lobe_x)[i], written.plane(lobe_y)[i], written.plane(rotation)[i]));
