@@ -9,8 +9,9 @@
 ///   D(h) = 1 / (pi a_x a_y ((h_x/a_x)^2 + (h_y/a_y)^2 + h_z^2)^2)
 /// with the height-correlated Smith visibility
 ///   V = 0.5 / (n.l |(a_x v_x, a_y v_y, n.v)| + n.v |(a_x l_x, a_y l_y, n.l)|)
-/// (KHR_materials_anisotropy, "BRDF"; the same pair MaterialX's GGX and Cycles' multiscatter-free
-/// GGX use), h the unit halfway vector in the shading frame (n, x, y). Each target layers a Lambertian
+/// (KHR_materials_anisotropy's definition; used here for all three GGX targets, whose own
+/// renderers differ in the masking term and in multiple-scattering compensation), h the unit
+/// halfway vector in the shading frame (n, x, y). Each target layers a Lambertian
 /// base under the specular lobe; we weight the base by 1 - max_c F_c(v.h) (the glTF
 /// "fresnel_mix" rule) for all three, where Blender and Standard Surface use the lobe's directional
 /// albedo instead: a difference in the diffuse term only, at grazing angles.
