@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs everything anisocap's build, tests and examples need, from Debian 12 packages.
-# `--bench` adds what the peer comparisons and plots need (PyTorch CPU, matplotlib).
+# `--studies` (also accepted as `--bench`) adds what the studies' PyTorch peer comparisons and
+# plots need (PyTorch CPU, matplotlib; studies/README.md).
 # `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
 # screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
 # (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
@@ -9,7 +10,7 @@ web=0
 for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev)
-if [[ " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
+if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if ((web)); then
   packages+=(chromium)
   command -v npm >/dev/null || packages+=(nodejs npm)
