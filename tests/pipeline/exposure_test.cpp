@@ -5,6 +5,7 @@
 #include "../render/render_reference.hpp"
 #include "anisocap/pipeline/evaluate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
+#include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/configurations.hpp"
 

@@ -11,6 +11,7 @@
 #include <numbers>
 
 #include "anisocap/ad/forward/dual.hpp"
+#include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/simd.hpp"
 
 namespace anisocap {
@@ -29,7 +30,7 @@ inline constexpr brdf_features all_features{};
 /// Numerical guards shared by every implementation (documented in one place, tested in stress tests).
 namespace ward_limits {
 /// Lobe widths are clamped below at this value (the maps' domain is (0, 1]).
-inline constexpr float min_lobe = 1e-4f;
+inline constexpr float min_lobe = min_lobe_width;
 /// F0 is clamped below at this value, so a_s = a'_s / F0 stays finite for F0 = 0.
 inline constexpr float min_f0 = 1e-4f;
 /// The geometric h_z is clamped below at this value (valid configurations have h_z > 0).

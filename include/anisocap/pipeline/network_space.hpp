@@ -28,7 +28,7 @@
 namespace anisocap::network_space {
 
 /// log(min_lobe_width): the lower end of the lobe widths' log range.
-inline const double log_min_lobe = std::log(double(min_lobe_width));
+inline const double log_min_lobe = log_min_lobe_width;
 /// Largest |(n_x, n_y)| a decoded normal may have.
 inline constexpr double max_normal_xy = 0.999;
 
