@@ -146,10 +146,10 @@ struct scratch {
 /// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
 /// gradients are (W H / 32^2) times the whole tile's.
 template <brdf_features F, class P>
-double crop_step(ad::tape& t, AutoEncoder<P>& autoencoder, const tensor<AutoEncoder<P>::latent_channels, float>& z,
+double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
                  const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
                  const render_options& render, scratch& scratch) {
-  constexpr int M = AutoEncoder<P>::size_multiple;
+  constexpr int M = auto_encoder<P>::size_multiple;
   const int cells_y = z.height(), cells_x = z.width();
   const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
   const int lr1 = std::min(win.r1 + 1, cells_y), lc1 = std::min(win.c1 + 1, cells_x);
@@ -221,7 +221,7 @@ inline std::string exact(double v) {
 /// Writes the fine-tune's check-point into `folder`: the decoder's weights, Adam's state (nn/adam.hpp's
 /// key scheme) and the step, learning-rate factor and best loss of the guard.
 template <class P>
-void save_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoencoder, nn::adam& adam, int step,
+void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
                      const divergence_guard& guard) {
   std::filesystem::create_directories(folder);
   nn::save_weights(folder / "decoder.safetensors", autoencoder);
@@ -235,7 +235,7 @@ void save_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoen
 
 /// Reads back save_checkpoint's files; returns the step to continue from.
 template <class P>
-int load_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard) {
+int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard) {
   nn::load_weights(folder / "decoder.safetensors", autoencoder);
   const std::filesystem::path state_file = folder / "adam.safetensors";
   const auto state = nn::read_safetensors(state_file);
@@ -256,7 +256,7 @@ int load_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoenc
 /// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
 /// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
 template <class P>
-finetune_result finetune(AutoEncoder<P>& autoencoder, const tensor<AutoEncoder<P>::latent_channels, float>& z, int width,
+finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width,
                          int height, const capture& cap, const loss_targets& targets, brdf_features features,
                          const render_options& render, double start_loss, const finetune_options& o,
                          const checkpoint_options& checkpoint = {}) {
