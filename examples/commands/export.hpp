@@ -9,7 +9,6 @@
 
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/export/export.hpp"
-#include "command_errors.hpp"
 
 namespace anisocap::commands {
 
@@ -30,11 +29,9 @@ inline void add_export_command(CLI::App& app) {
   cmd->add_option("--width", s->options.width, "glTF: physical width of the sample in metres (default: longest side 1)")
       ->check(CLI::NonNegativeNumber);
   cmd->callback([s] {
-    run_reporting_errors([&] {
-      const material_maps maps = read_maps(s->maps);
-      exports::export_material(maps, *exports::export_format_from_name(s->format), s->out, s->options);
-      std::fprintf(stderr, "exported %s (%dx%d) as %s to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->format.c_str(), s->out.c_str());
-    });
+    const material_maps maps = read_maps(s->maps);
+    exports::export_material(maps, *exports::export_format_from_name(s->format), s->out, s->options);
+    std::fprintf(stderr, "exported %s (%dx%d) as %s to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->format.c_str(), s->out.c_str());
   });
 }
 

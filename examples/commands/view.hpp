@@ -10,7 +10,6 @@
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/export/canonical_maps.hpp"
 #include "anisocap/export/viewer.hpp"
-#include "command_errors.hpp"
 
 namespace anisocap::commands {
 
@@ -26,18 +25,16 @@ inline void add_view_command(CLI::App& app) {
   cmd->add_option("-o,--out", s->out, "HTML file to write")->capture_default_str();
   cmd->add_option("--title", s->viewer.title, "page title (default: the map folder's name)");
   cmd->callback([s, cmd] {
-    run_reporting_errors([&] {
-      material_maps maps = read_maps(s->maps);
-      canonicalise(maps);
-      viewer_options options = s->viewer;
-      if (cmd->count("--title") == 0) {
-        std::filesystem::path folder = std::filesystem::absolute(s->maps).lexically_normal();
-        if (!folder.has_filename()) folder = folder.parent_path();
-        options.title = folder.filename().string();
-      }
-      write_viewer(maps, s->out, options);
-      std::fprintf(stderr, "viewer for %s (%dx%d) written to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->out.c_str());
-    });
+    material_maps maps = read_maps(s->maps);
+    canonicalise(maps);
+    viewer_options options = s->viewer;
+    if (cmd->count("--title") == 0) {
+      std::filesystem::path folder = std::filesystem::absolute(s->maps).lexically_normal();
+      if (!folder.has_filename()) folder = folder.parent_path();
+      options.title = folder.filename().string();
+    }
+    write_viewer(maps, s->out, options);
+    std::fprintf(stderr, "viewer for %s (%dx%d) written to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->out.c_str());
   });
 }
 
