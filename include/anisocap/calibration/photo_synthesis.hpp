@@ -41,6 +41,12 @@ struct photo_setup {
   vec3f intensity{1, 1, 1};                ///< light intensity in the capture's units (texture-space renderer's)
 };
 
+/// How a photograph reads the material's maps between texel centres.
+enum class texture_lookup {
+  bilinear,  ///< interpolate the parameters between texel centres (a smooth material)
+  nearest,   ///< each texel a patch of constant material: the maps describe exactly what is photographed
+};
+
 /// Bilinear lookup of every parameter plane of `maps` at continuous texture coordinate (u, v)
 /// (texel (x, y) spans [x, x+1) x [y, y+1)), clamped at the edges. The rotation is interpolated
 /// as the doubled angle (cos 2a, sin 2a): the lobe is the same at a and a + pi, so the shorter way
@@ -69,9 +75,9 @@ inline void lookup_parameters(const material_maps& maps, double u, double v, flo
 
 /// Renders the linear photograph (width x height, 3 channels, in the renderer's radiance units)
 /// of a sample carrying `maps` whose longest side is `longest_mm`, with `samples_per_axis`^2
-/// samples per pixel (box filter). Pixels that miss the sample see black.
+/// samples per pixel (box filter), reading the maps by `lookup`. Pixels that miss the sample see black.
 inline image render_photograph(const material_maps& maps, double longest_mm, const photo_setup& setup, int width, int height,
-                               int samples_per_axis = 2) {
+                               int samples_per_axis = 2, texture_lookup lookup = texture_lookup::bilinear) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
   if (width < 1 || height < 1 || samples_per_axis < 1) throw std::invalid_argument("render_photograph: sizes must be positive");
@@ -113,7 +119,12 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
             const double u = sx / longest_mm * n + 0.5 * maps.width(), v = 0.5 * maps.height() - sy / longest_mm * n;
             if (u >= 0 && v >= 0 && u <= maps.width() && v <= maps.height()) {
               hits = true;
-              lookup_parameters(maps, u, v, params);
+              if (lookup == texture_lookup::bilinear) {
+                lookup_parameters(maps, u, v, params);
+              } else {
+                const int tx = std::min(int(u), maps.width() - 1), ty = std::min(int(v), maps.height() - 1);
+                for (int k = 0; k < parameter_count; ++k) params[k] = maps.at(k, tx, ty);
+              }
             }
           }
           on_sample[i] = hits;
@@ -144,6 +155,7 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
 struct photo_synthesis_options {
   int width = 800, height = 600;       ///< photo size in pixels
   int samples_per_axis = 2;            ///< supersampling per pixel and axis
+  texture_lookup lookup = texture_lookup::bilinear;  ///< how the maps are read between texel centres
   double longest_mm = 100;             ///< the sample's longest side in mm
   double fill = 0.9;                   ///< the sample's image spans at most this fraction of the frame (sets each photo's focal length)
   double white_fraction = 0.99;        ///< exposure: this fraction of the sample's pixels stays below white (the rest clips)
@@ -222,7 +234,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
       setup.intensity = config.intensity;
       entry.light.position_mm = {setup.light_mm.x(), setup.light_mm.y(), setup.light_mm.z()};
     }
-    image photo = render_photograph(maps, o.longest_mm, setup, o.width, o.height, o.samples_per_axis);
+    image photo = render_photograph(maps, o.longest_mm, setup, o.width, o.height, o.samples_per_axis, o.lookup);
     // Exposure: the white_fraction quantile of the sample's brightest channel maps to 1.
     std::vector<float> values;
     for (std::size_t k = 0; k < photo.pixel_count(); ++k) {

@@ -47,7 +47,7 @@ struct linear_photo {
 /// at the format's maximum code is clipped), EXR and Radiance HDR as linear (clipped where a channel
 /// reaches `saturation`, when it is > 0). Throws io_error naming the file.
 inline linear_photo read_linear_photo(const std::filesystem::path& path, float saturation = 0) {
-  const std::string ext = lower_extension(path);
+  const std::string ext = detail::lower_extension(path);
   linear_photo p;
   if (ext == ".jpg" || ext == ".jpeg" || ext == ".hdr") {
     const std::vector<unsigned char> bytes = read_file_bytes(path);
