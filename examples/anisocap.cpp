@@ -152,6 +152,7 @@ struct capture_args {
   double refine_stop = 0.0;       // refine early stopping (0: never)
   double freeze = 0.0;            // refine only texels whose loss still moves (0: all, every step)
   std::string precision = "float";
+  photo_options photo;            // clipped-pixel detection (--saturation, --fit-clipped)
 };
 
 /// Applies the options every command that runs the optimisers shares (kernel, culling, precision,
@@ -191,14 +192,14 @@ model_files models_for(const capture_args& a) {
 
 /// Runs the network stages of MODEL.md 8 with the weights of `preset`.
 pipeline_result run_network_pipeline(const capture_args& a, const capture& cap, const std::vector<image>& photos,
-                                     const pipeline_options& o) {
+                                     const pipeline_options& o, const std::vector<image>& masks = {}) {
   const model_files files = models_for(a);
   auto run = [&]<class EstimatorPreset, class AutoEncoderPreset>() {
     EstimationNet<EstimatorPreset> estimator;
     AutoEncoder<AutoEncoderPreset> autoencoder;
     nn::load_weights(files.estimator, estimator);
     nn::load_weights(files.autoencoder, autoencoder);
-    return run_pipeline(cap, photos, estimator, autoencoder, o);
+    return run_pipeline(cap, photos, estimator, autoencoder, o, masks);
   };
   if (a.preset == "compact") return run.template operator()<estimator_compact, autoencoder_compact>();
   if (a.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
@@ -213,7 +214,23 @@ nlohmann::json capture_command(const capture_args& a) {
   pipeline_options po;
   apply_optimiser_options(a, po);
   const capture cap = read_capture(a.capture_file);
-  auto photos = load_capture_images(cap, a.capture_file.parent_path());
+  const std::vector<photo> loaded = load_capture_photos(cap, a.capture_file.parent_path(), a.photo);
+  auto photos = photo_pixels(loaded);
+  const std::vector<image> masks = photo_masks(loaded);
+  // Clipped and masked pixels, per image: never fitted silently.
+  nlohmann::json photo_report = nlohmann::json::array();
+  for (std::size_t i = 0; i < loaded.size(); ++i) {
+    const photo& p = loaded[i];
+    const bool given_mask = !cap.images[i].mask.empty();
+    if (p.clipped > 0)
+      std::fprintf(stderr, "image %zu (%s): %.1f%% of pixels clipped, %s\n", i, cap.images[i].file.c_str(), 100.0 * p.clipped_fraction(),
+                   a.photo.exclude_clipped ? "excluded from the loss" : "FITTED (--fit-clipped)");
+    if (given_mask)
+      std::fprintf(stderr, "image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, cap.images[i].file.c_str(),
+                   100.0 * p.masked_fraction(), cap.images[i].mask.c_str(), p.clipped > 0 && a.photo.exclude_clipped ? " and clipping" : "");
+    photo_report.push_back({{"file", cap.images[i].file}, {"mask", cap.images[i].mask}, {"exposure", cap.images[i].exposure},
+                            {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
+  }
   // The optimisers work on a capture rescaled to a standard exposure (pipeline/exposure.hpp); the
   // re-renders below use the capture as given, so they compare with the photographs.
   capture work_cap = cap;
@@ -254,7 +271,7 @@ nlohmann::json capture_command(const capture_args& a) {
     if (start_maps->width() != photos[0].width() || start_maps->height() != photos[0].height())
       throw std::invalid_argument(a.init->string() + ": the initial maps differ in size from the photographs");
   }
-  const loss_targets targets = make_loss_targets(photos);
+  const loss_targets targets = make_loss_targets(photos, masks);
   const double init_seconds = seconds_since(t_init);
 
   po.refine.steps = refine_steps;
@@ -271,12 +288,12 @@ nlohmann::json capture_command(const capture_args& a) {
     po.resume = a.resume;
     po.progress_every = 25;
     po.progress = [](const std::string& stage, const optimisation_progress& p) { progress_printer{stage}(p); };
-    pipeline_result pr = run_network_pipeline(a, work_cap, photos, po);
+    pipeline_result pr = run_network_pipeline(a, work_cap, photos, po, masks);
     maps = std::move(pr.maps);
     stage_reports = pr.stages;
     used_features = pr.features;
   } else {
-    maps = start_maps ? *start_maps : initial_guess(work_cap, photos);
+    maps = start_maps ? *start_maps : initial_guess(work_cap, photos, {}, masks);
     if (a.kernel == "auto") used_features = analyse_kernel(maps, work_cap).features;  // exact for the start (--init)
     stage_reports.push_back({"first_guess", true, false, 0, loss_and_gradient(maps, work_cap, targets, nullptr, {}, po.render), init_seconds});
     if (stages.refine) {
@@ -307,6 +324,9 @@ nlohmann::json capture_command(const capture_args& a) {
   report["kernel_used"] = kernel_analysis{used_features, 0, 0, 0}.describe();
   report["precision"] = a.precision;
   report["exposure_scale"] = exposure;
+  report["saturation"] = a.photo.saturation;
+  report["clipped_excluded"] = a.photo.exclude_clipped;
+  report["photos"] = photo_report;
   report["threads"] = omp_get_max_threads();
   report["stages"] = nlohmann::json::array();
   double stage_seconds = 0;
@@ -519,6 +539,9 @@ int main(int argc, char** argv) {
     c->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps (paper: 5000)")->capture_default_str();
     c->add_flag("--resume", cap.resume, "continue a killed run from OUT/.checkpoint");
     add_optimiser_options(c);
+    c->add_option("--saturation", cap.photo.saturation, "linear level at or above which a pixel counts as clipped, in any format (EXR, HDR: the only clip test; 0: off). 8/16-bit PNG and JPEG pixels at the largest code are always clipped")->capture_default_str()->check(CLI::NonNegativeNumber);
+    c->add_flag_callback("--fit-clipped", [&] { cap.photo.exclude_clipped = false; },
+                         "fit clipped pixels instead of leaving them out of the loss (still counted and reported; for comparisons)");
   };
   auto* capture_cmd = app.add_subcommand("capture", "estimate the map set from a capture (per-texel optimisation)");
   capture_cmd->add_option("capture", cap.capture_file, "capture.json")->required();

@@ -33,6 +33,7 @@
 #include "anisocap/data/contact_sheet.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 
 #include "anisocap/pipeline/evaluate.hpp"

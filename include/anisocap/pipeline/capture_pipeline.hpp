@@ -258,10 +258,13 @@ double decoder_crop_step(ad::tape& t, AutoEncoder<P>& autoencoder,
 }  // namespace pipeline_detail
 
 /// Runs the pipeline on one capture. `estimator` and `autoencoder` must hold trained weights for
-/// the stages that use them.
+/// the stages that use them. `masks` (optional, one 1-channel image per photograph, 0 = left out,
+/// e.g. clipped pixels: data/photo_io.hpp) keep pixels out of every image loss (fine-tune, refine,
+/// the stages' reported losses); the estimator still sees whole photographs.
 template <class EstimatorPreset, class AutoEncoderPreset>
 pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photos, EstimationNet<EstimatorPreset>& estimator,
-                             AutoEncoder<AutoEncoderPreset>& autoencoder, const pipeline_options& o) {
+                             AutoEncoder<AutoEncoderPreset>& autoencoder, const pipeline_options& o,
+                             const std::vector<image>& masks = {}) {
   namespace fs = std::filesystem;
   using clock = std::chrono::steady_clock;
   if (photos.empty() || photos.size() != cap.images.size())
@@ -273,12 +276,12 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
     apply_exposure(scaled_cap, scaled_photos, s);
     pipeline_options so = o;
     so.normalise_exposure = false;
-    pipeline_result r = run_pipeline(scaled_cap, scaled_photos, estimator, autoencoder, so);
+    pipeline_result r = run_pipeline(scaled_cap, scaled_photos, estimator, autoencoder, so, masks);
     r.exposure_scale = s;
     return r;
   }
   const int W = photos[0].width(), H = photos[0].height();
-  const loss_targets targets = make_loss_targets(photos);
+  const loss_targets targets = make_loss_targets(photos, masks);
   brdf_features features = o.features;
   auto image_loss = [&](const material_maps& m) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
@@ -311,7 +314,7 @@ pipeline_result run_pipeline(const capture& cap, const std::vector<image>& photo
                                  });
       if (checkpoints) write_maps(maps, stage_dir("estimate"), false);
     } else {
-      maps = initial_guess(cap, photos);
+      maps = initial_guess(cap, photos, {}, masks);
     }
     r.ran = o.stages.estimate;
     if (o.auto_kernel_tolerance > 0) features = analyse_kernel(maps, cap, o.auto_kernel_tolerance).features;
