@@ -23,6 +23,8 @@
 #include "anisocap/nn/safetensors.hpp"
 #include "anisocap/pipeline/capture_pipeline.hpp"
 #include "anisocap/render/analysis.hpp"
+#include "commands/photograph.hpp"
+#include "commands/rectify.hpp"
 #include "commands/train.hpp"
 
 namespace fs = std::filesystem;
@@ -581,6 +583,8 @@ int main(int argc, char** argv) {
 
   std::vector<std::pair<CLI::App*, std::function<void()>>> actions;
   commands::add_train_commands(app, actions);
+  commands::add_rectify_command(app);
+  commands::add_photograph_command(app);
 
   CLI11_PARSE(app, argc, argv);
   if (threads > 0) omp_set_num_threads(threads);

@@ -52,7 +52,7 @@ TEST_CASE("area averaging: a checkerboard finer than a texel rectifies to its me
   for (int y = 0; y < 480; ++y)
     for (int x = 0; x < 640; ++x)
       for (int c = 0; c < 3; ++c) photo.at(c, x, y) = float((x + y) % 2);
-  const rectified_photo r = rectify_photo(photo, {}, v.camera, v.pose, 50, 40, 100);
+  const rectified_photo r = rectify_photo(photo, image(), v.camera, v.pose, 50, 40, 100);
   double worst = 0;
   for (int c = 0; c < 3; ++c)
     for (std::size_t i = 0; i < r.radiance.pixel_count(); ++i) worst = std::max(worst, std::abs(r.radiance.plane(c)[i] - 0.5));
@@ -64,16 +64,17 @@ TEST_CASE("texels outside the photo and texels on clipped pixels are masked") {
   const frontal_view v;
   image photo(640, 480, 3);
   for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.25f);
-  std::vector<std::uint8_t> clipped(photo.pixel_count(), 0);
+  image usable(640, 480, 1);
+  std::fill_n(usable.plane(0), usable.pixel_count(), 1.0f);
   // Clip a block of pixels around the image of sample point (20, -10) mm.
   const Eigen::Vector2d p = project(v.camera, v.pose, {20, -10, 0});
   for (int y = int(p.y()) - 10; y <= int(p.y()) + 10; ++y)
-    for (int x = int(p.x()) - 10; x <= int(p.x()) + 10; ++x) clipped[std::size_t(y) * 640 + x] = 1;
+    for (int x = int(p.x()) - 10; x <= int(p.x()) + 10; ++x) usable.at(0, x, y) = 0;
   // The camera moved to the left: the sample moves right and its right part leaves the frame.
   planar_pose shifted = v.pose;
   shifted.translation.x() += 60;  // the sample moves right in camera coordinates
-  const rectified_photo r = rectify_photo(photo, clipped, v.camera, v.pose, 100, 80, 100);
-  const rectified_photo s = rectify_photo(photo, {}, v.camera, shifted, 100, 80, 100);
+  const rectified_photo r = rectify_photo(photo, usable, v.camera, v.pose, 100, 80, 100);
+  const rectified_photo s = rectify_photo(photo, image(), v.camera, shifted, 100, 80, 100);
   // Texel of sample point (20, -10): x = 20 + 50, y = 40 + 10.
   CHECK(r.mask.at(0, 70, 50) == 0);
   CHECK(r.radiance.at(0, 70, 50) == 0);
@@ -250,9 +251,9 @@ TEST_CASE("the default resolution is what the photos support, and the output is 
   CHECK(r.configurations.images[0].light[2] == doctest::Approx(3.0));
   CHECK(r.configurations.images[0].camera[2] == doctest::Approx(3.0));
   write_rectified_capture(r, dir / "out");
-  const auto written = nlohmann::json::parse(std::ifstream(dir / "out" / "capture.json"));
-  CHECK(written["images"][0]["mask"] == "mask_00.png");
-  CHECK(written["images"][0]["file"] == "rectified_00.exr");
+  const capture written = read_capture(dir / "out" / "capture.json");
+  CHECK(written.images[0].mask == "mask_00.png");
+  CHECK(written.images[0].file == "rectified_00.exr");
   CHECK(read_image(dir / "out" / "rectified_00.exr").width() == 400);
   CHECK(std::filesystem::exists(dir / "out" / "mask_00.png"));
 }

@@ -14,8 +14,6 @@
 /// texel, as many per axis as the texel spans photo pixels along that axis, each read with
 /// bilinear interpolation of the linear photo. A photo with more pixels than the texture is thus
 /// area-averaged (no aliasing), one with fewer is interpolated.
-#include <stb/stb_image.h>
-
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -33,69 +31,16 @@
 #include "anisocap/core/image.hpp"
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/image_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/render/capture.hpp"
 
 namespace anisocap {
-
-/// A photograph in linear values with its clipped pixels.
-struct linear_photo {
-  image radiance;                    ///< 3-channel linear image
-  std::vector<std::uint8_t> clipped; ///< one entry per pixel: 1 where a channel reached the format's maximum
-};
-
-/// Reads a photograph: JPEG and 8/16-bit PNG as sRGB (linearised exactly; a pixel with any channel
-/// at the format's maximum code is clipped), EXR and Radiance HDR as linear (clipped where a channel
-/// reaches `saturation`, when it is > 0). Throws io_error naming the file.
-inline linear_photo read_linear_photo(const std::filesystem::path& path, float saturation = 0) {
-  const std::string ext = detail::lower_extension(path);
-  linear_photo p;
-  if (ext == ".jpg" || ext == ".jpeg" || ext == ".hdr") {
-    const std::vector<unsigned char> bytes = read_file_bytes(path);
-    if (bytes.size() > std::size_t(INT32_MAX)) throw io_error(path, "file too large");
-    int width = 0, height = 0, channels = 0;
-    const bool hdr = ext == ".hdr";
-    std::unique_ptr<void, void (*)(void*)> pixels(nullptr, &stbi_image_free);
-    if (hdr) pixels.reset(stbi_loadf_from_memory(bytes.data(), int(bytes.size()), &width, &height, &channels, 3));
-    else pixels.reset(stbi_load_from_memory(bytes.data(), int(bytes.size()), &width, &height, &channels, 3));
-    if (!pixels) {
-      const char* reason = stbi_failure_reason();
-      throw io_error(path, std::string(hdr ? "corrupt Radiance HDR file" : "corrupt JPEG file") + (reason ? std::string(" (") + reason + ")" : ""));
-    }
-    p.radiance = image(width, height, 3);
-    p.clipped.assign(p.radiance.pixel_count(), 0);
-    float table[256];
-    for (int i = 0; i < 256; ++i) table[i] = float(srgb_to_linear(i / 255.0));
-    for (std::size_t i = 0; i < p.radiance.pixel_count(); ++i)
-      for (int c = 0; c < 3; ++c) {
-        if (hdr) {
-          const float v = static_cast<const float*>(pixels.get())[i * 3 + std::size_t(c)];
-          p.radiance.plane(c)[i] = v;
-          if (saturation > 0 && v >= saturation) p.clipped[i] = 1;
-        } else {
-          const std::uint8_t v = static_cast<const std::uint8_t*>(pixels.get())[i * 3 + std::size_t(c)];
-          p.radiance.plane(c)[i] = table[v];
-          if (v == 255) p.clipped[i] = 1;
-        }
-      }
-  } else if (ext == ".png" || ext == ".exr") {
-    p.radiance = read_image(path);
-    p.clipped.assign(p.radiance.pixel_count(), 0);
-    const float limit = ext == ".png" ? 1.0f : (saturation > 0 ? saturation : INFINITY);
-    for (int c = 0; c < 3; ++c)
-      for (std::size_t i = 0; i < p.radiance.pixel_count(); ++i)
-        if (p.radiance.plane(c)[i] >= limit) p.clipped[i] = 1;
-  } else {
-    throw io_error(path, "unsupported photograph format \"" + ext + "\" (JPEG, PNG, EXR or Radiance HDR)");
-  }
-  validate_pixels(p.radiance, path);
-  return p;
-}
 
 /// Options of rectify.
 struct rectify_options {
   int resolution = 0;         ///< texels along the sample's longest side (0: what the photos support, supported_resolution)
   int max_samples_per_axis = 16;  ///< cap on a texel's footprint samples per axis (keeps grazing views bounded)
-  float saturation = 0;       ///< linear inputs (EXR, HDR): values at or above this are clipped (0: none)
+  float saturation = 0;       ///< values at or above this linear level are clipped (0: only the format's largest code)
   pose_options pose;          ///< pose refinement
   /// Called after each photo is rectified with (photos done, photos in all, that photo's report).
   std::function<void(std::size_t, std::size_t, const std::string&)> progress;
@@ -113,9 +58,8 @@ struct rectified_photo {
 
 /// All photographs in texture space and the capture that describes them.
 struct rectified_capture {
-  capture configurations;              ///< camera, light and intensity per image (files named rectified_NN.exr)
+  capture configurations;              ///< camera, light, intensity and mask per image (rectified_NN.exr, mask_NN.png)
   std::vector<rectified_photo> photos; ///< one per photograph, in the description's order
-  std::vector<std::string> mask_files; ///< mask file names (mask_NN.png), one per image
   int width = 0, height = 0;           ///< texture size
 };
 
@@ -148,8 +92,9 @@ inline double supported_resolution(const pinhole_camera& camera, const planar_po
 
 /// Resamples one linear photo onto a width x height texture of a sample whose longest side is
 /// `longest_mm` (see the file comment). Texels with any footprint sample outside the photo, or
-/// reading a clipped pixel, get mask 0 and radiance 0. `clipped` may be empty (nothing clipped).
-inline rectified_photo rectify_photo(const image& photo, const std::vector<std::uint8_t>& clipped, const pinhole_camera& camera,
+/// reading a pixel whose `usable` mask (1 channel, 0 = clipped or excluded) is 0, get mask 0 and
+/// radiance 0. An empty `usable` image uses every pixel.
+inline rectified_photo rectify_photo(const image& photo, const image& usable, const pinhole_camera& camera,
                                      const planar_pose& pose, int width, int height, double longest_mm,
                                      int max_samples_per_axis = 16) {
   rectified_photo out;
@@ -195,7 +140,7 @@ inline rectified_photo rectify_photo(const image& photo, const std::vector<std::
                                     std::size_t(y1) * pw + x1};
           for (int t = 0; t < 4; ++t) {
             if (w[t] <= 0) continue;
-            if (!clipped.empty() && clipped[k[t]]) clip = true;
+            if (!usable.empty() && usable.plane(0)[k[t]] == 0.0f) clip = true;
             for (int c = 0; c < 3; ++c) sum[c] += w[t] * photo.plane(c)[k[t]];
           }
         }
@@ -231,7 +176,7 @@ inline std::string rectified_file_name(std::size_t i, const char* stem = "rectif
 }
 
 /// Finds corners for photos that give none; set by calibration/markers.hpp when it is included.
-using corner_finder = std::function<corner_pixels(const linear_photo&, const photos_description&, const std::string& photo)>;
+using corner_finder = std::function<corner_pixels(const photo&, const photos_description&, const std::string& photo_name)>;
 
 /// Rectifies every photo of `description` (files relative to `base_dir`). A photo without corners
 /// needs `find_corners` (e.g. the marker detector), else it is an error naming it. Throws
@@ -241,7 +186,7 @@ inline rectified_capture rectify(const photos_description& description, const st
   if (options.resolution < 0) throw std::invalid_argument("rectify: resolution must be >= 0 (0: what the photos support)");
   if (description.photos.empty()) throw std::invalid_argument("rectify: no photos");
   struct prepared {
-    linear_photo photo;
+    photo picture;
     pinhole_camera camera;
     planar_pose pose;
   };
@@ -251,11 +196,13 @@ inline rectified_capture rectify(const photos_description& description, const st
     const photo_entry& e = description.photos[i];
     const std::string name = "photos[" + std::to_string(i) + "] (" + e.file + ")";
     prepared p;
-    p.photo = read_linear_photo(base_dir / e.file, options.saturation);
-    p.camera = make_camera(e.camera ? *e.camera : description.camera, p.photo.radiance.width(), p.photo.radiance.height(), name);
+    photo_options po;
+    po.saturation = options.saturation;
+    p.picture = read_photo(base_dir / e.file, po);
+    p.camera = make_camera(e.camera ? *e.camera : description.camera, p.picture.pixels.width(), p.picture.pixels.height(), name);
     corner_pixels corners;
     if (e.corners) corners = *e.corners;
-    else if (find_corners) corners = find_corners(p.photo, description, name);
+    else if (find_corners) corners = find_corners(p.picture, description, name);
     else throw calibration_error(name, "no \"corners\" given (and no marker detection available)");
     p.pose = estimate_pose(p.camera, corners, description.width_mm, description.height_mm, name, options.pose);
     if (!(light_position(e, p.pose).z() > 0))
@@ -276,7 +223,7 @@ inline rectified_capture rectify(const photos_description& description, const st
   result.height = height;
   for (std::size_t i = 0; i < all.size(); ++i) {
     const photo_entry& e = description.photos[i];
-    rectified_photo r = rectify_photo(all[i].photo.radiance, all[i].photo.clipped, all[i].camera, all[i].pose, width, height,
+    rectified_photo r = rectify_photo(all[i].picture.pixels, all[i].picture.mask, all[i].camera, all[i].pose, width, height,
                                       longest, options.max_samples_per_axis);
     const Eigen::Vector3d camera = all[i].pose.camera_centre() / longest;
     const Eigen::Vector3d light = light_position(e, all[i].pose) / longest;
@@ -285,8 +232,8 @@ inline rectified_capture rectify(const photos_description& description, const st
     im.camera = {float(camera.x()), float(camera.y()), float(camera.z())};
     im.light = {float(light.x()), float(light.y()), float(light.z())};
     im.intensity = e.intensity;
+    im.mask = rectified_file_name(i, "mask", ".png");
     result.configurations.images.push_back(im);
-    result.mask_files.push_back(rectified_file_name(i, "mask", ".png"));
     if (options.progress) {
       char line[256];
       std::snprintf(line, sizeof line, "%s: camera (%.3f, %.3f, %.3f), light (%.3f, %.3f, %.3f), %.1f%% outside the photo, %.1f%% clipped",
@@ -299,14 +246,6 @@ inline rectified_capture rectify(const photos_description& description, const st
   return result;
 }
 
-/// The capture.json text of a rectified capture: capture_to_json's entries plus each image's
-/// "mask" (a path relative to capture.json; 0 = ignore).
-inline std::string rectified_capture_json(const rectified_capture& r) {
-  nlohmann::json root = nlohmann::json::parse(capture_to_json(r.configurations));
-  for (std::size_t i = 0; i < r.mask_files.size(); ++i) root["images"][i]["mask"] = r.mask_files[i];
-  return root.dump(2) + "\n";
-}
-
 /// Writes the rectified images (linear EXR), their masks (8-bit PNG: 255 = use, 0 = ignore) and
 /// capture.json into `out` (created if needed), all or nothing.
 inline void write_rectified_capture(const rectified_capture& r, const std::filesystem::path& out) {
@@ -314,9 +253,9 @@ inline void write_rectified_capture(const rectified_capture& r, const std::files
   file_transaction files;
   for (std::size_t i = 0; i < r.photos.size(); ++i) {
     write_exr(r.photos[i].radiance, out / r.configurations.images[i].file, files);
-    write_png(r.photos[i].mask, out / r.mask_files[i], files, 0.0f, png_encoding::linear);
+    write_png(r.photos[i].mask, out / r.configurations.images[i].mask, files, 0.0f, png_encoding::linear);
   }
-  files.stage(out / "capture.json", rectified_capture_json(r));
+  files.stage(out / "capture.json", capture_to_json(r.configurations, out / "capture.json"));
   files.commit();
 }
 
