@@ -23,6 +23,7 @@
 #include "anisocap/nn/safetensors.hpp"
 #include "anisocap/pipeline/capture_pipeline.hpp"
 #include "anisocap/render/analysis.hpp"
+#include "commands/markers.hpp"
 #include "commands/photograph.hpp"
 #include "commands/rectify.hpp"
 #include "commands/train.hpp"
@@ -585,6 +586,7 @@ int main(int argc, char** argv) {
   commands::add_train_commands(app, actions);
   commands::add_rectify_command(app);
   commands::add_photograph_command(app);
+  commands::add_markers_command(app);
 
   CLI11_PARSE(app, argc, argv);
   if (threads > 0) omp_set_num_threads(threads);

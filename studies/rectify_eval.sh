@@ -9,8 +9,9 @@ bin=${1:-build/anisocap}
 out=${2:-rectify-eval}
 seeds=${SEEDS:-"900001 900002"}
 size=${SIZE:-128}
-# The demo's fast fine-tune schedule (bench/README.md "Run time against error").
-capture_options=(--finetune-steps 800 --finetune-lr 8e-3 --finetune-warmup 200)
+# Estimate, encode and 300 refine steps (no decoder fine-tune), so that the whole table runs in
+# about 10 minutes per material on two cores; both captures of a row run the same pipeline.
+capture_options=(--finetune-steps 0 --steps 300)
 mkdir -p "$out"
 for seed in $seeds; do
   for n in 8 12; do

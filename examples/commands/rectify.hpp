@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <memory>
 
+#include "anisocap/calibration/markers.hpp"
 #include "anisocap/calibration/rectify.hpp"
 
 namespace anisocap::commands {
@@ -18,6 +19,7 @@ inline void add_rectify_command(CLI::App& app) {
   struct settings {
     std::filesystem::path photos, out = "anisocap-rectified";
     rectify_options options;
+    marker_frame_options frame;
   };
   auto s = std::make_shared<settings>();
   auto* cmd = app.add_subcommand("rectify", "perspective photographs of a flat sample (photos.json) to a texture-space capture");
@@ -27,6 +29,8 @@ inline void add_rectify_command(CLI::App& app) {
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--saturation", s->options.saturation, "linear level at or above which a pixel counts as clipped (0: only the format's largest code)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--tag-mm", s->frame.tag_mm, "the marker frame's tag size, as given to `markers` (photos without \"corners\")")->capture_default_str();
+  cmd->add_option("--gap-mm", s->frame.gap_mm, "the marker frame's gap, as given to `markers`")->capture_default_str();
   cmd->callback([s] {
     try {
       rectify_options o = s->options;
@@ -34,7 +38,12 @@ inline void add_rectify_command(CLI::App& app) {
         std::fprintf(stderr, "rectify: %zu/%zu %s\n", done, total, line.c_str());
       };
       const photos_description d = read_photos_description(s->photos);
-      const rectified_capture r = rectify(d, s->photos.parent_path(), o);
+      // Photos without "corners": the corners from the printed marker frame's tags.
+      const marker_frame frame = make_marker_frame(d.width_mm, d.height_mm, s->frame);
+      const corner_finder markers = [&](const photo& picture, const photos_description&, const std::string& name) {
+        return find_corners_from_markers(picture, frame, name);
+      };
+      const rectified_capture r = rectify(d, s->photos.parent_path(), o, markers);
       write_rectified_capture(r, s->out);
       std::fprintf(stderr, "rectify: %zu images of %dx%d texels (%.3g mm per texel), masks and capture.json in %s\n"
                    "next: anisocap capture %s\n", r.photos.size(), r.width, r.height,

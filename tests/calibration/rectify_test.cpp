@@ -95,7 +95,12 @@ TEST_CASE("texture rows run from the sample's top edge: a marked corner lands at
   for (int y = 0; y < 16; ++y)
     for (int x = 0; x < 16; ++x) { maps.at(diffuse_r, x, y) = 0.8f; maps.at(diffuse_g, x, y) = 0.05f; maps.at(diffuse_b, x, y) = 0.05f; }
   capture configurations;
-  configurations.images.push_back({"a.exr", {0.8f, -0.6f, 1.2f}, {0.5f, -0.8f, 1.5f}, {3, 3, 3}});
+  capture_image config;
+  config.file = "a.exr";
+  config.camera = {0.8f, -0.6f, 1.2f};
+  config.light = {0.5f, -0.8f, 1.5f};
+  config.intensity = {3, 3, 3};
+  configurations.images.push_back(config);
   photo_synthesis_options o;
   o.white_fraction = 1;
   o.width = 320;

@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <numbers>
 #include <string>
 #include <vector>
@@ -39,6 +40,13 @@ struct photo_setup {
   planar_pose pose;                        ///< sample -> camera
   Eigen::Vector3d light_mm{0, 0, 100};     ///< light position, sample coordinates (mm)
   vec3f intensity{1, 1, 1};                ///< light intensity in the capture's units (texture-space renderer's)
+};
+
+/// A flat, matte print lying around the sample in its plane (e.g. the marker frame of
+/// calibration/markers.hpp): a 1-channel albedo image centred on the sample, rows along -y.
+struct printed_surround {
+  image albedo;                       ///< diffuse albedo, 1 channel
+  double width_mm = 0, height_mm = 0; ///< the print's extent
 };
 
 /// How a photograph reads the material's maps between texel centres.
@@ -75,9 +83,11 @@ inline void lookup_parameters(const material_maps& maps, double u, double v, flo
 
 /// Renders the linear photograph (width x height, 3 channels, in the renderer's radiance units)
 /// of a sample carrying `maps` whose longest side is `longest_mm`, with `samples_per_axis`^2
-/// samples per pixel (box filter), reading the maps by `lookup`. Pixels that miss the sample see black.
+/// samples per pixel (box filter), reading the maps by `lookup`. Pixels that miss the sample see
+/// `surround` where it lies (a matte print), else black.
 inline image render_photograph(const material_maps& maps, double longest_mm, const photo_setup& setup, int width, int height,
-                               int samples_per_axis = 2, texture_lookup lookup = texture_lookup::bilinear) {
+                               int samples_per_axis = 2, texture_lookup lookup = texture_lookup::bilinear,
+                               const printed_surround* surround = nullptr) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
   if (width < 1 || height < 1 || samples_per_axis < 1) throw std::invalid_argument("render_photograph: sizes must be positive");
@@ -86,9 +96,11 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
   const double n = std::max(maps.width(), maps.height());
   // The renderer's configuration, in its units (the sample's longest side).
   capture one;
-  one.images.push_back({"", {float(centre.x() / longest_mm), float(centre.y() / longest_mm), float(centre.z() / longest_mm)},
-                        {float(setup.light_mm.x() / longest_mm), float(setup.light_mm.y() / longest_mm), float(setup.light_mm.z() / longest_mm)},
-                        setup.intensity});
+  capture_image config;
+  config.camera = {float(centre.x() / longest_mm), float(centre.y() / longest_mm), float(centre.z() / longest_mm)};
+  config.light = {float(setup.light_mm.x() / longest_mm), float(setup.light_mm.y() / longest_mm), float(setup.light_mm.z() / longest_mm)};
+  config.intensity = setup.intensity;
+  one.images.push_back(config);
   const auto configuration = detail::to_constants(one)[0];
   image photo(width, height, 3);
   for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.0f);
@@ -124,6 +136,14 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
               } else {
                 const int tx = std::min(int(u), maps.width() - 1), ty = std::min(int(v), maps.height() - 1);
                 for (int k = 0; k < parameter_count; ++k) params[k] = maps.at(k, tx, ty);
+              }
+            } else if (surround) {
+              const double fx = (sx / surround->width_mm + 0.5) * surround->albedo.width();
+              const double fy = (0.5 - sy / surround->height_mm) * surround->albedo.height();
+              if (fx >= 0 && fy >= 0 && fx < surround->albedo.width() && fy < surround->albedo.height()) {
+                hits = true;
+                const float a = surround->albedo.at(0, int(fx), int(fy));
+                params[diffuse_r] = params[diffuse_g] = params[diffuse_b] = a;
               }
             }
           }
@@ -164,6 +184,7 @@ struct photo_synthesis_options {
   sensor_noise noise;                  ///< sensor noise on the exposed linear values, before clipping
   std::uint64_t seed = 1;              ///< noise seed
   int jpeg_quality = 95;               ///< JPEG quality (1-100)
+  std::shared_ptr<const printed_surround> surround;  ///< a print around the sample (e.g. the marker frame), or none
 };
 
 /// Synthetic photographs of one material with their description.
@@ -234,7 +255,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
       setup.intensity = config.intensity;
       entry.light.position_mm = {setup.light_mm.x(), setup.light_mm.y(), setup.light_mm.z()};
     }
-    image photo = render_photograph(maps, o.longest_mm, setup, o.width, o.height, o.samples_per_axis, o.lookup);
+    image photo = render_photograph(maps, o.longest_mm, setup, o.width, o.height, o.samples_per_axis, o.lookup, o.surround.get());
     // Exposure: the white_fraction quantile of the sample's brightest channel maps to 1.
     std::vector<float> values;
     for (std::size_t k = 0; k < photo.pixel_count(); ++k) {
