@@ -3,14 +3,16 @@
 # inputs, from the 8-bit sRGB PNG previews beside them (highlights above 1 clip at code 255) with
 # the clipped pixels fitted (--fit-clipped), and from the same PNGs with them left out of the loss
 # (the default). Prints one table row per run from each report.json.
-# Usage: bench/clipped_highlights.sh [ANISOCAP_BINARY] [WORK_DIR] [SEED...]
+# CAPTURE_OPTIONS (default: the per-texel refine alone, 1000 steps from the first guess, minutes on
+# two cores) are passed to every capture, e.g. CAPTURE_OPTIONS="--stages all --finetune-steps 800
+# --finetune-lr 8e-3 --finetune-warmup 200" for the demo's network pipeline.
+# Usage: [CAPTURE_OPTIONS=...] bench/clipped_highlights.sh [ANISOCAP_BINARY] [WORK_DIR] [SEED...]
 set -euo pipefail
 bin=${1:-build/anisocap}
 work=${2:-clipped-highlights}
 shift $(( $# > 2 ? 2 : $# ))
 seeds=("${@:-1}")
-# The demo's fast fine-tune schedule (anisocap demo --help).
-schedule=(--finetune-steps 800 --finetune-lr 8e-3 --finetune-warmup 200)
+read -r -a schedule <<< "${CAPTURE_OPTIONS:---stages refine}"
 for seed in "${seeds[@]}"; do
   dir=$work/seed$seed
   "$bin" synthesize -o "$dir/input" --seed "$seed"
