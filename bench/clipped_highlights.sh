@@ -6,16 +6,18 @@
 # CAPTURE_OPTIONS (default: the per-texel refine alone, 1000 steps from the first guess, minutes on
 # two cores) are passed to every capture, e.g. CAPTURE_OPTIONS="--stages all --finetune-steps 800
 # --finetune-lr 8e-3 --finetune-warmup 200" for the demo's network pipeline.
-# Usage: [CAPTURE_OPTIONS=...] bench/clipped_highlights.sh [ANISOCAP_BINARY] [WORK_DIR] [SEED...]
+# SYNTHESIZE_OPTIONS (default: none, the demo's 256 x 256 material) go to synthesize.
+# Usage: [CAPTURE_OPTIONS=...] [SYNTHESIZE_OPTIONS=...] bench/clipped_highlights.sh [ANISOCAP_BINARY] [WORK_DIR] [SEED...]
 set -euo pipefail
 bin=${1:-build/anisocap}
 work=${2:-clipped-highlights}
 shift $(( $# > 2 ? 2 : $# ))
 seeds=("${@:-1}")
 read -r -a schedule <<< "${CAPTURE_OPTIONS:---stages refine}"
+read -r -a synthesize_options <<< "${SYNTHESIZE_OPTIONS:-}"
 for seed in "${seeds[@]}"; do
   dir=$work/seed$seed
-  "$bin" synthesize -o "$dir/input" --seed "$seed"
+  "$bin" synthesize -o "$dir/input" --seed "$seed" ${synthesize_options[@]+"${synthesize_options[@]}"}
   sed 's/\.exr"/.png"/' "$dir/input/capture.json" > "$dir/input/capture_png.json"
   "$bin" capture "$dir/input/capture.json" --truth "$dir/input/truth" -o "$dir/exr" "${schedule[@]}"
   "$bin" capture "$dir/input/capture_png.json" --truth "$dir/input/truth" -o "$dir/png_fitted" --fit-clipped "${schedule[@]}"
