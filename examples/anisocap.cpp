@@ -1,5 +1,6 @@
 // The `anisocap` program: synthesize procedural captures, render map sets, capture materials from
-// photographs, evaluate, train the networks, a self-contained demo, the viewer page and exports. One file per command under
+// photographs, evaluate, train the networks, a self-contained demo, the calibration of real
+// photographs (markers, photograph, rectify), the viewer page and exports. One file per command under
 // examples/commands/; `anisocap --help` and `anisocap <command> --help` list every option with its
 // default.
 #include <omp.h>
@@ -13,6 +14,9 @@
 #include "commands/demo.hpp"
 #include "commands/eval.hpp"
 #include "commands/export.hpp"
+#include "commands/markers.hpp"
+#include "commands/photograph.hpp"
+#include "commands/rectify.hpp"
 #include "commands/render.hpp"
 #include "commands/synthesize.hpp"
 #include "commands/train.hpp"
@@ -33,6 +37,9 @@ int main(int argc, char** argv) {
   anisocap::commands::add_demo_command(app);
   anisocap::commands::add_view_command(app);
   anisocap::commands::add_export_command(app);
+  anisocap::commands::add_rectify_command(app);
+  anisocap::commands::add_photograph_command(app);
+  anisocap::commands::add_markers_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -9,7 +9,8 @@ set -euo pipefail
 web=0
 for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
-          doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev)
+          doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
+          libapriltag-dev)  # AprilTag marker frames: anisocap markers, corner detection in rectify
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if ((web)); then
   packages+=(chromium)

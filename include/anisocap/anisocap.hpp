@@ -50,6 +50,7 @@
 #include "anisocap/data/data.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 
 #include "anisocap/networks/auto_encoder.hpp"
@@ -65,6 +66,12 @@
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
 #include "anisocap/pipeline/refine.hpp"
+
+#include "anisocap/calibration/camera.hpp"
+#include "anisocap/calibration/markers.hpp"
+#include "anisocap/calibration/photo_synthesis.hpp"
+#include "anisocap/calibration/photos_description.hpp"
+#include "anisocap/calibration/rectify.hpp"
 
 #include "anisocap/export/blender.hpp"
 #include "anisocap/export/canonical_maps.hpp"
