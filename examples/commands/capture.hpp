@@ -36,6 +36,17 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   };
   if (s.truth) check_size(*(truth = read_maps(*s.truth)), *s.truth);
   if (s.init) check_size(*(start_maps = read_maps(*s.init)), *s.init);
+  // Outputs stay inside OUT and never replace an input; checked before any work.
+  std::vector<fs::path> inputs = capture_inputs(cap, s.capture_file);
+  for (const auto& folder : {s.truth, s.init})
+    if (folder) {
+      const auto files = map_files(*folder);
+      inputs.insert(inputs.end(), files.begin(), files.end());
+    }
+  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(cap, s.out / "renders");
+  outputs.insert(outputs.end(), renders.begin(), renders.end());
+  for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
+  refuse_overwriting_inputs(outputs, inputs);
   const double load_seconds = seconds_since(start);
 
   // Which stages: "auto" runs the networks when their weights are there (and no --init), else refine alone.
@@ -69,7 +80,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const material_maps& maps = result.maps;
   fs::create_directories(s.out);
   write_maps(maps, s.out);
-  write_renders(maps, cap, s.out / "renders");
+  write_renders(maps, cap, s.out / "renders", all_features, inputs);
   write_capture_sheet(s.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
   const capture novel = novel_view_set(1, maps.width(), maps.height());
   write_renders(maps, novel, s.out / "novel");

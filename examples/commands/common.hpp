@@ -39,14 +39,70 @@ inline nlohmann::json errors_to_json(const parameter_errors& e) {
           {"fresnel", e.fresnel}};
 }
 
+/// `out / name` for a file name read from a capture description. Throws std::invalid_argument when
+/// the name is absolute or climbs out of `out` (a ".." that leaves it): outputs stay inside the
+/// output folder whatever a capture description says.
+inline fs::path output_inside(const fs::path& out, const std::string& name) {
+  const fs::path n = fs::path(name).lexically_normal();
+  if (n.empty() || n.has_root_name() || n.has_root_directory() || *n.begin() == ".." || n == ".")
+    throw std::invalid_argument("image file name '" + name + "' would be written outside the output folder " + out.string() +
+                                ": a capture's file names must be relative and stay inside its folder");
+  return out / n;
+}
+
+/// Throws std::invalid_argument when one of `outputs` is one of `inputs` (the same file, however
+/// named): a command never overwrites what it reads.
+inline void refuse_overwriting_inputs(const std::vector<fs::path>& outputs, const std::vector<fs::path>& inputs) {
+  std::vector<fs::path> existing;
+  for (const auto& in : inputs)
+    if (fs::exists(in)) existing.push_back(fs::weakly_canonical(in));
+  for (const auto& out : outputs) {
+    const fs::path o = fs::weakly_canonical(out);
+    for (const auto& in : existing)
+      if (o == in)
+        throw std::invalid_argument(out.string() + ": this output would overwrite one of the command's inputs; choose another output folder (-o)");
+  }
+}
+
+/// The files write_images writes for `cap` into `out` (each EXR with its PNG preview).
+inline std::vector<fs::path> image_outputs(const capture& cap, const fs::path& out) {
+  std::vector<fs::path> files;
+  for (const auto& i : cap.images) {
+    const fs::path target = output_inside(out, i.file);
+    files.push_back(target);
+    const auto ext = target.extension().string();
+    if (ext == ".exr" || ext == ".EXR") files.push_back(fs::path(target).replace_extension(".png"));
+  }
+  return files;
+}
+
+/// The files a capture description names, resolved against its folder, and the description itself.
+inline std::vector<fs::path> capture_inputs(const capture& cap, const fs::path& capture_file) {
+  std::vector<fs::path> files{capture_file};
+  for (const auto& i : cap.images) files.push_back(capture_file.parent_path() / i.file);
+  return files;
+}
+
+/// The files of a map set folder (read_maps reads them; write_maps writes them with previews).
+inline std::vector<fs::path> map_files(const fs::path& folder) {
+  std::vector<fs::path> files;
+  for (const auto name : map_file_names) {
+    files.push_back(folder / name);
+    files.push_back(fs::path(folder / name).replace_extension(".png"));
+  }
+  return files;
+}
+
 /// Writes `images` (one per capture image) into `out`: one linear EXR per image under its capture
 /// file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR.
-/// All files appear together or not at all.
-inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out) {
+/// Names stay inside `out` (output_inside) and none may be one of `inputs`. All files appear
+/// together or not at all.
+inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out, const std::vector<fs::path>& inputs = {}) {
+  refuse_overwriting_inputs(image_outputs(cap, out), inputs);
   fs::create_directories(out);
   file_transaction files;
   for (std::size_t i = 0; i < images.size(); ++i) {
-    const fs::path target = out / cap.images[i].file;
+    const fs::path target = output_inside(out, cap.images[i].file);
     if (target.has_parent_path()) fs::create_directories(target.parent_path());
     const auto ext = target.extension().string();
     if (ext == ".exr" || ext == ".EXR") {
@@ -60,8 +116,9 @@ inline void write_images(const std::vector<image>& images, const capture& cap, c
 }
 
 /// Renders `maps` under `cap` into `out` (write_images).
-inline void write_renders(const material_maps& maps, const capture& cap, const fs::path& out, const brdf_features& features = all_features) {
-  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out);
+inline void write_renders(const material_maps& maps, const capture& cap, const fs::path& out, const brdf_features& features = all_features,
+                          const std::vector<fs::path>& inputs = {}) {
+  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out, inputs);
 }
 
 /// Simulated sensor noise on rendered inputs (synthesize, eval).

@@ -195,3 +195,62 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK_FALSE(fs::exists(t.path / "s2"));
   }
 }
+
+namespace {
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+std::string replaced(std::string text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  REQUIRE(at != std::string::npos);
+  return text.replace(at, from.size(), to);
+}
+}  // namespace
+
+TEST_CASE("outputs stay inside -o and never overwrite the command's inputs") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  const std::string description = read_text(t.path / "syn/capture.json");
+  const std::string name = "anisocap_escaped_" + std::to_string(std::random_device{}()) + ".exr";
+
+  SUBCASE("a file name that climbs out of -o") {
+    write(t.path / "syn/up.json", replaced(description, "input_00.exr", "../../" + name));
+    const auto r = run("render --maps syn/truth --capture syn/up.json -o r", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("outside the output folder") != std::string::npos);
+    CHECK(r.output.find("../../" + name) != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path.parent_path() / name));
+    CHECK_FALSE(fs::exists(t.path / "r"));
+  }
+  SUBCASE("an absolute file name") {
+    const fs::path target = fs::temp_directory_path() / name;
+    write(t.path / "syn/abs.json", replaced(description, "input_00.exr", target.string()));
+    const auto r = run("render --maps syn/truth --capture syn/abs.json -o r", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("outside the output folder") != std::string::npos);
+    CHECK_FALSE(fs::exists(target));
+    CHECK_FALSE(fs::exists(t.path / "r"));
+  }
+  SUBCASE("-o is the inputs' folder, or the maps' folder") {
+    const std::string before = read_text(t.path / "syn/input_01.exr");
+    auto r = run("render --maps syn/truth --capture syn/capture.json -o syn", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("overwrite") != std::string::npos);
+    CHECK(read_text(t.path / "syn/input_01.exr") == before);
+    // Named after a map file, a render into the maps' folder would replace that map.
+    write(t.path / "syn/maps.json", replaced(description, "input_00.exr", "diffuse.exr"));
+    const std::string diffuse = read_text(t.path / "syn/truth/diffuse.exr");
+    r = run("render --maps syn/truth --capture syn/maps.json -o syn/truth", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("diffuse.exr") != std::string::npos);
+    CHECK(read_text(t.path / "syn/truth/diffuse.exr") == diffuse);
+    // capture's maps into the folder of its --truth maps would replace them.
+    r = run("capture syn/capture.json -o syn/truth --truth syn/truth --stages refine --steps 2", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("overwrite") != std::string::npos);
+    CHECK(read_text(t.path / "syn/truth/diffuse.exr") == diffuse);
+  }
+}
