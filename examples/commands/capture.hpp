@@ -26,8 +26,17 @@ struct capture_settings {
 inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
   const auto start = std::chrono::steady_clock::now();
   capture_options& o = s.options;
+  o.finetune.validate();  // impossible options and missing weights are refused before any work
+  o.refine.validate();
+  if (parsed->count("--models") > 0 && !s.models.present())
+    throw std::invalid_argument("--models " + s.models.models.string() + ": no " + s.models.preset + " weights there (" +
+                                s.models.estimator().string() + ", " + s.models.autoencoder().string() + ")");
   const capture cap = read_capture(s.capture_file);
   const std::vector<image> photos = load_capture_images(cap, s.capture_file.parent_path());
+  if (photos.size() < 4)
+    std::fprintf(stderr, "capture: warning: %zu photograph%s cannot separate the maps' parameters (the problem is ill-posed: many "
+                 "map sets render the same); the method needs about 8 (docs/method.md section 6), at least 4\n",
+                 photos.size(), photos.size() == 1 ? "" : "s");
   std::optional<material_maps> truth, start_maps;
   auto check_size = [&](const material_maps& m, const fs::path& file) {
     if (m.width() != photos[0].width() || m.height() != photos[0].height())
@@ -47,6 +56,23 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   outputs.insert(outputs.end(), renders.begin(), renders.end());
   for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
   refuse_overwriting_inputs(outputs, inputs);
+  output_lock lock(s.out);
+  // A failed run leaves nothing but a check-point with completed stages, and says so.
+  struct on_failure {
+    output_lock& lock;
+    fs::path checkpoint;
+    bool succeeded = false;
+    ~on_failure() {
+      if (succeeded) return;
+      std::error_code ec;
+      if (fs::exists(checkpoint / "estimate", ec) || fs::exists(checkpoint / "finetune", ec))
+        std::fprintf(stderr, "capture: failed; the completed stages are kept in %s: after fixing the cause, the same command with "
+                     "--resume continues from them\n", checkpoint.c_str());
+      else
+        fs::remove_all(checkpoint, ec);
+      lock.release_empty();
+    }
+  } cleanup{lock, s.out / ".checkpoint"};
   const double load_seconds = seconds_since(start);
 
   // Which stages: "auto" runs the networks when their weights are there (and no --init), else refine alone.
@@ -121,6 +147,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   }
   report["peak_memory_bytes"] = peak_resident_bytes();
   write_file_atomically(s.out / "report.json", report.dump(2) + "\n");
+  cleanup.succeeded = true;
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume
   std::fprintf(stderr, "capture:");

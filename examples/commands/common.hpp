@@ -1,6 +1,8 @@
 #pragma once
 // What the `anisocap` program's commands share: progress lines, image writing, the optimiser
 // options bound onto capture_options, and the network weights of a preset.
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -38,6 +40,40 @@ inline nlohmann::json errors_to_json(const parameter_errors& e) {
           {"rotation_anisotropic", std::isnan(e.rotation_anisotropic) ? nlohmann::json(nullptr) : nlohmann::json(e.rotation_anisotropic)},
           {"fresnel", e.fresnel}};
 }
+
+/// An exclusive lock on an output folder for the life of a command (flock on the folder itself, so
+/// nothing is left behind and the kernel drops it when the process dies): a second run into the
+/// same folder fails at once instead of both writing there. Creates the folder; when the command
+/// fails, `release_empty` removes it again if it made it and it stayed empty.
+class output_lock {
+ public:
+  explicit output_lock(const fs::path& folder) : folder_(folder) {
+    created_ = !fs::exists(folder);
+    fs::create_directories(folder);
+    fd_ = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (fd_ < 0) throw std::runtime_error(folder.string() + ": cannot open the output folder");
+    if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+      ::close(fd_);
+      fd_ = -1;
+      throw std::runtime_error(folder.string() + ": another anisocap run is writing into this folder; wait for it or choose another -o");
+    }
+  }
+  output_lock(const output_lock&) = delete;
+  output_lock& operator=(const output_lock&) = delete;
+  ~output_lock() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  /// Removes the folder when this lock created it and nothing was written there.
+  void release_empty() {
+    std::error_code ec;
+    if (created_ && fs::is_empty(folder_, ec)) fs::remove(folder_, ec);
+  }
+
+ private:
+  fs::path folder_;
+  bool created_ = false;
+  int fd_ = -1;
+};
 
 /// `out / name` for a file name read from a capture description. Throws std::invalid_argument when
 /// the name is absolute or climbs out of `out` (a ".." that leaves it): outputs stay inside the
