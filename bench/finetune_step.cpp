@@ -1,4 +1,4 @@
-// The decoder fine-tune step (MODEL.md 8.3), taken apart: decode forward, maps from the network
+// The decoder fine-tune step (docs/method.md section 8.3), taken apart: decode forward, maps from the network
 // outputs, fused image loss + gradient, the chain rule back to the network outputs, backward
 // through the decoder, Adam. For the compact preset (shipped weights) and the paper preset
 // (seeded initial weights: the step's cost does not depend on the weights' values), on a
@@ -40,7 +40,7 @@ struct step_times {
 };
 
 template <class P>
-step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int crop) {
+step_times time_steps(auto_encoder<P>& ae, int size, int repeats, int warmup, int crop) {
   const std::uint64_t seed = 920000;
   const material_maps truth = generate_material(seed, size, size);
   capture cap = set_alpha(12, seed, size, size);
@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
   std::printf("fine-tune step, %d x %d, 12 inputs, %d threads, medians of %d steps (ms)\n\n", size, size, omp_get_max_threads(), repeats);
   std::printf("| preset | decode | to maps | loss + gradient | chain rule | backward | Adam | whole step | crop step | crop / whole |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
-  AutoEncoder<autoencoder_compact> compact;
+  auto_encoder<autoencoder_compact> compact;
   try {
     nn::load_weights(models / "compact" / "autoencoder.safetensors", compact);
   } catch (const std::exception& e) {
@@ -129,7 +129,7 @@ int main(int argc, char** argv) {
   }
   const step_times c = time_steps(compact, size, repeats, warmup, crop);
   print("compact", c, crop);
-  auto paper = std::make_unique<AutoEncoder<autoencoder_paper>>(1);
+  auto paper = std::make_unique<auto_encoder<autoencoder_paper>>(1);
   const step_times p = time_steps(*paper, size, repeats, warmup, crop);
   print("paper", p, crop);
   std::printf("\npaper / compact whole step: %.2fx\n", median(p.total) / median(c.total));

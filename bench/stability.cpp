@@ -26,7 +26,7 @@
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/pipeline/capture.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "../tests/support/stability_scenes.hpp"
 
@@ -62,7 +62,7 @@ std::size_t non_finite(const material_maps& m) {
   return n;
 }
 
-/// Finite map values outside their parameter's range (MODEL.md 1).
+/// Finite map values outside their parameter's range (docs/method.md section 1).
 std::size_t out_of_range(const material_maps& m) {
   std::size_t bad = 0;
   for (std::size_t i = 0; i < m.texel_count(); ++i) {

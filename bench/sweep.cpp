@@ -1,4 +1,4 @@
-// Run time against error (issue 6): sweeps the knobs that trade time for accuracy on procedural
+// Run time against error: sweeps the knobs that trade time for accuracy on procedural
 // validation materials and writes one CSV row per (material, configuration). bench/sweep_plot.py
 // turns the CSV into the plot and the Pareto table of bench/README.md.
 //
@@ -36,7 +36,7 @@
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/nn/early_stopping.hpp"
 #include "anisocap/pipeline/capture.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
@@ -124,8 +124,8 @@ int main(int argc, char** argv) {
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
   if (materials < 1 || size < 32 || max_finetune < 0) { std::fprintf(stderr, "sweep: bad option values\n"); return 2; }
-  EstimationNet<estimator_compact> estimator;
-  AutoEncoder<autoencoder_compact> autoencoder;
+  estimation_network<estimator_compact> estimator;
+  auto_encoder<autoencoder_compact> autoencoder;
   try {
     nn::load_weights(models / "compact" / "estimator.safetensors", estimator);
   } catch (const std::exception& e) {

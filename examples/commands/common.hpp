@@ -228,8 +228,8 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     throw std::invalid_argument("the network stages need the " + models.preset + " weights: " + models.estimator().string() + " and " +
                                 models.autoencoder().string() + " (not found)");
   auto run = [&]<class EstimatorPreset, class AutoEncoderPreset>() {
-    EstimationNet<EstimatorPreset> estimator;
-    AutoEncoder<AutoEncoderPreset> autoencoder;
+    estimation_network<EstimatorPreset> estimator;
+    auto_encoder<AutoEncoderPreset> autoencoder;
     nn::load_weights(models.estimator(), estimator);
     nn::load_weights(models.autoencoder(), autoencoder);
     return capture_material(cap, photos, estimator, autoencoder, o, start);

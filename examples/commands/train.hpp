@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "anisocap/pipeline/training.hpp"
+#include "anisocap/training/training.hpp"
 
 namespace anisocap::commands {
 
@@ -59,8 +59,8 @@ inline std::string row(const char* name, const parameter_errors& e) {
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation materials.
 inline void evaluate_networks(const network_eval_settings& s) {
-  EstimationNet<estimator_compact> estimator;
-  AutoEncoder<autoencoder_compact> autoencoder;
+  estimation_network<estimator_compact> estimator;
+  auto_encoder<autoencoder_compact> autoencoder;
   nn::load_weights(s.estimator, estimator);
   nn::load_weights(s.autoencoder, autoencoder);
   std::vector<training::sample> samples;
@@ -106,10 +106,10 @@ inline void add_train_commands(CLI::App& app) {
   est_cmd->callback([est] {
     const auto& o = est->options;
     if (est->preset == "paper") {
-      auto net = std::make_unique<EstimationNet<estimator_paper>>(o.seed);
+      auto net = std::make_unique<estimation_network<estimator_paper>>(o.seed);
       training::train_estimator(o, *net);
     } else {
-      auto net = std::make_unique<EstimationNet<estimator_compact>>(o.seed);
+      auto net = std::make_unique<estimation_network<estimator_compact>>(o.seed);
       training::train_estimator(o, *net);
     }
   });
@@ -120,10 +120,10 @@ inline void add_train_commands(CLI::App& app) {
   ae_cmd->callback([ae] {
     const auto& o = ae->options;
     if (ae->preset == "paper") {
-      auto net = std::make_unique<AutoEncoder<autoencoder_paper>>(o.seed);
+      auto net = std::make_unique<auto_encoder<autoencoder_paper>>(o.seed);
       training::train_autoencoder(o, *net);
     } else {
-      auto net = std::make_unique<AutoEncoder<autoencoder_compact>>(o.seed);
+      auto net = std::make_unique<auto_encoder<autoencoder_compact>>(o.seed);
       training::train_autoencoder(o, *net);
     }
   });

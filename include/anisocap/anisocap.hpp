@@ -41,6 +41,7 @@
 #include "anisocap/render/analysis.hpp"
 #include "anisocap/render/capture.hpp"
 #include "anisocap/render/configurations.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/renderer.hpp"
 #include "anisocap/render/sensor_noise.hpp"
 
@@ -51,13 +52,17 @@
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/data/procedural.hpp"
 
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
+#include "anisocap/networks/network_layers.hpp"
+#include "anisocap/networks/network_space.hpp"
+
+#include "anisocap/training/training.hpp"
+
 #include "anisocap/pipeline/capture.hpp"
 #include "anisocap/pipeline/encode.hpp"
 #include "anisocap/pipeline/estimate.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
-#include "anisocap/pipeline/network_space.hpp"
-#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/pipeline/fingerprint.hpp"
 #include "anisocap/pipeline/refine.hpp"
-#include "anisocap/pipeline/training.hpp"

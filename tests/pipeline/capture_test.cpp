@@ -30,18 +30,18 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
   REQUIRE_FALSE(o.checkpoint.folder.empty());
   o.checkpoint.seconds = 0;  // check-point after every step
   o.finetune.steps = 8;
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> straight(2);
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> straight(2);
   const auto encoder_before = straight.enc0.weight.value;
   const capture_result a = capture_material(s.cap, s.photos, estimator, straight, o);
   for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc0.weight.value[i] == encoder_before[i]);
   o.finetune.observer = nullptr;
 
   std::filesystem::remove_all(o.checkpoint.folder);
-  AutoEncoder<autoencoder_tiny> first(2);
+  auto_encoder<autoencoder_tiny> first(2);
   o.finetune.steps = 5;
   capture_material(s.cap, s.photos, estimator, first, o);
-  AutoEncoder<autoencoder_tiny> second(2);
+  auto_encoder<autoencoder_tiny> second(2);
   o.finetune.steps = 8;
   o.checkpoint.resume = true;
   const capture_result b = capture_material(s.cap, s.photos, estimator, second, o);
@@ -56,8 +56,8 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
 
 TEST_CASE("pipeline: every stage runs on a non-square size that is not a multiple of 32, maps stay valid") {
   const scene s(45, 37);
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> autoencoder(2);
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> autoencoder(2);
   capture_options o = measured_capture_options();
   o.estimate.window = 64;
   o.estimate.stride = 16;
@@ -100,8 +100,8 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   // where the grid goes on), clipped at the borders and at the material's edge.
   const scene s(100, 70);
   const loss_targets targets = make_loss_targets(s.photos);
-  AutoEncoder<autoencoder_tiny> ae(3);
-  constexpr int M = AutoEncoder<autoencoder_tiny>::size_multiple;
+  auto_encoder<autoencoder_tiny> ae(3);
+  constexpr int M = auto_encoder<autoencoder_tiny>::size_multiple;
   const auto z = encode(ae, s.truth);
   ae.freeze_encoder(true);
   REQUIRE(z.height() == 3);
@@ -201,7 +201,7 @@ TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-
 
 TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved back to a loss near the best, whole tiles and crops") {
   const scene s(64, 64);
-  EstimationNet<estimator_tiny> estimator(1);
+  estimation_network<estimator_tiny> estimator(1);
   for (const int crop : {0, 1}) {  // crop 1: one of the 2 x 2 latent cells a step; the guard watches 5-step means
     CAPTURE(crop);
     capture_options o = measured_capture_options();
@@ -218,12 +218,12 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
     o.finetune.observer = [&](int, double, const std::function<material_maps()>& maps) {
       unguarded_losses.push_back(loss_and_gradient<all_features>(maps(), s.cap, targets, nullptr));  // the whole tile's, crops or not
     };
-    AutoEncoder<autoencoder_tiny> a(2);
+    auto_encoder<autoencoder_tiny> a(2);
     const capture_result wild = capture_material(s.cap, s.photos, estimator, a, o);
     CHECK(wild.stages[2].restarts == 0);
     o.finetune.observer = nullptr;
     o.finetune.guard.factor = 1.5;
-    AutoEncoder<autoencoder_tiny> b(2);
+    auto_encoder<autoencoder_tiny> b(2);
     const capture_result guarded = capture_material(s.cap, s.photos, estimator, b, o);
     CHECK(guarded.stages[2].restarts > 0);
     CHECK(guarded.stages[2].restarts < 10);  // each restart resumes from the snapshot's loss: no endless going back
@@ -237,7 +237,7 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
     if (crop == 0) CHECK(guarded.stages[2].loss <= 1.5 * guarded.stages[1].loss);
     CHECK_THROWS_AS([&] {
       o.finetune.guard.factor = 0.9;
-      AutoEncoder<autoencoder_tiny> c(2);
+      auto_encoder<autoencoder_tiny> c(2);
       capture_material(s.cap, s.photos, estimator, c, o);
     }(), std::invalid_argument);
   }

@@ -23,7 +23,7 @@ fs::path fresh_folder(const char* name) {
   return p;
 }
 
-std::vector<float> decoder_weights(AutoEncoder<autoencoder_tiny>& ae) {
+std::vector<float> decoder_weights(auto_encoder<autoencoder_tiny>& ae) {
   std::vector<float> w;
   ae.for_each_decoder_parameter([&](nn::parameter& p) { w.insert(w.end(), p.value.begin(), p.value.end()); });
   return w;
@@ -35,7 +35,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
   const material_maps truth = random_maps(64, 64, 3);
   const capture cap = random_capture(5, 4);
   const std::vector<image> photos = render(truth, cap);
-  EstimationNet<estimator_tiny> estimator(1);
+  estimation_network<estimator_tiny> estimator(1);
   for (const int crop : {0, 1}) {  // whole tiles (the guard checks each step) and crops (5-step means)
     CAPTURE(crop);
     capture_options o = measured_capture_options();
@@ -50,7 +50,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
     o.checkpoint.folder = fresh_folder("guard_resume");
     o.checkpoint.seconds = 1e9;  // check-points only where stop_after asks
 
-    AutoEncoder<autoencoder_tiny> straight(2);
+    auto_encoder<autoencoder_tiny> straight(2);
     const capture_result a = capture_material(cap, photos, estimator, straight, o);
     REQUIRE(a.stages[2].restarts > 1);
     REQUIRE(a.stages[2].steps == 40);
@@ -62,7 +62,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
       CAPTURE(stop);
       o.finetune.stop_after = stop;
       o.checkpoint.resume = false;
-      AutoEncoder<autoencoder_tiny> first(2);
+      auto_encoder<autoencoder_tiny> first(2);
       const capture_result stopped = capture_material(cap, photos, estimator, first, o);
       REQUIRE(stopped.stopped);
       REQUIRE(stopped.stages[2].restarts <= a.stages[2].restarts);
@@ -70,7 +70,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
 
       o.finetune.stop_after = -1;
       o.checkpoint.resume = true;
-      AutoEncoder<autoencoder_tiny> second(2);  // a new process: fresh weights, everything else from the check-point
+      auto_encoder<autoencoder_tiny> second(2);  // a new process: fresh weights, everything else from the check-point
       const capture_result b = capture_material(cap, photos, estimator, second, o);
       CHECK(b.stages[2].resumed);
       CHECK(b.stages[2].steps == 40 - stop);
@@ -87,7 +87,7 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   const material_maps truth = random_maps(32, 32, 5);
   const capture cap = random_capture(4, 6);
   const std::vector<image> photos = render(truth, cap);
-  EstimationNet<estimator_tiny> estimator(1);
+  estimation_network<estimator_tiny> estimator(1);
   capture_options o = measured_capture_options();
   o.stages.estimate = false;
   o.stages.refine = false;
@@ -96,13 +96,13 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   o.checkpoint.folder = fresh_folder("fingerprint");
   o.checkpoint.seconds = 1e9;
   {
-    AutoEncoder<autoencoder_tiny> ae(2);
+    auto_encoder<autoencoder_tiny> ae(2);
     REQUIRE(capture_material(cap, photos, estimator, ae, o).stopped);
   }
   o.finetune.stop_after = -1;
   o.checkpoint.resume = true;
   auto resume_error = [&](const capture& c, const std::vector<image>& p, const capture_options& opts) -> std::string {
-    AutoEncoder<autoencoder_tiny> ae(2);
+    auto_encoder<autoencoder_tiny> ae(2);
     try {
       capture_material(c, p, estimator, ae, opts);
     } catch (const std::runtime_error& e) {
@@ -133,14 +133,14 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
 
   // Other weights are another capture too.
   {
-    AutoEncoder<autoencoder_tiny> other(3);
+    auto_encoder<autoencoder_tiny> other(3);
     CHECK_THROWS_WITH_AS(capture_material(cap, photos, estimator, other, o), doctest::Contains("autoencoder_weights"), std::runtime_error);
   }
   // More steps are the same capture continued; the same inputs resume.
   capture_options longer = o;
   longer.finetune.steps = 9;
   {
-    AutoEncoder<autoencoder_tiny> ae(2);
+    auto_encoder<autoencoder_tiny> ae(2);
     const capture_result r = capture_material(cap, photos, estimator, ae, longer);
     CHECK(r.stages[2].resumed);
     CHECK(r.stages[2].steps == 6);

@@ -1,4 +1,4 @@
-// Numerical stability of the capture (issue 6, part 3): the per-texel refine and the pipeline on
+// Numerical stability of the capture: the per-texel refine and the pipeline on
 // procedural materials under saturated highlights, near-grazing configurations, corrupted inputs
 // and intensities scaled by 1e-4 and 1e4. Measured values are in the comments beside each bound;
 // bench/stability.cpp prints the same scenarios at 256 x 256 (bench/README.md, "Numerical
@@ -26,7 +26,7 @@
 #include "anisocap/data/procedural.hpp"
 #include "../support/capture_options.hpp"
 #include "anisocap/pipeline/capture.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/configurations.hpp"
 
@@ -44,7 +44,7 @@ struct procedural_scene {
       : truth(generate_material(seed, size, size)), cap(set_alpha(images, seed, size, size)), photos(render(truth, cap)) {}
 };
 
-/// Number of map values that are not finite or lie outside their parameter's range (MODEL.md 1):
+/// Number of map values that are not finite or lie outside their parameter's range (docs/method.md section 1):
 /// albedos and F0 in [0, 1], lobe widths in (0, 1], normal (x, y) inside the unit disc, alpha in
 /// [-pi/2, pi/2].
 std::size_t invalid_values(const material_maps& m) {
@@ -77,8 +77,8 @@ double fraction_at_or_above(const std::vector<image>& photos, float level) {
 
 /// Runs the pipeline with fresh tiny networks (same seeds each call, so runs are comparable).
 capture_result run_tiny(const capture& cap, const std::vector<image>& photos, const capture_options& o) {
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> autoencoder(2);
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> autoencoder(2);
   return capture_material(cap, photos, estimator, autoencoder, o);
 }
 
@@ -183,8 +183,8 @@ TEST_CASE("stability: a photograph with a NaN or infinite pixel is refused by th
     CHECK(message.find("image 3") != std::string::npos);
     CHECK(message.find("(17, 5)") != std::string::npos);
 
-    EstimationNet<estimator_tiny> estimator(1);
-    AutoEncoder<autoencoder_tiny> autoencoder(2);
+    estimation_network<estimator_tiny> estimator(1);
+    auto_encoder<autoencoder_tiny> autoencoder(2);
     capture_options po = measured_capture_options();
     po.stages = pipeline_stages{false, false, false, true};
     po.refine.steps = 5;

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The 12 appearance parameters per texel (MODEL.md 1), stored as planes (structure of arrays) so
+/// The 12 appearance parameters per texel (docs/method.md section 1), stored as planes (structure of arrays) so
 /// that renderers and optimisers load 16 consecutive texels of one parameter into one register.
 #include <cmath>
 #include <cstddef>

@@ -4,8 +4,9 @@
 /// and the decoder's maps of z, which the fine-tune then improves.
 #include "anisocap/ad/reverse/tape.hpp"
 #include "anisocap/pipeline/estimate.hpp"
-#include "anisocap/pipeline/network_space.hpp"
-#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/networks/network_space.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
 #include "anisocap/render/capture.hpp"
 
 namespace anisocap {
@@ -25,8 +26,8 @@ inline material_maps pad_maps(const material_maps& maps, int width, int height) 
 /// size multiple, taken to network space and encoded in inference mode without gradients. Leaves
 /// the auto-encoder in inference mode.
 template <class P>
-tensor<AutoEncoder<P>::latent_channels, float> encode(AutoEncoder<P>& autoencoder, const material_maps& maps) {
-  constexpr int M = AutoEncoder<P>::size_multiple;
+tensor<auto_encoder<P>::latent_channels, float> encode(auto_encoder<P>& autoencoder, const material_maps& maps) {
+  constexpr int M = auto_encoder<P>::size_multiple;
   const int Wp = (maps.width() + M - 1) / M * M, Hp = (maps.height() + M - 1) / M * M;
   tensor<parameter_count, float> u(1, Hp, Wp);
   network_space::maps_to_network(pad_maps(maps, Wp, Hp), u, 0);
@@ -39,7 +40,7 @@ tensor<AutoEncoder<P>::latent_channels, float> encode(AutoEncoder<P>& autoencode
 /// The decoder's maps of the latent code `z`, cropped to the `width` x `height` material, without
 /// gradients.
 template <class P>
-material_maps decode(AutoEncoder<P>& autoencoder, const tensor<AutoEncoder<P>::latent_channels, float>& z, int width, int height) {
+material_maps decode(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width, int height) {
   ad::tape t;
   ad::tape::no_grad_guard guard(t);
   return network_space::network_to_maps(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width), 0);

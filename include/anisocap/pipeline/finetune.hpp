@@ -151,10 +151,10 @@ struct scratch {
 /// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
 /// gradients are (W H / 32^2) times the whole tile's.
 template <brdf_features F, class P>
-double crop_step(ad::tape& t, AutoEncoder<P>& autoencoder, const tensor<AutoEncoder<P>::latent_channels, float>& z,
+double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
                  const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
                  const render_options& render, scratch& scratch) {
-  constexpr int M = AutoEncoder<P>::size_multiple;
+  constexpr int M = auto_encoder<P>::size_multiple;
   const int cells_y = z.height(), cells_x = z.width();
   const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
   const int lr1 = std::min(win.r1 + 1, cells_y), lc1 = std::min(win.c1 + 1, cells_x);
@@ -238,7 +238,7 @@ struct loop_state {
 /// weights and moments, and the guard's and the loop's numbers, doubles written exactly. Both
 /// files carry the step, so a pair torn by a kill while saving is recognised.
 template <class P>
-void save_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoencoder, nn::adam& adam, int step,
+void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
                      const divergence_guard& guard, const loop_state& loop) {
   std::filesystem::create_directories(folder);
   nn::save_weights(folder / "decoder.safetensors", autoencoder, {{"step", std::to_string(step)}});
@@ -267,7 +267,7 @@ void save_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoen
 /// Reads back save_checkpoint's files; returns the step to continue from. Throws
 /// std::runtime_error naming the file when a value is missing or the two files disagree.
 template <class P>
-int load_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard,
+int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard,
                     loop_state& loop) {
   const std::filesystem::path decoder_file = folder / "decoder.safetensors", state_file = folder / "state.safetensors";
   const auto decoder = nn::read_safetensors(decoder_file);
@@ -320,7 +320,7 @@ int load_checkpoint(const std::filesystem::path& folder, AutoEncoder<P>& autoenc
 /// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
 /// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
 template <class P>
-finetune_result finetune(AutoEncoder<P>& autoencoder, const tensor<AutoEncoder<P>::latent_channels, float>& z, int width,
+finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width,
                          int height, const capture& cap, const loss_targets& targets, brdf_features features,
                          const render_options& render, double start_loss, const finetune_options& o,
                          const checkpoint_options& checkpoint = {}) {
