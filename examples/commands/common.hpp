@@ -157,10 +157,30 @@ inline void write_renders(const material_maps& maps, const capture& cap, const f
   write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out, inputs);
 }
 
+/// A number check with a short message (CLI11's own prints its range's bound in 300 digits):
+/// finite, and positive (`positive`) or not negative.
+inline CLI::Validator finite_number(bool positive) {
+  return CLI::Validator(
+      [positive](std::string& text) -> std::string {
+        double v = 0;
+        try {
+          std::size_t used = 0;
+          v = std::stod(text, &used);
+          if (used != text.size()) return "expected a number, got '" + text + "'";
+        } catch (const std::exception&) {
+          return "expected a number, got '" + text + "'";
+        }
+        if (!std::isfinite(v)) return "must be a finite number, got " + text;
+        if (positive ? !(v > 0) : !(v >= 0)) return std::string(positive ? "must be positive" : "must not be negative") + ", got " + text;
+        return {};
+      },
+      positive ? "POSITIVE" : "NONNEGATIVE");
+}
+
 /// Simulated sensor noise on rendered inputs (synthesize, eval).
 inline void add_noise_options(CLI::App* c, sensor_noise& noise) {
-  c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(CLI::NonNegativeNumber);
-  c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(CLI::NonNegativeNumber);
+  c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(finite_number(false));
+  c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(finite_number(false));
 }
 
 /// Where the network weights come from.
@@ -193,15 +213,15 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "paper"}))
       ->default_str("fast");
-  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(CLI::PositiveNumber);
-  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
+  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));
+  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
+  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));
+  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->check(finite_number(false));
   c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every 50 steps, keeps large rates from losing what they gained");
-  c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(CLI::NonNegativeNumber);
-  c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(CLI::PositiveNumber);
+  c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(finite_number(false));
+  c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(finite_number(true));
   c->add_option("--refine-stop", o.refine.min_relative_improvement, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(

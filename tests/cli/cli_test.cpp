@@ -288,7 +288,7 @@ TEST_CASE("impossible options and broken weights are refused before any output")
   anisocap::nn::safetensors_file broken;
   broken.metadata = weights.metadata;
   for (const auto& e : weights.entries()) {
-    std::vector<unsigned char> bytes(weights.bytes(e).begin(), weights.bytes(e).end());
+    std::vector<std::byte> bytes(weights.bytes(e).begin(), weights.bytes(e).end());
     if (broken.entries().empty()) {
       const float nan = std::nanf("");
       std::memcpy(bytes.data(), &nan, sizeof nan);
