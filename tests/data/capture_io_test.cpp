@@ -40,7 +40,7 @@ std::string capture_error(const test_folder& dir, const std::string& text) {
 capture sample_capture() {
   capture c;
   c.images.push_back({"input_00.exr", {0.1f, -0.2f, 1.5f}, {-0.3f, 0.4f, 2.0f}, {1.0f, 1.0f, 1.0f}});
-  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, -1.0f}, {2.0f, 3.5f, 1e-6f}});
+  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, 0.01f}, {2.0f, 3.5f, 1e-6f}});
   c.images.push_back({"sub/input_02.exr", {3.0f, 4.0f, 4.0f}, {1.0f, 2.0f, 3.0f}, {1e6f, 1e6f, 1e6f}});
   return c;
 }
