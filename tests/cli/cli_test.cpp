@@ -265,7 +265,7 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"capture syn/capture.json -o out --stages refine --lr inf", "--lr"},
       {"capture syn/capture.json -o out --stages refine --freeze nan", "--freeze"},
       {"capture syn/capture.json -o out --stages refine --refine-stop nan", "--refine-stop"},
-      {"capture syn/capture.json -o out --finetune-lr inf", "learning rate"},
+      {"capture syn/capture.json -o out --finetune-lr inf", "--finetune-lr"},
       {"capture syn/capture.json -o out --preset huge", "--preset"},
       {"capture syn/capture.json -o out --models nowhere_models", "nowhere_models"},
       {"train-estimator --out out --steps -1", "--steps"},
