@@ -10,6 +10,8 @@
 #include <cstdio>
 #include <exception>
 
+#include "commands/options.hpp"
+
 #include "commands/capture.hpp"
 #include "commands/demo.hpp"
 #include "commands/eval.hpp"
@@ -26,9 +28,7 @@ int main(int argc, char** argv) {
   CLI::App app{"anisocap: capture anisotropic SVBRDFs (Ward + Fresnel) from a few photographs"};
   app.option_defaults()->always_capture_default();
   app.require_subcommand(1);
-  app.add_option_function<int>("--threads", [](int n) { if (n > 0) omp_set_num_threads(n); }, "worker threads (0: all cores)")
-      ->check(CLI::NonNegativeNumber)
-      ->default_str("0");
+  app.set_version_flag("--version", std::string("anisocap ") + ANISOCAP_VERSION);
   anisocap::commands::add_synthesize_command(app);
   anisocap::commands::add_render_command(app);
   anisocap::commands::add_capture_command(app);
@@ -40,9 +40,12 @@ int main(int argc, char** argv) {
   anisocap::commands::add_rectify_command(app);
   anisocap::commands::add_photograph_command(app);
   anisocap::commands::add_markers_command(app);
+  anisocap::commands::add_threads_option(&app);  // before the command or after it
+  for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; })) anisocap::commands::add_threads_option(command);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
+    anisocap::commands::suggest_command(app, argc, argv);
     return app.exit(e);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "anisocap: error: %s\n", e.what());

@@ -30,6 +30,11 @@ struct capture_settings {
 inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
   const auto start = std::chrono::steady_clock::now();
   capture_options& o = s.options;
+  o.finetune.validate();  // impossible options and missing weights are refused before any work
+  o.refine.validate();
+  if (parsed->count("--models") > 0 && !s.models.present())
+    throw std::invalid_argument("--models " + s.models.models.string() + ": no " + s.models.preset + " weights there (" +
+                                s.models.estimator().string() + ", " + s.models.autoencoder().string() + ")");
   const capture cap = read_capture(s.capture_file);
   const std::vector<photo> loaded = load_capture_photos(cap, s.capture_file.parent_path(), s.photos);
   const std::vector<image> photos = photo_pixels(loaded);
@@ -48,6 +53,10 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
     photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure},
                             {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
   }
+  if (photos.size() < 4)
+    std::fprintf(stderr, "capture: warning: %zu photograph%s cannot separate the maps' parameters (the problem is ill-posed: many "
+                 "map sets render the same); the method needs about 8 (docs/method.md section 6), at least 4\n",
+                 photos.size(), photos.size() == 1 ? "" : "s");
   std::optional<material_maps> truth, start_maps;
   auto check_size = [&](const material_maps& m, const fs::path& file) {
     if (m.width() != photos[0].width() || m.height() != photos[0].height())
@@ -56,6 +65,34 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   };
   if (s.truth) check_size(*(truth = read_maps(*s.truth)), *s.truth);
   if (s.init) check_size(*(start_maps = read_maps(*s.init)), *s.init);
+  // Outputs stay inside OUT and never replace an input; checked before any work.
+  std::vector<fs::path> inputs = capture_inputs(cap, s.capture_file);
+  for (const auto& folder : {s.truth, s.init})
+    if (folder) {
+      const auto files = map_files(*folder);
+      inputs.insert(inputs.end(), files.begin(), files.end());
+    }
+  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(cap, s.out / "renders");
+  outputs.insert(outputs.end(), renders.begin(), renders.end());
+  for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
+  refuse_overwriting_inputs(outputs, inputs);
+  output_lock lock(s.out);
+  // A failed run leaves nothing but a check-point with completed stages, and says so.
+  struct on_failure {
+    output_lock& lock;
+    fs::path checkpoint;
+    bool succeeded = false;
+    ~on_failure() {
+      if (succeeded) return;
+      std::error_code ec;
+      if (fs::exists(checkpoint / "estimate", ec) || fs::exists(checkpoint / "finetune", ec))
+        std::fprintf(stderr, "capture: failed; the completed stages are kept in %s: after fixing the cause, the same command with "
+                     "--resume continues from them\n", checkpoint.c_str());
+      else
+        fs::remove_all(checkpoint, ec);
+      lock.release_empty();
+    }
+  } cleanup{lock, s.out / ".checkpoint"};
   const double load_seconds = seconds_since(start);
 
   // Which stages: "auto" runs the networks when their weights are there (and no --init), else refine alone.
@@ -91,7 +128,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   fs::create_directories(s.out);
   write_maps(maps, s.out);
   if (s.view) write_viewer(maps, s.out / "material.html", {s.out.filename().string()});
-  write_renders(maps, cap, s.out / "renders");
+  write_renders(maps, cap, s.out / "renders", all_features, inputs);
   write_capture_sheet(s.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
   const capture novel = novel_view_set(1, maps.width(), maps.height());
   write_renders(maps, novel, s.out / "novel");
@@ -135,6 +172,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   }
   report["peak_memory_bytes"] = peak_resident_bytes();
   write_file_atomically(s.out / "report.json", report.dump(2) + "\n");
+  cleanup.succeeded = true;
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume
   std::fprintf(stderr, "capture:");

@@ -1,6 +1,8 @@
 #pragma once
 // What the `anisocap` program's commands share: progress lines, image writing, the optimiser
 // options bound onto capture_options, and the network weights of a preset.
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -39,14 +41,107 @@ inline nlohmann::json errors_to_json(const parameter_errors& e) {
           {"fresnel", e.fresnel}};
 }
 
+/// An exclusive lock on an output folder for the life of a command (flock on the folder itself, so
+/// nothing is left behind and the kernel drops it when the process dies): a second run into the
+/// same folder fails at once instead of both writing there. Creates the folder; when the command
+/// fails, `release_empty` removes it again if it made it and it stayed empty.
+class output_lock {
+ public:
+  explicit output_lock(const fs::path& folder) : folder_(folder) {
+    created_ = !fs::exists(folder);
+    fs::create_directories(folder);
+    fd_ = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (fd_ < 0) throw std::runtime_error(folder.string() + ": cannot open the output folder");
+    if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+      ::close(fd_);
+      fd_ = -1;
+      throw std::runtime_error(folder.string() + ": another anisocap run is writing into this folder; wait for it or choose another -o");
+    }
+  }
+  output_lock(const output_lock&) = delete;
+  output_lock& operator=(const output_lock&) = delete;
+  ~output_lock() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  /// Removes the folder when this lock created it and nothing was written there.
+  void release_empty() {
+    std::error_code ec;
+    if (created_ && fs::is_empty(folder_, ec)) fs::remove(folder_, ec);
+  }
+
+ private:
+  fs::path folder_;
+  bool created_ = false;
+  int fd_ = -1;
+};
+
+/// `out / name` for a file name read from a capture description. Throws std::invalid_argument when
+/// the name is absolute or climbs out of `out` (a ".." that leaves it): outputs stay inside the
+/// output folder whatever a capture description says.
+inline fs::path output_inside(const fs::path& out, const std::string& name) {
+  const fs::path n = fs::path(name).lexically_normal();
+  if (n.empty() || n.has_root_name() || n.has_root_directory() || *n.begin() == ".." || n == ".")
+    throw std::invalid_argument("image file name '" + name + "' would be written outside the output folder " + out.string() +
+                                ": a capture's file names must be relative and stay inside its folder");
+  return out / n;
+}
+
+/// Throws std::invalid_argument when one of `outputs` is one of `inputs` (the same file, however
+/// named): a command never overwrites what it reads.
+inline void refuse_overwriting_inputs(const std::vector<fs::path>& outputs, const std::vector<fs::path>& inputs) {
+  std::vector<fs::path> existing;
+  for (const auto& in : inputs)
+    if (fs::exists(in)) existing.push_back(fs::weakly_canonical(in));
+  for (const auto& out : outputs) {
+    const fs::path o = fs::weakly_canonical(out);
+    for (const auto& in : existing)
+      if (o == in)
+        throw std::invalid_argument(out.string() + ": this output would overwrite one of the command's inputs; choose another output folder (-o)");
+  }
+}
+
+/// The files write_images writes for `cap` into `out` (each EXR with its PNG preview).
+inline std::vector<fs::path> image_outputs(const capture& cap, const fs::path& out) {
+  std::vector<fs::path> files;
+  for (const auto& i : cap.images) {
+    const fs::path target = output_inside(out, i.file);
+    files.push_back(target);
+    const auto ext = target.extension().string();
+    if (ext == ".exr" || ext == ".EXR") files.push_back(fs::path(target).replace_extension(".png"));
+  }
+  return files;
+}
+
+/// The files a capture description names, resolved against its folder, and the description itself.
+inline std::vector<fs::path> capture_inputs(const capture& cap, const fs::path& capture_file) {
+  std::vector<fs::path> files{capture_file};
+  for (const auto& i : cap.images) {
+    files.push_back(capture_file.parent_path() / i.file);
+    if (!i.mask.empty()) files.push_back(capture_file.parent_path() / i.mask);
+  }
+  return files;
+}
+
+/// The files of a map set folder (read_maps reads them; write_maps writes them with previews).
+inline std::vector<fs::path> map_files(const fs::path& folder) {
+  std::vector<fs::path> files;
+  for (const auto name : map_file_names) {
+    files.push_back(folder / name);
+    files.push_back(fs::path(folder / name).replace_extension(".png"));
+  }
+  return files;
+}
+
 /// Writes `images` (one per capture image) into `out`: one linear EXR per image under its capture
 /// file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR.
-/// All files appear together or not at all.
-inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out) {
+/// Names stay inside `out` (output_inside) and none may be one of `inputs`. All files appear
+/// together or not at all.
+inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out, const std::vector<fs::path>& inputs = {}) {
+  refuse_overwriting_inputs(image_outputs(cap, out), inputs);
   fs::create_directories(out);
   file_transaction files;
   for (std::size_t i = 0; i < images.size(); ++i) {
-    const fs::path target = out / cap.images[i].file;
+    const fs::path target = output_inside(out, cap.images[i].file);
     if (target.has_parent_path()) fs::create_directories(target.parent_path());
     const auto ext = target.extension().string();
     if (ext == ".exr" || ext == ".EXR") {
@@ -60,14 +155,35 @@ inline void write_images(const std::vector<image>& images, const capture& cap, c
 }
 
 /// Renders `maps` under `cap` into `out` (write_images).
-inline void write_renders(const material_maps& maps, const capture& cap, const fs::path& out, const brdf_features& features = all_features) {
-  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out);
+inline void write_renders(const material_maps& maps, const capture& cap, const fs::path& out, const brdf_features& features = all_features,
+                          const std::vector<fs::path>& inputs = {}) {
+  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out, inputs);
+}
+
+/// A number check with a short message (CLI11's own prints its range's bound in 300 digits):
+/// finite, and positive (`positive`) or not negative.
+inline CLI::Validator finite_number(bool positive) {
+  return CLI::Validator(
+      [positive](std::string& text) -> std::string {
+        double v = 0;
+        try {
+          std::size_t used = 0;
+          v = std::stod(text, &used);
+          if (used != text.size()) return "expected a number, got '" + text + "'";
+        } catch (const std::exception&) {
+          return "expected a number, got '" + text + "'";
+        }
+        if (!std::isfinite(v)) return "must be a finite number, got " + text;
+        if (positive ? !(v > 0) : !(v >= 0)) return std::string(positive ? "must be positive" : "must not be negative") + ", got " + text;
+        return {};
+      },
+      positive ? "POSITIVE" : "NONNEGATIVE");
 }
 
 /// Simulated sensor noise on rendered inputs (synthesize, eval).
 inline void add_noise_options(CLI::App* c, sensor_noise& noise) {
-  c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(CLI::NonNegativeNumber);
-  c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(CLI::NonNegativeNumber);
+  c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(finite_number(false));
+  c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(finite_number(false));
 }
 
 /// Where the network weights come from.
@@ -100,15 +216,15 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "paper"}))
       ->default_str("fast");
-  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(CLI::PositiveNumber);
-  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(CLI::NonNegativeNumber);
-  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
+  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));
+  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
+  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));
+  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->check(finite_number(false));
   c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every 50 steps, keeps large rates from losing what they gained");
-  c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(CLI::NonNegativeNumber);
-  c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(CLI::PositiveNumber);
+  c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(finite_number(false));
+  c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(finite_number(true));
   c->add_option("--refine-stop", o.refine.min_relative_improvement, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(

@@ -21,6 +21,13 @@ struct synthesize_settings {
 inline void synthesize(const synthesize_settings& a) {
   if (a.width < 1 || a.height < 1) throw std::invalid_argument("--width and --height must be positive");
   if (a.images < 4) throw std::invalid_argument("--images must be at least 4 (set alpha needs 2 Fresnel and 2 independent)");
+  // The maps and the rendered inputs, each about twice (working copies, the files' buffers).
+  const double needed = double(a.width) * a.height * sizeof(float) * 2.0 * (parameter_count + 3.0 * a.images);
+  const double available = double(sysconf(_SC_PHYS_PAGES)) * double(sysconf(_SC_PAGESIZE));
+  if (needed > available)
+    throw std::invalid_argument("a " + std::to_string(a.width) + " x " + std::to_string(a.height) + " material with " +
+                                std::to_string(a.images) + " inputs needs about " + std::to_string(int(std::ceil(needed / (1 << 30)))) +
+                                " GiB of memory; this machine has " + std::to_string(int(available / (1 << 30))) + " GiB");
   procedural_options options;
   if (!a.kind.empty()) {
     options.kind = material_kind_from_name(a.kind);

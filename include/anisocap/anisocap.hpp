@@ -65,6 +65,7 @@
 #include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
+#include "anisocap/pipeline/fingerprint.hpp"
 #include "anisocap/pipeline/refine.hpp"
 
 #include "anisocap/calibration/camera.hpp"

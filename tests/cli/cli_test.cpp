@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -17,6 +18,7 @@
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/nn/safetensors.hpp"
 
 namespace fs = std::filesystem;
 
@@ -269,4 +271,189 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
     CHECK_FALSE(fs::exists(t.path / "out"));
     CHECK_FALSE(fs::exists(t.path / "s2"));
   }
+}
+
+namespace {
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+std::string replaced(std::string text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  REQUIRE(at != std::string::npos);
+  return text.replace(at, from.size(), to);
+}
+}  // namespace
+
+TEST_CASE("outputs stay inside -o and never overwrite the command's inputs") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  const std::string description = read_text(t.path / "syn/capture.json");
+  const std::string name = "anisocap_escaped_" + std::to_string(std::random_device{}()) + ".exr";
+
+  SUBCASE("a file name that climbs out of -o") {
+    write(t.path / "syn/up.json", replaced(description, "input_00.exr", "../../" + name));
+    const auto r = run("render --maps syn/truth --capture syn/up.json -o r", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("outside the output folder") != std::string::npos);
+    CHECK(r.output.find("../../" + name) != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path.parent_path() / name));
+    CHECK_FALSE(fs::exists(t.path / "r"));
+  }
+  SUBCASE("an absolute file name") {
+    const fs::path target = fs::temp_directory_path() / name;
+    write(t.path / "syn/abs.json", replaced(description, "input_00.exr", target.string()));
+    const auto r = run("render --maps syn/truth --capture syn/abs.json -o r", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("outside the output folder") != std::string::npos);
+    CHECK_FALSE(fs::exists(target));
+    CHECK_FALSE(fs::exists(t.path / "r"));
+  }
+  SUBCASE("-o is the inputs' folder, or the maps' folder") {
+    const std::string before = read_text(t.path / "syn/input_01.exr");
+    auto r = run("render --maps syn/truth --capture syn/capture.json -o syn", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("overwrite") != std::string::npos);
+    CHECK(read_text(t.path / "syn/input_01.exr") == before);
+    // Named after a map file, a render into the maps' folder would replace that map.
+    write(t.path / "syn/maps.json", replaced(description, "input_00.exr", "diffuse.exr"));
+    const std::string diffuse = read_text(t.path / "syn/truth/diffuse.exr");
+    r = run("render --maps syn/truth --capture syn/maps.json -o syn/truth", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("diffuse.exr") != std::string::npos);
+    CHECK(read_text(t.path / "syn/truth/diffuse.exr") == diffuse);
+    // capture's maps into the folder of its --truth maps would replace them.
+    r = run("capture syn/capture.json -o syn/truth --truth syn/truth --stages refine --steps 2", t.path);
+    CHECK(r.status != 0);
+    CHECK(r.output.find("overwrite") != std::string::npos);
+    CHECK(read_text(t.path / "syn/truth/diffuse.exr") == diffuse);
+  }
+}
+
+TEST_CASE("impossible options and broken weights are refused before any output") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  struct refused { std::string args, names; };
+  const refused cases[] = {
+      {"capture syn/capture.json -o out --stages refine --lr inf", "--lr"},
+      {"capture syn/capture.json -o out --stages refine --freeze nan", "--freeze"},
+      {"capture syn/capture.json -o out --stages refine --refine-stop nan", "--refine-stop"},
+      {"capture syn/capture.json -o out --finetune-lr inf", "--finetune-lr"},
+      {"capture syn/capture.json -o out --preset huge", "--preset"},
+      {"capture syn/capture.json -o out --models nowhere_models", "nowhere_models"},
+      {"train-estimator --out out --steps -1", "--steps"},
+      {"train-autoencoder --out out --batch 0", "--batch"},
+      {"train-estimator --out out --lr nan", "--lr"},
+  };
+  for (const auto& c : cases) {
+    CAPTURE(c.args);
+    const auto r = run(c.args, t.path);
+    INFO(r.output);
+    CHECK(r.status != 0);
+    CHECK(r.output.find(c.names) != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path / "out"));
+  }
+  // Weights with a NaN: refused at load, naming the weights file, before any stage ran.
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models/compact";
+  fs::create_directories(t.path / "bad_models/compact");
+  fs::copy_file(models / "autoencoder.safetensors", t.path / "bad_models/compact/autoencoder.safetensors");
+  anisocap::nn::safetensors_file weights = anisocap::nn::read_safetensors(models / "estimator.safetensors");
+  anisocap::nn::safetensors_file broken;
+  broken.metadata = weights.metadata;
+  for (const auto& e : weights.entries()) {
+    std::vector<std::byte> bytes(weights.bytes(e).begin(), weights.bytes(e).end());
+    if (broken.entries().empty()) {
+      const float nan = std::nanf("");
+      std::memcpy(bytes.data(), &nan, sizeof nan);
+    }
+    broken.add(e.name, e.dtype, e.shape, bytes.data(), bytes.size());
+  }
+  anisocap::nn::write_safetensors(t.path / "bad_models/compact/estimator.safetensors", broken);
+  const auto r = run("capture syn/capture.json -o out --stages all --models bad_models", t.path);
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("bad_models/compact/estimator.safetensors") != std::string::npos);
+  CHECK(r.output.find("not finite") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "out"));
+}
+
+TEST_CASE("options that were silently wrong: threads, huge sizes, lights below the surface, one image") {
+  temp_dir t;
+  auto r = run("--threads 100000 synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("hardware threads") != std::string::npos);
+  r = run("synthesize --threads 1 -o syn1 --width 8 --height 8 --images 4", t.path);  // after the command too
+  CHECK(r.status == 0);
+  r = run("--threads -3 synthesize -o syn2", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--threads must be 0") != std::string::npos);
+  CHECK(r.output.size() < 400);
+  CHECK_FALSE(fs::exists(t.path / "syn2"));
+
+  r = run("synthesize -o huge --width 100000 --height 100000", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("GiB") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "huge"));
+
+  const std::string description = read_text(t.path / "syn/capture.json");
+  const auto light = description.find("\"light\"");
+  REQUIRE(light != std::string::npos);
+  const auto end = description.find(']', light);
+  write(t.path / "syn/below.json", description.substr(0, light) + "\"light\": [0.1, 0.2, -0.5" + description.substr(end));
+  r = run("capture syn/below.json -o out --stages refine --steps 2", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("below the material plane") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "out"));
+
+  // One photograph: the capture runs but says the problem is ill-posed.
+  const auto first = description.find('{', description.find('['));
+  const auto first_end = description.find('}', first);
+  write(t.path / "syn/one.json", "{\"images\": [" + description.substr(first, first_end - first + 1) + "]}");
+  r = run("capture syn/one.json -o one --stages refine --steps 2", t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("ill-posed") != std::string::npos);
+}
+
+TEST_CASE("two runs into one output folder: the second is refused while the first holds the lock") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  // The first run in the background; the second starts once the first has printed its start line
+  // (after taking the lock) and before it finishes (tens of thousands of refine steps).
+  const fs::path first_log = t.path / "first.txt";
+  const std::string background = "cd '" + t.path.string() + "' && (OMP_NUM_THREADS=1 '" + program.string() +
+                                 "' capture syn/capture.json -o out --stages refine --steps 400000 --refine-stop 0 --freeze 0 > '" +
+                                 first_log.string() + "' 2>&1 & echo $! > first_pid; wait $!; echo $? > first_status) &";
+  REQUIRE(std::system(background.c_str()) == 0);
+  for (int i = 0; i < 600 && read_text(first_log).find("capture: 4 images") == std::string::npos; ++i)
+    std::system("sleep 0.1");
+  REQUIRE(read_text(first_log).find("capture: 4 images") != std::string::npos);
+  const auto second = run("capture syn/capture.json -o out --stages refine --steps 2", t.path);
+  INFO(second.output);
+  const bool first_done = fs::exists(t.path / "first_status");
+  CHECK(second.status != 0);
+  CHECK(second.output.find("another anisocap run") != std::string::npos);
+  CHECK_FALSE(first_done);
+  // Stop the first run (it would take long) by its process id.
+  std::system(("kill -INT $(cat '" + (t.path / "first_pid").string() + "') 2>/dev/null; true").c_str());
+  for (int i = 0; i < 600 && !fs::exists(t.path / "first_status"); ++i) std::system("sleep 0.1");
+}
+
+TEST_CASE("--version, a suggestion on a mistyped command, defaults in the training help") {
+  temp_dir t;
+  auto r = run("--version", t.path);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("anisocap 0.") != std::string::npos);
+  r = run("captur syn/capture.json", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("did you mean 'capture'") != std::string::npos);
+  r = run("train-estimator --help", t.path);
+  CHECK(r.output.find("2000") != std::string::npos);  // --steps' default
+  r = run("train-autoencoder --help", t.path);
+  CHECK(r.output.find("0.1") != std::string::npos);  // --smoothness' default
+  r = run("eval-networks --help", t.path);
+  CHECK(r.output.find("30") != std::string::npos);  // --count's default
 }

@@ -41,7 +41,7 @@ std::string capture_error(const test_folder& dir, const std::string& text) {
 capture sample_capture() {
   capture c;
   c.images.push_back({"input_00.exr", {0.1f, -0.2f, 1.5f}, {-0.3f, 0.4f, 2.0f}, {1.0f, 1.0f, 1.0f}, "", 1.0f});
-  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, -1.0f}, {2.0f, 3.5f, 1e-6f}, "", 1.0f});
+  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, 0.01f}, {2.0f, 3.5f, 1e-6f}, "", 1.0f});
   c.images.push_back({"sub/input_02.exr", {3.0f, 4.0f, 4.0f}, {1.0f, 2.0f, 3.0f}, {1e6f, 1e6f, 1e6f}, "", 1.0f});
   return c;
 }
@@ -80,12 +80,12 @@ TEST_CASE("capture.json: accepted forms") {
   test_folder dir;
   const fs::path path = dir / "capture.json";
   write_text(path, R"({"images": [
-    {"intensity": [1, 2, 3], "light": [0, 0, -1], "camera": [0.5, 0.5, 0.001], "file": "x.PNG"}]})");
+    {"intensity": [1, 2, 3], "light": [0, 0, 0.001], "camera": [0.5, 0.5, 0.001], "file": "x.PNG"}]})");
   const capture c = anisocap::read_capture(path);
   REQUIRE(c.images.size() == 1);
   CHECK(c.images[0].file == "x.PNG");
   CHECK(c.images[0].intensity == anisocap::vec3f{1, 2, 3});
-  CHECK(c.images[0].light[2] == -1.0f);  // a light below the plane lights nothing, but is allowed
+  CHECK(c.images[0].light[2] == 0.001f);
   write_text(path, R"({"images": [{"file": "a.exr", "camera": [0, 0, 1], "light": [0, 0, 1], "intensity": 2.5}]})");
   CHECK(anisocap::read_capture(path).images[0].intensity == anisocap::vec3f{2.5f, 2.5f, 2.5f});
 }
@@ -127,6 +127,8 @@ TEST_CASE("capture.json: every malformed input gives one error naming the file a
       {images(with("\"camera\": [0,0,NaN], \"light\": [0,0,1], \"intensity\": 1")), {"NaN", ":1:"}},
       {images(with("\"camera\": [0,0,0], \"light\": [0,0,1], \"intensity\": 1")), {"at or below the material plane", "from above"}},
       {images(with("\"camera\": [0.2,0.1,-2], \"light\": [0,0,1], \"intensity\": 1")), {"camera z = -2", "from above"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0.3,0,-1], \"intensity\": 1")), {"light z = -1", "below the material plane"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0.1,0.2,0], \"intensity\": 1")), {"light z = 0", "from above"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 0")), {"images[0] (\"b.exr\")", "intensity must be > 0"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": [1, -0.5, 1]")), {"intensity must be > 0", "-0.5"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": [1, 1]")), {"\"intensity\" must have 3 elements", ""}},

@@ -53,7 +53,11 @@ inline void check_capture_image(const capture_image& im, std::size_t index, cons
   if (!(im.camera[2] > 0))
     fail("camera z = " + std::to_string(im.camera[2]) +
          " is at or below the material plane z = 0; the camera must see the material from above");
-  // A light below the plane is allowed: it lights nothing (docs/method.md section 4, max(0, n.l)).
+  // A light below the plane lights nothing (max(0, n.l)), so its photograph says nothing about the
+  // material; one in the plane sits on a texel (a singular 1/r^2) or grazes every texel.
+  if (!(im.light[2] > 0))
+    fail("light z = " + std::to_string(im.light[2]) +
+         " is at or below the material plane z = 0; the light must shine on the material from above");
 }
 
 /// Checks every image and that no file is used twice.

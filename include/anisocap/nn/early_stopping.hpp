@@ -24,6 +24,17 @@ class early_stopping {
     return false;
   }
 
+  /// What the rule has seen so far (the lowest compared loss and the current window's sum), so that
+  /// a check-point can resume it exactly.
+  struct state {
+    double best = 1e300, sum = 0;
+  };
+  state current() const noexcept { return {best_, sum_}; }
+  void restore(const state& s) noexcept {
+    best_ = s.best;
+    sum_ = s.sum;
+  }
+
  private:
   double tolerance_;
   int patience_;

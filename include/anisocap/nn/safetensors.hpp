@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <bit>
 #include <cstddef>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -343,6 +344,12 @@ void load_weights(const std::filesystem::path& file, Network& net) {
     if (e->shape != expected)
       detail::safetensors_fail(file, "tensor '" + p.name + "' has shape " + detail::shape_string(e->shape) + ", expected " +
                                          detail::shape_string(expected));
+    const auto bytes = contents.bytes(*e);
+    for (std::size_t i = 0; i < bytes.size() / sizeof(T); ++i) {  // a NaN weight would only show as NaN maps much later
+      T v;
+      std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
+      if (!std::isfinite(double(v))) detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
+    }
   });
   detail::visit_weights(net, [&](auto& p) {
     const auto bytes = contents.bytes(*contents.find(p.name));

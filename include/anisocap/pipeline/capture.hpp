@@ -8,6 +8,8 @@
 /// for the estimate and refine runs alone. Stages check-point into a folder so that a killed run
 /// resumes.
 #include <chrono>
+#include <fstream>
+#include <sstream>
 #include <filesystem>
 #include <functional>
 #include <optional>
@@ -19,6 +21,7 @@
 #include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
+#include "anisocap/pipeline/fingerprint.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/render/analysis.hpp"
@@ -130,10 +133,95 @@ struct capture_result {
   double exposure_scale = 1.0;
   /// The image loss of `maps` (full kernel) against the photographs as the optimisers saw them.
   double loss = 0;
+  /// The fine-tune returned at its `stop_after` (refine did not run); resume from the check-point.
+  bool stopped = false;
 };
 
 /// Stands for the networks of a capture that runs without them.
 struct no_networks {};
+
+/// The fingerprint of capture_material's check-points: what their contents depend on. The
+/// photographs' pixels, the configurations (positions and intensities; file names do not matter),
+/// the start maps, the networks' weights, and the options of the stages that check-point (estimate
+/// and fine-tune, with the kernel, the renderer's and the exposure options). Not the step counts:
+/// a check-point after k steps is the same whatever the total, so a run may be resumed longer.
+/// Not refine's options either: refine runs after the last check-point.
+template <class Estimator = no_networks, class AutoEncoderNet = no_networks>
+fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& photos, Estimator& estimator,
+                                AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr) {
+  fingerprint f;
+  content_hash pixels;
+  for (const image& p : photos) {
+    pixels.value(p.width()).value(p.height()).value(p.channels());
+    for (int c = 0; c < p.channels(); ++c) pixels.bytes(p.plane(c), p.pixel_count() * sizeof(float));
+  }
+  f.add("photographs", pixels.hex());
+  content_hash configurations;
+  for (const capture_image& i : cap.images) configurations.value(i.camera).value(i.light).value(i.intensity);
+  f.add("capture", configurations.hex());
+  if (start) {
+    content_hash maps;
+    maps.value(start->width()).value(start->height());
+    for (int k = 0; k < parameter_count; ++k) maps.bytes(start->plane(k), start->texel_count() * sizeof(float));
+    f.add("start_maps", maps.hex());
+  }
+  auto weights = [](auto& net) {
+    content_hash h;
+    nn::detail::visit_weights(net, [&](auto& p) { h.bytes(p.value.data(), p.size() * sizeof(p.value[0])); });
+    return h.hex();
+  };
+  if constexpr (!std::is_same_v<Estimator, no_networks>) f.add("estimator_weights", weights(estimator));
+  if constexpr (!std::is_same_v<AutoEncoderNet, no_networks>) f.add("autoencoder_weights", weights(autoencoder));
+  const pipeline_stages& st = o.stages;
+  f.add("stages", std::string(st.estimate ? "estimate," : "") + (st.encode ? "encode," : "") + (st.finetune ? "finetune," : "") +
+                      (st.refine ? "refine" : ""));
+  f.add("estimate.window", o.estimate.window).add("estimate.stride", o.estimate.stride);
+  const brdf_features& k = o.kernel.features;
+  f.add("kernel.features", std::string(k.anisotropic ? "anisotropic," : "") + (k.fresnel ? "fresnel," : "") + (k.normal_map ? "normal_map" : ""));
+  f.add("kernel.auto_tolerance", o.kernel.auto_tolerance);
+  f.add("normalise_exposure", o.normalise_exposure ? 1.0 : 0.0);
+  f.add("render.cull_tolerance", o.render.cull_tolerance).add("render.double_precision", o.render.double_precision ? 1.0 : 0.0);
+  const finetune_options& ft = o.finetune;
+  f.add("finetune.learning_rate", ft.learning_rate).add("finetune.warmup", ft.warmup).add("finetune.half_life", ft.half_life);
+  f.add("finetune.min_improvement", ft.min_improvement).add("finetune.patience", ft.patience);
+  f.add("finetune.guard.factor", ft.guard.factor).add("finetune.guard.every", ft.guard.every);
+  f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
+  return f;
+}
+
+namespace capture_detail {
+
+/// Prepares the check-point folder of capture_material: when resuming, refuses a folder whose
+/// fingerprint differs from `now` (or that holds stages without one), naming what differs; when
+/// not, removes the stages a previous run left there. Then writes `now` as fingerprint.txt.
+inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool resume, const fingerprint& now) {
+  namespace fs = std::filesystem;
+  fs::create_directories(folder);
+  const fs::path file = folder / "fingerprint.txt";
+  const bool has_stages = fs::exists(folder / "estimate") || fs::exists(folder / "finetune");
+  if (resume && fs::exists(file)) {
+    std::ifstream in(file, std::ios::binary);
+    std::stringstream text;
+    text << in.rdbuf();
+    if (!in) throw std::runtime_error(file.string() + ": cannot read the check-point's fingerprint");
+    const auto differences = now.differences_from(fingerprint::parse(text.str()));
+    if (!differences.empty()) {
+      std::string list;
+      for (const auto& d : differences) list += (list.empty() ? "" : "; ") + d;
+      throw std::runtime_error(folder.string() + ": the check-point is of another capture or other options: " + list +
+                               ". Run with the same inputs and options, or without --resume to start over");
+    }
+  } else if (resume && has_stages) {
+    throw std::runtime_error(folder.string() + ": the check-point has no fingerprint.txt, so it cannot be checked against "
+                             "these inputs; remove the folder or run without --resume to start over");
+  } else if (!resume) {
+    fs::remove_all(folder / "estimate");
+    fs::remove_all(folder / "finetune");
+  }
+  write_file_atomically(file, now.text());
+}
+
+}  // namespace capture_detail
 
 /// Captures the map set of one material from its photographs (one per configuration of `cap`).
 /// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
@@ -172,7 +260,9 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
                       : nullptr;
   };
   const bool checkpoints = !o.checkpoint.folder.empty();
-  if (checkpoints) fs::create_directories(o.checkpoint.folder);
+  if (checkpoints)
+    capture_detail::prepare_checkpoint_folder(o.checkpoint.folder, o.checkpoint.resume,
+                                              capture_fingerprint(given_cap, given_photos, estimator, autoencoder, o, start));
   const fs::path estimate_folder = o.checkpoint.folder / "estimate";
 
   // 1. Estimate (8.1), or the first guess.
@@ -213,6 +303,12 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
         maps = std::move(fr.maps);
         result.after_finetune = maps;
         result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});
+        if (fr.stopped) {  // as if killed: the check-point holds the rest
+          result.stopped = true;
+          result.loss = image_loss(maps, all_features);
+          result.maps = std::move(maps);
+          return result;
+        }
       }
     }
   }

@@ -5,7 +5,9 @@
 /// paper, each with its own options: a divergence guard (large learning rates), random crops
 /// (mini-batches of latent cells) and check-points that resume exactly.
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -71,6 +73,8 @@ struct finetune_options {
   finetune_guard_options guard{};
   finetune_crop_options crop{};
   int progress_every = 50;
+  /// >= 0: return after this many steps with a check-point, as if killed there (tests of resume).
+  int stop_after = -1;
   std::function<void(const optimisation_progress&)> progress;
   /// Called at every step with the number of updates done so far, the step's image loss (with
   /// crops, the crop's: noisy) and a function that returns the whole decoded maps at that point
@@ -89,11 +93,11 @@ struct finetune_options {
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
     if (steps < 0) throw std::invalid_argument("fine-tune steps must not be negative");
-    if (!(learning_rate > 0)) throw std::invalid_argument("the fine-tune learning rate must be positive");
+    if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the fine-tune learning rate must be positive and finite");
     if (warmup < 0 || half_life < 0 || crop.cells < 0)
       throw std::invalid_argument("fine-tune warm-up, half-life and crop must not be negative");
-    if (min_improvement < 0 || min_improvement >= 1) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
-    if (guard.factor < 0 || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
+    if (!(min_improvement >= 0 && min_improvement < 1)) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
+    if (!(guard.factor >= 0) || !std::isfinite(guard.factor) || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
       throw std::invalid_argument("the fine-tune guard must be 0 (off) or above 1, with its snapshots at least 1 step apart");
   }
 };
@@ -105,6 +109,7 @@ struct finetune_result {
   double loss = 0;     ///< image loss of `maps`
   double seconds = 0;
   bool resumed = false;  ///< continued from a check-point
+  bool stopped = false;  ///< returned early at `stop_after`, leaving a check-point
   int restarts = 0;      ///< times the divergence guard went back and halved the rate
 };
 
@@ -218,36 +223,95 @@ inline std::string exact(double v) {
   return text;
 }
 
-/// Writes the fine-tune's check-point into `folder`: the decoder's weights, Adam's state (nn/adam.hpp's
-/// key scheme) and the step, learning-rate factor and best loss of the guard.
+/// Everything the rest of a fine-tune depends on besides the decoder and Adam: the divergence
+/// guard (lowest loss, rate factor, restarts, snapshot), the crop guard's current window of losses
+/// and the early-stopping rule's state. Crop positions are drawn from (seed, step) alone.
+struct loop_state {
+  double window_sum = 0;
+  int window_steps = 0;
+  nn::early_stopping::state stopping{};
+};
+
+/// Writes the fine-tune's check-point into `folder` after `step` steps: the decoder's weights
+/// (decoder.safetensors) and in state.safetensors Adam's state (nn/adam.hpp's key scheme, its own
+/// step counter included: after a guard restart it lags the loop's), the guard's snapshot of
+/// weights and moments, and the guard's and the loop's numbers, doubles written exactly. Both
+/// files carry the step, so a pair torn by a kill while saving is recognised.
 template <class P>
 void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
-                     const divergence_guard& guard) {
+                     const divergence_guard& guard, const loop_state& loop) {
   std::filesystem::create_directories(folder);
-  nn::save_weights(folder / "decoder.safetensors", autoencoder);
+  nn::save_weights(folder / "decoder.safetensors", autoencoder, {{"step", std::to_string(step)}});
   nn::safetensors_file state;
   adam.save_state(state);
+  for (std::size_t i = 0; i < guard.snapshot.buffers.size(); ++i)
+    state.add<float>("guard.snapshot." + std::to_string(i), {std::int64_t(guard.snapshot.buffers[i].size())},
+                     guard.snapshot.buffers[i].data(), guard.snapshot.buffers[i].size());
+  if (!guard.snapshot.empty()) {
+    const std::vector<std::int64_t> counts(guard.snapshot.counts.begin(), guard.snapshot.counts.end());
+    state.add<std::int64_t>("guard.snapshot.counts", {std::int64_t(counts.size())}, counts.data(), counts.size());
+    state.metadata.emplace_back("guard.snapshot.steps", std::to_string(guard.snapshot.steps));
+  }
   state.metadata.emplace_back("step", std::to_string(step));
-  state.metadata.emplace_back("lr_scale", exact(guard.lr_scale));
-  state.metadata.emplace_back("best_loss", exact(guard.best_loss));
-  nn::write_safetensors(folder / "adam.safetensors", state);
+  state.metadata.emplace_back("guard.lr_scale", exact(guard.lr_scale));
+  state.metadata.emplace_back("guard.best_loss", exact(guard.best_loss));
+  state.metadata.emplace_back("guard.snapshot_loss", exact(guard.snapshot_loss));
+  state.metadata.emplace_back("guard.restarts", std::to_string(guard.restarts));
+  state.metadata.emplace_back("window_sum", exact(loop.window_sum));
+  state.metadata.emplace_back("window_steps", std::to_string(loop.window_steps));
+  state.metadata.emplace_back("stopping.best", exact(loop.stopping.best));
+  state.metadata.emplace_back("stopping.sum", exact(loop.stopping.sum));
+  nn::write_safetensors(folder / "state.safetensors", state);
 }
 
-/// Reads back save_checkpoint's files; returns the step to continue from.
+/// Reads back save_checkpoint's files; returns the step to continue from. Throws
+/// std::runtime_error naming the file when a value is missing or the two files disagree.
 template <class P>
-int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard) {
-  nn::load_weights(folder / "decoder.safetensors", autoencoder);
-  const std::filesystem::path state_file = folder / "adam.safetensors";
+int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard,
+                    loop_state& loop) {
+  const std::filesystem::path decoder_file = folder / "decoder.safetensors", state_file = folder / "state.safetensors";
+  const auto decoder = nn::read_safetensors(decoder_file);
   const auto state = nn::read_safetensors(state_file);
-  adam.load_state(state, state_file.string());
-  int step = 0;
-  for (const auto& [key, value] : state.metadata) {
-    if (key == "step") step = std::stoi(value);
-    if (key == "lr_scale") guard.lr_scale = std::stod(value);
-    if (key == "best_loss") guard.best_loss = std::stod(value);
+  auto value = [&](const nn::safetensors_file& f, const std::filesystem::path& name, const std::string& key) -> std::string {
+    for (const auto& [k, v] : f.metadata)
+      if (k == key) return v;
+    throw std::runtime_error(name.string() + ": the fine-tune check-point has no '" + key + "'");
+  };
+  const std::string step_text = value(state, state_file, "step");
+  if (value(decoder, decoder_file, "step") != step_text)
+    throw std::runtime_error(folder.string() + ": the fine-tune check-point's files are of different steps (a run was stopped while "
+                             "saving); remove the folder to start the fine-tune over");
+  try {
+    nn::load_weights(decoder_file, autoencoder);
+    adam.load_state(state, state_file.string());
+    guard.lr_scale = std::stod(value(state, state_file, "guard.lr_scale"));
+    guard.best_loss = std::stod(value(state, state_file, "guard.best_loss"));
+    guard.snapshot_loss = std::stod(value(state, state_file, "guard.snapshot_loss"));
+    guard.restarts = std::stoi(value(state, state_file, "guard.restarts"));
+    loop.window_sum = std::stod(value(state, state_file, "window_sum"));
+    loop.window_steps = std::stoi(value(state, state_file, "window_steps"));
+    loop.stopping = {std::stod(value(state, state_file, "stopping.best")), std::stod(value(state, state_file, "stopping.sum"))};
+    guard.snapshot = {};
+    if (const auto* counts = state.find("guard.snapshot.counts")) {
+      const auto shape = adam.take_snapshot();  // the sizes the snapshot must have
+      if (counts->count() != shape.counts.size()) throw std::runtime_error(state_file.string() + ": the guard's snapshot is of other parameters");
+      std::vector<std::int64_t> c(counts->count());
+      std::memcpy(c.data(), state.bytes(*counts).data(), c.size() * sizeof(std::int64_t));
+      guard.snapshot.counts.assign(c.begin(), c.end());
+      guard.snapshot.steps = std::stol(value(state, state_file, "guard.snapshot.steps"));
+      for (std::size_t i = 0; i < shape.buffers.size(); ++i) {
+        const auto* e = state.find("guard.snapshot." + std::to_string(i));
+        if (!e || e->dtype != "F32" || e->count() != shape.buffers[i].size())
+          throw std::runtime_error(state_file.string() + ": the guard's snapshot is missing or of other parameters");
+        std::vector<float> b(e->count());
+        std::memcpy(b.data(), state.bytes(*e).data(), b.size() * sizeof(float));
+        guard.snapshot.buffers.push_back(std::move(b));
+      }
+    }
+    return std::stoi(step_text);
+  } catch (const std::logic_error& e) {  // std::stod and friends on a malformed number
+    throw std::runtime_error(state_file.string() + ": malformed fine-tune check-point (" + e.what() + ")");
   }
-  adam.set_steps(step);
-  return step;
 }
 
 }  // namespace finetune_detail
@@ -272,11 +336,12 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
   nn::adam adam(schedule);
   autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
   divergence_guard guard(o.guard, schedule);
+  finetune_detail::loop_state loop;
   finetune_result result;
   int first = 0;
   const bool checkpoints = !checkpoint.folder.empty();
-  if (checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "decoder.safetensors")) {
-    first = finetune_detail::load_checkpoint(checkpoint.folder, autoencoder, adam, guard);
+  if (checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "state.safetensors")) {
+    first = finetune_detail::load_checkpoint(checkpoint.folder, autoencoder, adam, guard, loop);
     adam.schedule = schedule.scaled(guard.lr_scale);
     result.resumed = true;
   }
@@ -290,14 +355,15 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
   const int crop_x = o.crop.cells > 0 && o.crop.cells < cells_x ? o.crop.cells : cells_x;
   const bool cropping = crop_y < cells_y || crop_x < cells_x;
   nn::early_stopping stopper(o.min_improvement, o.patience, cropping);  // crop losses are noisy: window means
+  stopper.restore(loop.stopping);
   finetune_crops::scratch scratch;
   // The guard checks the whole tile's loss every step; with crops it checks the mean loss of every
   // `guard.every` steps instead (a whole-tile decode would cost as much as the crops).
   const bool guarding = o.guard.factor > 0;
-  double window_sum = 0;  // crops: the losses of the guard's current window of steps
-  int window_steps = 0;
-  if (guarding && cropping) {  // the start, at the whole tile's loss, is the first place to come back to
-    guard.take(adam, first == 0 ? start_loss : guard.best_loss);
+  double& window_sum = loop.window_sum;  // crops: the losses of the guard's current window of steps
+  int& window_steps = loop.window_steps;
+  if (guarding && cropping && first == 0) {  // the start, at the whole tile's loss, is the first place to come back to
+    guard.take(adam, start_loss);
     guard.best_loss = std::min(guard.best_loss, guard.snapshot_loss);
   }
   for (; step < o.steps; ++step) {
@@ -310,7 +376,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       const material_maps m = network_space::network_to_maps(u_view, 0);
       loss = with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, &grad, {}, render); });
       if (o.observer) o.observer(step, loss, [&]() { return m; });
-      if (guarding) restarted = guard.restarts_after(adam, loss, (step - first) % o.guard.every == 0);
+      if (guarding) restarted = guard.restarts_after(adam, loss, step % o.guard.every == 0);
       if (!restarted) {
         auto g_view = y.grad.tile(0, 0, H, W);
         network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
@@ -340,12 +406,16 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     if (!restarted) adam.step();
     if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0)
       o.progress(optimisation_progress::at(step + 1, o.steps, loss, seconds_since(start), first));
-    if (checkpoints && seconds_since(last_checkpoint) > checkpoint.seconds) {
-      finetune_detail::save_checkpoint(checkpoint.folder, autoencoder, adam, step + 1, guard);
+    const bool stops = stopper.stop_after(step, loss);
+    const bool killed = o.stop_after >= 0 && step + 1 >= o.stop_after && !stops && step + 1 < o.steps;
+    if (checkpoints && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
+      loop.stopping = stopper.current();
+      finetune_detail::save_checkpoint(checkpoint.folder, autoencoder, adam, step + 1, guard, loop);
       last_checkpoint = std::chrono::steady_clock::now();
     }
-    if (stopper.stop_after(step, loss)) {
+    if (stops || killed) {
       ++step;
+      result.stopped = killed;
       break;
     }
   }

@@ -66,9 +66,9 @@ struct refine_options {
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
     if (steps < 0) throw std::invalid_argument("refine steps must not be negative");
-    if (!(learning_rate > 0)) throw std::invalid_argument("the refine learning rate must be positive");
-    if (min_relative_improvement < 0 || min_relative_improvement >= 1) throw std::invalid_argument("refine early stopping must be in [0, 1)");
-    if (freeze_tolerance < 0 || freeze_tolerance >= 1) throw std::invalid_argument("the refine freeze tolerance must be in [0, 1)");
+    if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the refine learning rate (--lr) must be positive and finite");
+    if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine early stopping (--refine-stop) must be in [0, 1)");
+    if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("the refine freeze tolerance (--freeze) must be in [0, 1)");
   }
 };
 

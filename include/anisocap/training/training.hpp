@@ -128,6 +128,18 @@ struct train_options {
   double progress_seconds = 10;       ///< wall time between progress lines
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
+  /// Throws std::invalid_argument for impossible values (before a run creates anything).
+  void validate() const {
+    if (steps < 1) throw std::invalid_argument("training steps (--steps) must be at least 1, got " + std::to_string(steps));
+    if (batch < 1) throw std::invalid_argument("the batch (--batch) must hold at least 1 material, got " + std::to_string(batch));
+    if (!(learning_rate >= 0) || !std::isfinite(learning_rate))
+      throw std::invalid_argument("the learning rate (--lr) must be finite and not negative (0: the paper's)");
+    if (!(checkpoint_minutes > 0) || validate_every < 1 || validation_count < 1)
+      throw std::invalid_argument("--checkpoint-minutes, --validate-every and --validation-count must be positive");
+    if (!(smoothness_weight >= 0) || !std::isfinite(smoothness_weight) || !(latent_noise >= 0) || !std::isfinite(latent_noise))
+      throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
+  }
+
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
   static train_options autoencoder() {
     train_options o;
@@ -296,6 +308,7 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
 /// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
 template <class Net, class StepFn, class ValidateFn>
 void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, StepFn step_fn, ValidateFn validate_fn) {
+  o.validate();
   std::filesystem::create_directories(o.out_dir);
   long step = 0;
   json info = json::object();
