@@ -5,11 +5,20 @@
 /// reciprocal estimates below).
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
 #include <type_traits>
 
 #include <xsimd/xsimd.hpp>
 #if defined(__SSE__) || defined(__x86_64__)
 #include <immintrin.h>
+#endif
+
+/// Forces a kernel helper inline where the compiler's size heuristics would not: a helper that
+/// returns a struct of many registers otherwise passes it through memory in the hottest loop.
+#if defined(__GNUC__) || defined(__clang__)
+#define ANISOCAP_ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ANISOCAP_ALWAYS_INLINE inline
 #endif
 
 namespace anisocap::simd {
@@ -191,6 +200,40 @@ inline xsimd::batch<T, A> reciprocal(const xsimd::batch<T, A>& x) {
     return y * xsimd::fnma(x, y, B(2.0f));
   } else {
     return B(T(1)) / x;
+  }
+}
+
+/// log(x) for positive, normal, finite x (no checks for zero, negative, denormal, infinite or NaN
+/// input). Float batches: the exponent split off as in fdlibm (mantissa in [sqrt(1/2), sqrt(2))),
+/// then Cephes' logf polynomial for log(1 + f), which needs no division; within about 1 ulp.
+/// Scalars and doubles: std::log / xsimd::log.
+inline float log_positive(float x) { return std::log(x); }
+inline double log_positive(double x) { return std::log(x); }
+template <class T, class A>
+inline xsimd::batch<T, A> log_positive(const xsimd::batch<T, A>& x) {
+  if constexpr (std::is_same_v<T, float>) {
+    using B = xsimd::batch<float, A>;
+    using I = xsimd::batch<std::int32_t, A>;
+    I ix = xsimd::bitwise_cast<I>(x) + I(0x3f800000 - 0x3f3504f3);
+    const B k = xsimd::to_float(I((ix >> 23) - I(0x7f)));
+    ix = (ix & I(0x007fffff)) + I(0x3f3504f3);
+    const B f = xsimd::bitwise_cast<B>(ix) - B(1.0f);
+    const B z = f * f;
+    B p(7.0376836292e-2f);
+    p = xsimd::fma(p, f, B(-1.1514610310e-1f));
+    p = xsimd::fma(p, f, B(1.1676998740e-1f));
+    p = xsimd::fma(p, f, B(-1.2420140846e-1f));
+    p = xsimd::fma(p, f, B(1.4249322787e-1f));
+    p = xsimd::fma(p, f, B(-1.6668057665e-1f));
+    p = xsimd::fma(p, f, B(2.0000714765e-1f));
+    p = xsimd::fma(p, f, B(-2.4999993993e-1f));
+    p = xsimd::fma(p, f, B(3.3333331174e-1f));
+    // log(1 + f) = f - f^2/2 + f^3 p(f); k log 2 split into an exact high part and a correction.
+    B r = xsimd::fma(p * f, z, xsimd::fma(k, B(-2.12194440e-4f), f));
+    r = xsimd::fnma(B(0.5f), z, r);
+    return xsimd::fma(k, B(0.693359375f), r);
+  } else {
+    return xsimd::log(x);
   }
 }
 

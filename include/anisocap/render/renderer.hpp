@@ -200,7 +200,7 @@ struct shading {
 ///   dE/dalpha = -2 (1/sx^2 - 1/sy^2) hxl hyl / h_z^2  (dhxl/dalpha = hyl, dhyl/dalpha = -hxl)
 /// and the normal's two components go through h_z, the tangent frame and n.l as 2-wide duals.
 template <brdf_features F, class V, std::size_t N>
-inline shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
+ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
   using ND = typename texel_state<F, V, N>::normal_dual;
   using slots = parameter_slots<F>;
   using namespace ward_limits;
@@ -268,7 +268,7 @@ inline shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_co
     log_arg = log_arg * ratio;
   }
   // E = -q / h_z^2 + log((h.h) * F/F0 / h_z^4) - log(pi sx sy): the whole lobe as one exp.
-  const V e_raw = simd::log(log_arg) + t.log_norm - q * inv_hn2;
+  const V e_raw = simd::log_positive(log_arg) + t.log_norm - q * inv_hn2;
   const auto e_below = e_raw < V(max_log_lobe);
   s.log_lobe.value = simd::select(e_below, e_raw, V(max_log_lobe));
   if constexpr (N > 0) {
@@ -529,10 +529,10 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
         const V radiance = (kd + spec) * geometry * intensity; // R_c
         const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
-        const V diff = simd::log(radiance + V(loss_epsilon)) - target;
+        const V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
         loss_acc += simd::abs(diff) * lane_weight;
         // dL/dR_c = sign(diff) / (R_c + eps) * weight.
-        const V dl = simd::select(diff >= V(0), lane_weight, -lane_weight) / (radiance + V(loss_epsilon));
+        const V dl = simd::select(diff >= V(0), lane_weight, -lane_weight) * simd::reciprocal(radiance + V(loss_epsilon));
         const V dl_gi = dl * geometry * intensity;
         g_diffuse[c] += dl_gi * V(inv_pi);
         g_specular[c] += dl_gi * s.lobe;
