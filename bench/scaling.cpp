@@ -1,7 +1,7 @@
 // Thread scaling of every stage of a capture and of a training step, with the serial time of each
 // stage measured directly, so that the figure for many threads can be predicted on few cores.
 //
-//   anisocap_bench_scaling [--threads 1,2,...] [--repetitions R] [--size S] [--images N]
+//   anisocap_bench_scaling [--threads 1,2,...] [--repetitions R] [--size S] [--images N] [--only NAME]
 //
 // For each stage and thread count: the median wall time over R repetitions, the speed-up and
 // parallel efficiency against one thread, and the serial time: the stage's wall time minus the
@@ -168,6 +168,7 @@ int main(int argc, char** argv) {
   for (int t = 1; t <= omp_get_num_procs(); t *= 2) threads.push_back(t);
   if (threads.back() != omp_get_num_procs()) threads.push_back(omp_get_num_procs());
   int repetitions = 5, size = 256, images = 12;
+  std::string only;  // run only the stages whose name contains this
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&]() -> std::string {
@@ -181,8 +182,9 @@ int main(int argc, char** argv) {
     else if (a == "--repetitions") repetitions = std::stoi(value());
     else if (a == "--size") size = std::stoi(value());
     else if (a == "--images") images = std::stoi(value());
+    else if (a == "--only") only = value();
     else {
-      std::fprintf(stderr, "usage: anisocap_bench_scaling [--threads 1,2,...] [--repetitions R] [--size S] [--images N]\n");
+      std::fprintf(stderr, "usage: anisocap_bench_scaling [--threads 1,2,...] [--repetitions R] [--size S] [--images N] [--only NAME]\n");
       return 2;
     }
   }
@@ -315,6 +317,7 @@ int main(int argc, char** argv) {
   struct row { std::string name; double t1, serial_max; };
   std::vector<row> summary;
   for (const stage& s : stages) {
+    if (!only.empty() && s.name.find(only) == std::string::npos) continue;
     double t1 = 0, serial_max = 0;
     for (int th : threads) {
       const measurement m = measure(s, th, repetitions);

@@ -4,6 +4,7 @@
 /// fine-tuning stage (MODEL.md 7 and 8: estimator 5e-5, auto-encoder 1e-3, fine-tuning 7.5e-4,
 /// refinement 1e-4). The update is PyTorch's torch.optim.Adam (bias corrections folded into the
 /// step size and epsilon added after the corrected square root), so settings carry over.
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <stdexcept>
@@ -95,20 +96,42 @@ class basic_adam {
 
   /// One update of every parameter that is not frozen, with the schedule's rate for this step;
   /// then zeroes their gradients (backward passes accumulate).
+  ///
+  /// Every parameter is cut into chunks of `chunk_size` elements and all chunks of all parameters
+  /// share one parallel loop: a network's many small parameters (biases, norms, deep layers below
+  /// the size worth a parallel region of their own) then run beside the large ones instead of one
+  /// after another on one thread. Chunk boundaries fall on whole registers, so each element gets
+  /// exactly the arithmetic it gets in a serial pass.
   void step() {
     const double rate = schedule(steps_);
-    for (auto& s : states_) {
+    chunks_.clear();
+    std::size_t total = 0;
+    for (std::size_t k = 0; k < states_.size(); ++k) {
+      state& s = states_[k];
       if (s.parameter->frozen) continue;
       if (s.parameter->size() != s.m.size())
         throw std::logic_error("adam: parameter '" + s.parameter->name + "' changed size after it was added");
       ++s.steps;
       const double correction1 = 1 - std::pow(beta1, double(s.steps));
       const double correction2 = 1 - std::pow(beta2, double(s.steps));
-      update(*s.parameter, s.m.data(), s.v.data(), T(rate / correction1), T(1 / std::sqrt(correction2)));
-      s.parameter->zero_grad();
+      s.step_size = T(rate / correction1);
+      s.inverse_root_correction2 = T(1 / std::sqrt(correction2));
+      const std::size_t n = s.parameter->size();
+      for (std::size_t b = 0; b < n; b += chunk_size) chunks_.push_back({k, b, std::min(n, b + chunk_size)});
+      total += n;
+    }
+#pragma omp parallel for schedule(dynamic, 1) if (total >= (std::size_t(1) << 16) && chunks_.size() > 1)
+    for (std::ptrdiff_t c = 0; c < std::ptrdiff_t(chunks_.size()); ++c) {
+      const chunk& ch = chunks_[std::size_t(c)];
+      state& s = states_[ch.state];
+      update(*s.parameter, s.m.data(), s.v.data(), s.step_size, s.inverse_root_correction2, ch.begin, ch.end);
+      std::fill(s.parameter->grad.begin() + std::ptrdiff_t(ch.begin), s.parameter->grad.begin() + std::ptrdiff_t(ch.end), T(0));
     }
     ++steps_;
   }
+
+  /// Elements per work item of step() (a multiple of every register width).
+  static constexpr std::size_t chunk_size = 16384;
 
   /// Zeroes the gradients of every added parameter.
   void zero_grad() {
@@ -166,10 +189,17 @@ class basic_adam {
     basic_parameter<T>* parameter;
     aligned_buffer<T> m, v;
     long steps;
+    T step_size = 0, inverse_root_correction2 = 0;  ///< this step's factors (set by step())
+  };
+  /// Elements [begin, end) of the parameter state `state`: one work item of step().
+  struct chunk {
+    std::size_t state, begin, end;
   };
 
   /// m = b1 m + (1 - b1) g;  v = b2 v + (1 - b2) g^2;  p -= step_size m / (sqrt(v) / sqrt(1 - b2^t) + eps).
-  void update(basic_parameter<T>& p, T* m, T* v, T step_size, T inverse_root_correction2) const {
+  /// Updates elements [begin, end) of p; begin is a multiple of the register width.
+  void update(basic_parameter<T>& p, T* m, T* v, T step_size, T inverse_root_correction2, std::size_t begin,
+              std::size_t end) const {
     using B = simd::batch<T>;
     constexpr std::size_t W = B::size;
     const T b1 = T(beta1), b2 = T(beta2), c1 = T(1 - beta1), c2 = T(1 - beta2), eps = T(epsilon);
@@ -181,12 +211,11 @@ class basic_adam {
       v1.store_unaligned(vv);
       (B::load_unaligned(value) - step_size * m1 / (xsimd::sqrt(v1) * inverse_root_correction2 + eps)).store_unaligned(value);
     };
-    const std::size_t n = p.size();
-    const std::size_t body = n / W * W;
+    const std::size_t n = end;
+    const std::size_t body = begin + (end - begin) / W * W;
     T* value = p.value.data();
     const T* grad = p.grad.data();
-#pragma omp parallel for schedule(static) if (n >= (std::size_t(1) << 16))
-    for (std::ptrdiff_t i = 0; i < std::ptrdiff_t(body); i += W) kernel(value + i, grad + i, m + i, v + i);
+    for (std::size_t i = begin; i < body; i += W) kernel(value + i, grad + i, m + i, v + i);
     if (body < n) {
       // The tail through padded registers: the same arithmetic as the body.
       alignas(simd::alignment) T pv[W] = {}, pg[W] = {}, pm[W] = {}, pw[W] = {};
@@ -198,6 +227,7 @@ class basic_adam {
   }
 
   std::vector<state> states_;
+  std::vector<chunk> chunks_;  // step()'s work items, kept to reuse the allocation
   long steps_ = 0;
 };
 
