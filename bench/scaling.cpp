@@ -42,7 +42,10 @@ using namespace anisocap;
 namespace region_clock {
 /// Seconds spent inside outermost parallel regions that ran on more than one thread.
 double parallel_seconds = 0;
-/// Number of such regions, and of regions that ran on one thread (if clause false).
+/// Seconds spent inside outermost regions that ran on one thread (if clause false): part of the
+/// serial time, the part a lower threshold or finer work items could make parallel.
+double one_thread_region_seconds = 0;
+/// Number of regions that ran on more than one thread, and on one.
 long parallel_regions = 0, serial_regions = 0;
 
 template <class Real, class... Args>
@@ -55,6 +58,7 @@ void timed(Real real, unsigned num_threads, Args... args) {
   real(args...);
   const double dt = omp_get_wtime() - t0;
   if (num_threads == 1) {
+    one_thread_region_seconds += dt;
     ++serial_regions;
   } else {
     parallel_seconds += dt;
@@ -126,27 +130,29 @@ struct stage {
 struct measurement {
   double seconds = 0;         ///< median wall time
   double serial_seconds = 0;  ///< median time outside parallel regions that ran on > 1 thread
+  double one_thread_region_seconds = 0;  ///< median part of it inside regions that ran on one thread
 };
 
 measurement measure(const stage& s, int threads, int repetitions) {
   omp_set_num_threads(threads);
   if (s.setup) s.setup();
   s.run();  // warm-up: arenas, caches, thread pool
-  std::vector<double> wall, serial;
+  std::vector<double> wall, serial, one_thread;
   for (int r = 0; r < repetitions; ++r) {
     if (s.setup) s.setup();
-    const double before = region_clock::parallel_seconds;
+    const double before = region_clock::parallel_seconds, before_one = region_clock::one_thread_region_seconds;
     const double t0 = omp_get_wtime();
     s.run();
     const double dt = omp_get_wtime() - t0;
     wall.push_back(dt);
     serial.push_back(std::max(0.0, dt - (region_clock::parallel_seconds - before)));
+    one_thread.push_back(region_clock::one_thread_region_seconds - before_one);
   }
   auto median = [](std::vector<double> v) {
     std::sort(v.begin(), v.end());
     return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
   };
-  return {median(wall), median(serial)};
+  return {median(wall), median(serial), median(one_thread)};
 }
 
 std::vector<int> parse_threads(const std::string& s) {
@@ -312,8 +318,8 @@ int main(int argc, char** argv) {
 
   std::printf("anisocap_bench_scaling: %d x %d, %d images, compact presets; %d hardware threads, %s; "
               "median of %d repetitions\n\n", size, size, images, omp_get_num_procs(), simd::arch_name(), repetitions);
-  std::printf("| stage | threads | ms | speed-up | efficiency | serial ms | serial fraction of 1-thread time |\n");
-  std::printf("|---|---|---|---|---|---|---|\n");
+  std::printf("| stage | threads | ms | speed-up | efficiency | serial ms | of which in one-thread regions | serial fraction of 1-thread time |\n");
+  std::printf("|---|---|---|---|---|---|---|---|\n");
   struct row { std::string name; double t1, serial_max; };
   std::vector<row> summary;
   for (const stage& s : stages) {
@@ -323,8 +329,9 @@ int main(int argc, char** argv) {
       const measurement m = measure(s, th, repetitions);
       if (th == 1) t1 = m.seconds;
       serial_max = m.serial_seconds;
-      std::printf("| %s | %d | %.2f | %.2fx | %.0f%% | %.2f | %.1f%% |\n", s.name.c_str(), th, 1e3 * m.seconds,
-                  t1 / m.seconds, 100.0 * t1 / m.seconds / th, 1e3 * m.serial_seconds, 100.0 * m.serial_seconds / t1);
+      std::printf("| %s | %d | %.2f | %.2fx | %.0f%% | %.2f | %.2f | %.1f%% |\n", s.name.c_str(), th, 1e3 * m.seconds,
+                  t1 / m.seconds, 100.0 * t1 / m.seconds / th, 1e3 * m.serial_seconds, 1e3 * m.one_thread_region_seconds,
+                  100.0 * m.serial_seconds / t1);
       std::fflush(stdout);
     }
     summary.push_back({s.name, t1, serial_max});
