@@ -10,10 +10,12 @@
 ///   L = sum_i mean_{p,c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|
 /// and dL/d(maps) without materialising any rendered image.
 ///
-/// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 are
-/// `ad::dual`s over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
-/// compile-time `brdf_features` enable); albedos enter linearly and get their derivatives in closed
-/// form. Gradients are formed as (dL/dR * R) * dE, which stays finite when R is huge or tiny.
+/// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 carry
+/// gradients over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
+/// compile-time `brdf_features` enable). E's derivatives in sx, sy, F0 and alpha are written in
+/// closed form (see `detail::shade`); the normal's two components reach E and G through 2-wide
+/// `ad::dual`s; albedos enter linearly. Gradients are formed as (dL/dR * R) * dE, which stays
+/// finite when R is huge or tiny.
 #include <algorithm>
 #include <array>
 #include <cmath>
