@@ -122,13 +122,14 @@ inline std::vector<configuration_constants> to_constants(const capture& cap) {
 /// per-texel factors of the lobe's closed-form gradient (see `shade`).
 template <brdf_features F, class V, std::size_t N>
 struct texel_state {
-  /// A normal component with its derivatives with respect to (nx, ny): the only parameters that
-  /// reach the lobe through the shading frame and the geometry term through n.l.
-  using normal_dual = ad::dual<V, (N > 0 && F.normal_map) ? 2 : 0>;
   V px, py;                       ///< texel centre position
   V diffuse[3], specular[3];
-  normal_dual nx, ny, nz;         ///< shading normal
-  normal_dual inv_s;              ///< 1 / sqrt(1 - nx^2) (tangent normalisation)
+  V nx, ny, nz;                   ///< shading normal
+  V inv_s;                        ///< 1 / sqrt(1 - nx^2) (tangent normalisation)
+  /// dnz/dnx, dnz/dny and d(inv_s)/dnx (inv_s does not depend on ny); 0 where clamped. The normal's
+  /// two components are the only parameters that reach the lobe through the shading frame and the
+  /// geometry term through n.l.
+  V dnz_dnx, dnz_dny, dinv_s_dnx;
   V cos_a, sin_a;                 ///< rotation
   V inv_sx, inv_sy;               ///< 1 / sigma (inv_sy = inv_sx without anisotropy)
   V inv_sx2, inv_sy2;             ///< 1 / sigma^2
@@ -163,14 +164,18 @@ struct texel_state {
       d_inv_f0m1 = -inv_f0 * inv_f0;
     }
     if constexpr (F.normal_map) {
-      nx = normal_dual(clamped(normal_x, V(-1)));
-      ny = normal_dual(clamped(normal_y, V(-1)));
-      if constexpr (N > 0) { nx.grad[0] = V(1); ny.grad[1] = V(1); }
-      const normal_dual z2 = V(1) - nx * nx - ny * ny;
-      nz = ad::sqrt(ad::max(z2, V(min_normal_z2)));
-      inv_s = V(1) / ad::sqrt(ad::max(V(1) - nx * nx, V(min_normal_z2)));
+      nx = clamped(normal_x, V(-1));
+      ny = clamped(normal_y, V(-1));
+      const V z2 = V(1) - nx * nx - ny * ny, s2 = V(1) - nx * nx;
+      nz = simd::sqrt(simd::max(z2, V(min_normal_z2)));
+      inv_s = V(1) / simd::sqrt(simd::max(s2, V(min_normal_z2)));
+      const V inv_nz = V(1) / nz;
+      dnz_dnx = simd::select(z2 > V(min_normal_z2), -nx * inv_nz, V(0));
+      dnz_dny = simd::select(z2 > V(min_normal_z2), -ny * inv_nz, V(0));
+      dinv_s_dnx = simd::select(s2 > V(min_normal_z2), nx * inv_s * inv_s * inv_s, V(0));
     } else {
-      nx = normal_dual(V(0)); ny = normal_dual(V(0)); nz = normal_dual(V(1)); inv_s = normal_dual(V(1));
+      nx = V(0); ny = V(0); nz = V(1); inv_s = V(1);
+      dnz_dnx = dnz_dny = dinv_s_dnx = V(0);
     }
     if constexpr (F.anisotropic) {
       const V a = clamped(rotation, V(-1e30f));
@@ -200,10 +205,10 @@ struct shading {
 ///   dE/dsx = (2 (hxl^2 / sx^2) / h_z^2 - 1) / sx     (same for sy; isotropic: 2 q / h_z^2 - 2)
 ///   dE/dF0 = d(1/F0 - 1)/dF0 (1 - v.h')^5 / (F/F0)
 ///   dE/dalpha = -2 (1/sx^2 - 1/sy^2) hxl hyl / h_z^2  (dhxl/dalpha = hyl, dhyl/dalpha = -hxl)
-/// and the normal's two components go through h_z, the tangent frame and n.l as 2-wide duals.
+/// and the normal's two components go through h_z, the tangent frame and n.l by the chain rule
+/// with the per-texel dnz/dn and d(inv_s)/dnx.
 template <brdf_features F, class V, std::size_t N>
 ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
-  using ND = typename texel_state<F, V, N>::normal_dual;
   using slots = parameter_slots<F>;
   using namespace ward_limits;
   shading<V, N> s;
@@ -218,47 +223,63 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
   const V hx = ux + wx, hy = uy + wy, hz = uz + wz;               // h = l + v (world)
   const V hh = simd::max(hx * hx + hy * hy + hz * hz, V(1e-12f));
 
-  ND cos_l, hn;
-  V cos_v;
+  // n.l, n.v, h_z = n.h, and the derivatives of n.l and h_z in (nx, ny).
+  V cos_l = uz, cos_v = wz, hn = hz;
+  V dcos_l[2] = {V(0), V(0)}, dhn[2] = {V(0), V(0)};
   if constexpr (F.normal_map) {
     cos_l = t.nx * ux + t.ny * uy + t.nz * uz;
-    cos_v = t.nx.value * wx + t.ny.value * wy + t.nz.value * wz;
+    cos_v = t.nx * wx + t.ny * wy + t.nz * wz;
     hn = t.nx * hx + t.ny * hy + t.nz * hz;
-  } else {
-    cos_l = ND(uz); cos_v = wz; hn = ND(hz);
+    if constexpr (N > 0) {
+      dcos_l[0] = simd::fma(uz, t.dnz_dnx, ux);
+      dcos_l[1] = simd::fma(uz, t.dnz_dny, uy);
+      dhn[0] = simd::fma(hz, t.dnz_dnx, hx);
+      dhn[1] = simd::fma(hz, t.dnz_dny, hy);
+    }
   }
-  const auto lit = (cos_l.value > V(0)) & (cos_v > V(0));
+  const auto lit = (cos_l > V(0)) & (cos_v > V(0));
   s.valid = simd::select(lit, V(1), V(0));
   // G = max(0, n.l) / r^2.
   const V inv_r2 = simd::select(lit, inv_r * inv_r, V(0));
-  s.geometry.value = cos_l.value * inv_r2;
+  s.geometry.value = cos_l * inv_r2;
   if constexpr (N > 0 && F.normal_map) {
-    s.geometry.grad[slots::nx_] = cos_l.grad[0] * inv_r2;
-    s.geometry.grad[slots::ny_] = cos_l.grad[1] * inv_r2;
+    s.geometry.grad[slots::nx_] = dcos_l[0] * inv_r2;
+    s.geometry.grad[slots::ny_] = dcos_l[1] * inv_r2;
   }
   // Exponent q = h_x^2/sx^2 + h_y^2/sy^2 in the shading frame.
-  const auto hn_above = hn.value > V(min_hz);
-  const V hn_safe = simd::select(hn_above, hn.value, V(min_hz));
+  const auto hn_above = hn > V(min_hz);
+  const V hn_safe = simd::select(hn_above, hn, V(min_hz));
   const V inv_hn = simd::reciprocal(hn_safe);
   const V inv_hn2 = inv_hn * inv_hn;
   V q, qx(0), qy(0), hxl(0), hyl(0);
-  ND ht, hb;
+  V ht = hx, hb = hy, dht[2] = {V(0), V(0)}, dhb[2] = {V(0), V(0)};
   if constexpr (F.anisotropic) {
     if constexpr (F.normal_map) {
       // t = ((1,0,0) - nx n)/s, b = n x t = (0, nz, -ny)/s with s = sqrt(1 - nx^2).
-      ht = (hx - t.nx * hn) * t.inv_s;
-      hb = (t.nz * hy - t.ny * hz) * t.inv_s;
-    } else {
-      ht = ND(hx); hb = ND(hy);
+      const V ht0 = hx - t.nx * hn, hb0 = t.nz * hy - t.ny * hz;
+      ht = ht0 * t.inv_s;
+      hb = hb0 * t.inv_s;
+      if constexpr (N > 0) {
+        dht[0] = simd::fma(ht0, t.dinv_s_dnx, -simd::fma(t.nx, dhn[0], hn) * t.inv_s);
+        dht[1] = -(t.nx * dhn[1]) * t.inv_s;
+        dhb[0] = simd::fma(hb0, t.dinv_s_dnx, t.dnz_dnx * hy * t.inv_s);
+        dhb[1] = simd::fma(t.dnz_dny, hy, -hz) * t.inv_s;
+      }
     }
-    hxl = t.cos_a * ht.value + t.sin_a * hb.value;
-    hyl = t.cos_a * hb.value - t.sin_a * ht.value;
+    hxl = t.cos_a * ht + t.sin_a * hb;
+    hyl = t.cos_a * hb - t.sin_a * ht;
     qx = hxl * hxl * t.inv_sx2;
     qy = hyl * hyl * t.inv_sy2;
     q = qx + qy;
   } else {
-    // Isotropic: h_x^2 + h_y^2 = |h|^2 - h_z^2, no tangent frame needed.
-    q = (hh - hn.value * hn.value) * t.inv_sx2;
+    // Isotropic: h_x^2 + h_y^2 in the shading frame = |h|^2 - h_z^2 = |h x n|^2, no tangent frame
+    // needed; the cross product avoids the cancellation of |h|^2 - h_z^2 when h is near n.
+    if constexpr (F.normal_map) {
+      const V cx = hy * t.nz - hz * t.ny, cy = hz * t.nx - hx * t.nz, cz = hx * t.ny - hy * t.nx;
+      q = (cx * cx + cy * cy + cz * cz) * t.inv_sx2;
+    } else {
+      q = (hx * hx + hy * hy) * t.inv_sx2;
+    }
   }
   // Fresnel ratio F/F0 = 1 + (1/F0 - 1)(1 - v.h')^5, with v.h' = |l + v| / 2 for unit l and v.
   V log_arg = hh * inv_hn2 * inv_hn2, ratio(1), m5(0);
@@ -297,11 +318,11 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
         de_dhb = de_dq * (ax * t.sin_a + ay * t.cos_a);
       } else {
         // q = (h.h - h_z^2) / sx^2 depends on the unclamped h_z.
-        de_dhn = simd::fma(de_dq * V(-2) * t.inv_sx2, hn.value, de_dhn);
+        de_dhn = simd::fma(de_dq * V(-2) * t.inv_sx2, hn, de_dhn);
       }
       for (int p = 0; p < 2; ++p) {
-        V g = de_dhn * hn.grad[p];
-        if constexpr (F.anisotropic) g = simd::fma(de_dht, ht.grad[p], simd::fma(de_dhb, hb.grad[p], g));
+        V g = de_dhn * dhn[p];
+        if constexpr (F.anisotropic) g = simd::fma(de_dht, dht[p], simd::fma(de_dhb, dhb[p], g));
         s.log_lobe.grad[p == 0 ? slots::nx_ : slots::ny_] = g;
       }
     }
