@@ -13,9 +13,10 @@
 /// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 carry
 /// gradients over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
 /// compile-time `brdf_features` enable). E's derivatives in sx, sy, F0 and alpha are written in
-/// closed form (see `detail::shade`); the normal's two components reach E and G through 2-wide
-/// `ad::dual`s; albedos enter linearly. Gradients are formed as (dL/dR * R) * dE, which stays
-/// finite when R is huge or tiny.
+/// closed form (see `detail::shade`); the normal's two components reach E and G by the chain rule
+/// through h_z, the tangent frame and n.l; albedos enter linearly. The results are `ad::dual`s
+/// over the active parameters. Gradients are formed as (dL/dR * R) * dE, which stays finite when
+/// R is huge or tiny.
 #include <algorithm>
 #include <array>
 #include <cmath>
