@@ -29,11 +29,12 @@
 
 #include "anisocap/anisocap.hpp"
 #include "anisocap/nn/adam.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
+#include "anisocap/networks/network_space.hpp"
 #include "anisocap/pipeline/exposure.hpp"
-#include "anisocap/pipeline/network_space.hpp"
-#include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/refine.hpp"
-#include "anisocap/pipeline/training.hpp"
+#include "anisocap/training/training.hpp"
 
 using namespace anisocap;
 
@@ -205,8 +206,8 @@ int main(int argc, char** argv) {
   const std::vector<image> photos = render(truth, cap);
   const loss_targets targets = make_loss_targets(photos);
 
-  using estimator_net = EstimationNet<estimator_compact>;
-  using autoencoder_net = AutoEncoder<autoencoder_compact>;
+  using estimator_net = estimation_network<estimator_compact>;
+  using autoencoder_net = auto_encoder<autoencoder_compact>;
   estimator_net estimator(3);
   autoencoder_net autoencoder(5);
   constexpr int Z = autoencoder_net::latent_channels;

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Error metrics between an estimated and a true map set, as in the paper's Table 1 (MODEL.md 9):
+/// Error metrics between an estimated and a true map set, as in the paper's Table 1 (docs/method.md section 9):
 /// mean squared error per parameter in the original ranges.
 #include <algorithm>
 #include <cmath>
@@ -8,6 +8,8 @@
 #include <stdexcept>
 
 #include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/render/configurations.hpp"
+#include "anisocap/render/renderer.hpp"
 
 namespace anisocap {
 
@@ -76,12 +78,6 @@ inline parameter_errors compare_maps(const material_maps& estimate, const materi
   return e;
 }
 
-}  // namespace anisocap
-
-#include "anisocap/render/configurations.hpp"
-#include "anisocap/render/renderer.hpp"
-
-namespace anisocap {
 
 /// Three views the capture did not use, for judging an estimate by its renderings (paper 5.1's
 /// "novel views"): a Fresnel, an independent and a mirror configuration drawn from `seed` (salted
@@ -96,7 +92,7 @@ inline capture novel_view_set(std::uint64_t seed, int width, int height) {
   return c;
 }
 
-/// Novel-view image error: the image loss of MODEL.md 5 between renderings of `estimate` and of
+/// Novel-view image error: the image loss of docs/method.md section 5 between renderings of `estimate` and of
 /// `truth` under `views`, averaged over the views (mean over pixels and channels of
 /// |log(A + 0.01) - log(B + 0.01)|).
 inline double novel_view_error(const material_maps& estimate, const material_maps& truth, const capture& views) {

@@ -3,7 +3,7 @@
 #include <numbers>
 
 #include "../render/render_reference.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 
 using namespace anisocap;
 
