@@ -12,6 +12,9 @@
 #include "commands/capture.hpp"
 #include "commands/demo.hpp"
 #include "commands/eval.hpp"
+#include "commands/markers.hpp"
+#include "commands/photograph.hpp"
+#include "commands/rectify.hpp"
 #include "commands/render.hpp"
 #include "commands/synthesize.hpp"
 #include "commands/train.hpp"
@@ -29,6 +32,9 @@ int main(int argc, char** argv) {
   anisocap::commands::add_eval_command(app);
   anisocap::commands::add_train_commands(app);
   anisocap::commands::add_demo_command(app);
+  anisocap::commands::add_rectify_command(app);
+  anisocap::commands::add_photograph_command(app);
+  anisocap::commands::add_markers_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -4,7 +4,8 @@
 # plots need (PyTorch CPU, matplotlib; studies/README.md).
 set -euo pipefail
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
-          doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev)
+          doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
+          libapriltag-dev)  # AprilTag marker frames: anisocap markers, corner detection in rectify
 if [[ "${1:-}" == "--studies" || "${1:-}" == "--bench" ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 missing=()
 for p in "${packages[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done

@@ -127,10 +127,12 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
 }
 
 /// Runs capture_material with the networks of `models` (loaded here) when `o.stages` needs them,
-/// else without networks.
+/// else without networks. `masks` (optional, one per photograph, 0 = left out) keep pixels out of
+/// the image losses.
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
-                                  const capture_options& o, const material_maps* start = nullptr) {
-  if (!o.stages.networks()) return capture_material(cap, photos, o, start);
+                                  const capture_options& o, const material_maps* start = nullptr,
+                                  const std::vector<image>& masks = {}) {
+  if (!o.stages.networks()) return capture_material(cap, photos, o, start, masks);
   if (!models.present())
     throw std::invalid_argument("the network stages need the " + models.preset + " weights: " + models.estimator().string() + " and " +
                                 models.autoencoder().string() + " (not found)");
@@ -139,7 +141,7 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     auto_encoder<AutoEncoderPreset> autoencoder;
     nn::load_weights(models.estimator(), estimator);
     nn::load_weights(models.autoencoder(), autoencoder);
-    return capture_material(cap, photos, estimator, autoencoder, o, start);
+    return capture_material(cap, photos, estimator, autoencoder, o, start, masks);
   };
   if (models.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
   return run.template operator()<estimator_compact, autoencoder_compact>();

@@ -50,6 +50,7 @@
 #include "anisocap/data/data.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 
 #include "anisocap/networks/auto_encoder.hpp"

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "anisocap/data/capture_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "data/test_folder.hpp"
 
 using anisocap::capture;
@@ -39,9 +40,9 @@ std::string capture_error(const test_folder& dir, const std::string& text) {
 
 capture sample_capture() {
   capture c;
-  c.images.push_back({"input_00.exr", {0.1f, -0.2f, 1.5f}, {-0.3f, 0.4f, 2.0f}, {1.0f, 1.0f, 1.0f}});
-  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, -1.0f}, {2.0f, 3.5f, 1e-6f}});
-  c.images.push_back({"sub/input_02.exr", {3.0f, 4.0f, 4.0f}, {1.0f, 2.0f, 3.0f}, {1e6f, 1e6f, 1e6f}});
+  c.images.push_back({"input_00.exr", {0.1f, -0.2f, 1.5f}, {-0.3f, 0.4f, 2.0f}, {1.0f, 1.0f, 1.0f}, "", 1.0f});
+  c.images.push_back({"input_01.png", {0.0f, 0.0f, 0.25f}, {0.5f, 0.5f, -1.0f}, {2.0f, 3.5f, 1e-6f}, "", 1.0f});
+  c.images.push_back({"sub/input_02.exr", {3.0f, 4.0f, 4.0f}, {1.0f, 2.0f, 3.0f}, {1e6f, 1e6f, 1e6f}, "", 1.0f});
   return c;
 }
 
@@ -51,7 +52,8 @@ const char* valid_entry = R"({"file": "a.exr", "camera": [0, 0, 1], "light": [0,
 
 TEST_CASE("capture.json: write then read gives the same capture, in a readable file") {
   test_folder dir;
-  const capture c = sample_capture();
+  capture c = sample_capture();
+  c.images.push_back({"IMG_0003.jpg", {0.0f, 0.3f, 2.0f}, {0.0f, -0.3f, 2.0f}, {1.0f, 1.0f, 1.0f}, "masks/mask_03.png", 0.5f});
   anisocap::write_capture(c, dir / "capture.json");
   CHECK(dir.entries() == std::vector<std::string>{"capture.json"});  // no temporaries left
   const capture back = anisocap::read_capture(dir / "capture.json");
@@ -61,12 +63,17 @@ TEST_CASE("capture.json: write then read gives the same capture, in a readable f
     CHECK(back.images[i].camera == c.images[i].camera);
     CHECK(back.images[i].light == c.images[i].light);
     CHECK(back.images[i].intensity == c.images[i].intensity);
+    CHECK(back.images[i].mask == c.images[i].mask);
+    CHECK(back.images[i].exposure == c.images[i].exposure);
   }
   const auto bytes = anisocap::read_file_bytes(dir / "capture.json");
   const std::string text(bytes.begin(), bytes.end());
   CHECK(contains(text, "\"intensity\": 1\n"));         // grey intensity as one number
   CHECK(contains(text, "\"camera\": [\n        0.1,"));  // shortest float form, not 0.100000001490116
   CHECK(contains(text, "1e-06"));
+  CHECK(contains(text, "\"mask\": \"masks/mask_03.png\""));
+  CHECK(contains(text, "\"exposure\": 0.5"));
+  CHECK(!contains(text, "\"exposure\": 1"));  // the default is not written
 }
 
 TEST_CASE("capture.json: accepted forms") {
@@ -105,7 +112,11 @@ TEST_CASE("capture.json: every malformed input gives one error naming the file a
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"intesity\": 2")), {"images[0] (\"b.exr\")", "unknown field \"intesity\""}},
       {images("{\"file\": 7, \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0]", "\"file\" must be a string"}},
       {images("{\"file\": \"\", \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0]", "\"file\" is empty"}},
-      {images("{\"file\": \"a.jpg\", \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0] (\"a.jpg\")", ".exr"}},
+      {images("{\"file\": \"a.tif\", \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0] (\"a.tif\")", ".jpg"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"mask\": 3")), {"images[0] (\"b.exr\")", "\"mask\" must be a non-empty file name"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"mask\": \"m.txt\"")), {"\"mask\" must name an image", ".png"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"exposure\": 0")), {"images[0] (\"b.exr\")", "exposure must be a positive"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"exposure\": \"2\"")), {"\"exposure\" must hold numbers", "string"}},
       {images(with("\"camera\": \"up\", \"light\": [0,0,1], \"intensity\": 1")), {"\"camera\" must be an array", "string"}},
       {images(with("\"camera\": [0,0], \"light\": [0,0,1], \"intensity\": 1")), {"\"camera\" must have 3 elements", "got 2"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1,1], \"intensity\": 1")), {"\"light\" must have 3 elements", "got 4"}},

@@ -29,8 +29,8 @@ void write_mutated(std::vector<unsigned char> bytes, const fs::path& path, std::
 TEST_CASE("corrupted capture.json, EXR and PNG files give clean errors naming the file") {
   test_folder dir;
   anisocap::capture c;
-  c.images.push_back({"input_00.exr", {0.1f, 0.2f, 1.0f}, {0.3f, -0.4f, 2.0f}, {1, 2, 3}});
-  c.images.push_back({"input_01.png", {0.0f, 0.5f, 0.5f}, {0.0f, -0.5f, 0.5f}, {4, 4, 4}});
+  c.images.push_back({"input_00.exr", {0.1f, 0.2f, 1.0f}, {0.3f, -0.4f, 2.0f}, {1, 2, 3}, "", 1.0f});
+  c.images.push_back({"input_01.png", {0.0f, 0.5f, 0.5f}, {0.0f, -0.5f, 0.5f}, {4, 4, 4}, "", 1.0f});
   anisocap::write_capture(c, dir / "capture.json");
   anisocap::image img(24, 17, 3);
   for (int ch = 0; ch < 3; ++ch)

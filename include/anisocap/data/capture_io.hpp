@@ -4,7 +4,10 @@
 ///
 ///     {"images": [{"file": "input_00.exr", "camera": [x, y, z], "light": [x, y, z], "intensity": 1.0}, ...]}
 ///
-/// `intensity` is a number or [r, g, b]. Positions are in units of the material's longest side,
+/// `intensity` is a number or [r, g, b]. Optional per image: `"mask": "mask_00.png"` (a PNG or EXR,
+/// one channel or RGB, of the photograph's size, relative to this file: pixels zero in every
+/// channel are left out of the loss) and `"exposure": 2.0` (the photograph's linear values are
+/// multiplied by it; data/photo_io.hpp reads both). Positions are in units of the material's longest side,
 /// origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
 /// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
 /// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
@@ -37,8 +40,9 @@ inline void check_capture_image(const capture_image& im, std::size_t index, cons
   const std::string where = capture_entry_name(index, im.file);
   auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
   if (im.file.empty()) fail("\"file\" is empty");
-  const std::string ext = lower_extension(std::filesystem::path(im.file));
-  if (ext != ".exr" && ext != ".png") fail("\"file\" must name an .exr (linear) or .png (sRGB) image");
+  if (!is_readable_image(im.file)) fail(std::string("\"file\" must name an image of a supported type: ") + readable_image_types);
+  if (!im.mask.empty() && !is_readable_image(im.mask)) fail(std::string("\"mask\" must name an image of a supported type: ") + readable_image_types);
+  if (!(std::isfinite(im.exposure) && im.exposure > 0)) fail("exposure must be a positive finite number (got " + std::to_string(im.exposure) + ")");
   static constexpr const char* axis[] = {"x", "y", "z"};
   for (int k = 0; k < 3; ++k) {
     if (!std::isfinite(im.camera[k])) fail(std::string("camera ") + axis[k] + " is not finite");
@@ -100,8 +104,8 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     const std::string where = detail::capture_entry_name(i, im.file);
     auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
     for (const auto& [key, v] : o)
-      if (key != "file" && key != "camera" && key != "light" && key != "intensity")
-        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\")");
+      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure")
+        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\")");
     for (const char* key : {"file", "camera", "light", "intensity"})
       if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
     if (!file->is_string()) fail(std::string("\"file\" must be a string, got ") + json::kind_name(file->kind()));
@@ -129,6 +133,11 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     } else {
       fail(std::string("\"intensity\" must be a number or [r, g, b], got ") + json::kind_name(intensity.kind()));
     }
+    if (const json::value* mask = o.find("mask")) {
+      if (!mask->is_string() || mask->as_string().empty()) fail("\"mask\" must be a non-empty file name");
+      im.mask = mask->as_string();
+    }
+    if (const json::value* exposure = o.find("exposure")) im.exposure = to_float(*exposure, "exposure");
     detail::check_capture_image(im, i, path);
     result.images.push_back(std::move(im));
   }
@@ -152,10 +161,13 @@ inline std::string capture_to_json(const capture& c, const std::filesystem::path
       return json::value(json::array{detail::float_to_json(v[0]), detail::float_to_json(v[1]), detail::float_to_json(v[2])});
     };
     const bool grey = im.intensity[0] == im.intensity[1] && im.intensity[1] == im.intensity[2];
-    images.push_back(json::object{{"file", im.file},
-                                  {"camera", vec(im.camera)},
-                                  {"light", vec(im.light)},
-                                  {"intensity", grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity)}});
+    json::object entry{{"file", im.file},
+                       {"camera", vec(im.camera)},
+                       {"light", vec(im.light)},
+                       {"intensity", grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity)}};
+    if (!im.mask.empty()) entry.insert_or_assign("mask", json::value(im.mask));
+    if (im.exposure != 1.0f) entry.insert_or_assign("exposure", detail::float_to_json(im.exposure));
+    images.push_back(std::move(entry));
   }
   return json::value(json::object{{"images", std::move(images)}}).dump(2) + "\n";
 }
@@ -163,31 +175,6 @@ inline std::string capture_to_json(const capture& c, const std::filesystem::path
 /// Writes `capture.json` atomically (temporary file, then rename); validates first.
 inline void write_capture(const capture& c, const std::filesystem::path& path) {
   write_file_atomically(path, capture_to_json(c, path));
-}
-
-/// Loads the capture's photographs, file names taken relative to `capture_dir` (the folder of
-/// capture.json), as 3-channel linear images. Every image is checked for finite, non-negative
-/// pixels and for the size of the first; errors name the file and the image index.
-inline std::vector<image> load_capture_images(const capture& c, const std::filesystem::path& capture_dir) {
-  detail::check_capture(c, capture_dir / "capture.json");
-  std::vector<image> images;
-  images.reserve(c.images.size());
-  for (std::size_t i = 0; i < c.images.size(); ++i) {
-    const std::filesystem::path file = capture_dir / c.images[i].file;
-    image img;
-    try {
-      img = read_image(file);
-      validate_pixels(img, file);
-    } catch (const io_error& e) {
-      throw io_error(e.path(), e.problem() + " (capture image " + std::to_string(i) + ")");
-    }
-    if (!images.empty() && (img.width() != images[0].width() || img.height() != images[0].height()))
-      throw io_error(file, "image " + std::to_string(i) + " is " + std::to_string(img.width()) + "x" + std::to_string(img.height()) +
-                               " but image 0 (" + c.images[0].file + ") is " + std::to_string(images[0].width()) + "x" +
-                               std::to_string(images[0].height()) + "; all capture images must have the same size");
-    images.push_back(std::move(img));
-  }
-  return images;
 }
 
 }  // namespace anisocap

@@ -1,9 +1,9 @@
 #pragma once
 /// @file
-/// Image files: linear OpenEXR and sRGB PNG in, float32 EXR and 8-bit sRGB PNG previews out
-/// (issue 2, item 5). Inputs are photographs of the material in texture space (MODEL.md 4), so the
-/// loss of MODEL.md 5 needs linear radiance: EXR is taken as linear, PNG (8 or 16 bit) as sRGB and
-/// linearised with the exact sRGB curve.
+/// Image files: linear OpenEXR and Radiance HDR, sRGB PNG and JPEG in; float32 EXR and 8-bit sRGB
+/// PNG previews out. Inputs are photographs of the material in texture space (docs/method.md section 4), so the
+/// loss of docs/method.md section 5 needs linear radiance: EXR and HDR are taken as linear, PNG (8 or 16 bit) and
+/// JPEG as sRGB and linearised with the exact sRGB curve.
 ///
 /// Every write goes to a temporary file beside its target and is renamed over it only once it is
 /// complete (`file_transaction`), so a failure never leaves a half-written file under the real
@@ -382,26 +382,36 @@ enum class png_encoding {
   linear,  ///< data (lobe widths, mapped normals): clamp to [0,1], store as is, so a code reads as the value
 };
 
-/// Reads an 8- or 16-bit PNG (grey, grey+alpha, RGB or RGBA; alpha ignored, grey replicated),
-/// taken as sRGB and linearised exactly, into a 3-channel image. Throws io_error naming the file
-/// when it is missing, not a PNG, or corrupt.
-inline image read_png(const std::filesystem::path& path) {
+namespace detail {
+
+/// Integer-coded, sRGB-encoded file formats.
+enum class srgb_format { png, jpeg };
+
+/// Reads an sRGB-encoded PNG (8 or 16 bit) or JPEG (8 bit; grey, grey+alpha, RGB or RGBA; alpha
+/// ignored, grey replicated), linearised exactly, into a 3-channel image. When `at_maximum` is not
+/// null it receives one entry per pixel: 1 where any colour channel holds the format's largest code
+/// (255, or 65535 for 16-bit PNG), i.e. where the sensor or the encoder clipped, else 0.
+inline image read_srgb(const std::filesystem::path& path, srgb_format format, std::vector<std::uint8_t>* at_maximum) {
   const std::vector<unsigned char> bytes = read_file_bytes(path);
-  static constexpr unsigned char signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
-  if (bytes.size() < 8 || std::memcmp(bytes.data(), signature, 8) != 0)
+  const char* name = format == srgb_format::png ? "PNG" : "JPEG";
+  static constexpr unsigned char png_signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  static constexpr unsigned char jpeg_signature[3] = {0xFF, 0xD8, 0xFF};
+  if (format == srgb_format::png && (bytes.size() < 8 || std::memcmp(bytes.data(), png_signature, 8) != 0))
     throw io_error(path, "not a PNG file (bad signature)");
-  if (bytes.size() > std::size_t(INT32_MAX)) throw io_error(path, "PNG file too large");
+  if (format == srgb_format::jpeg && (bytes.size() < 3 || std::memcmp(bytes.data(), jpeg_signature, 3) != 0))
+    throw io_error(path, "not a JPEG file (bad signature)");
+  if (bytes.size() > std::size_t(INT32_MAX)) throw io_error(path, std::string(name) + " file too large");
   const int size = int(bytes.size());
   int width = 0, height = 0, channels = 0;
-  const bool sixteen = stbi_is_16_bit_from_memory(bytes.data(), size) != 0;
+  const bool sixteen = format == srgb_format::png && stbi_is_16_bit_from_memory(bytes.data(), size) != 0;
   std::unique_ptr<void, void (*)(void*)> pixels(nullptr, &stbi_image_free);
   if (sixteen) pixels.reset(stbi_load_16_from_memory(bytes.data(), size, &width, &height, &channels, 0));
   else pixels.reset(stbi_load_from_memory(bytes.data(), size, &width, &height, &channels, 0));
   if (!pixels) {
     const char* reason = stbi_failure_reason();
-    throw io_error(path, std::string("corrupt PNG") + (reason ? std::string(" (") + reason + ")" : std::string()));
+    throw io_error(path, std::string("corrupt ") + name + (reason ? std::string(" (") + reason + ")" : std::string()));
   }
-  if (width <= 0 || height <= 0 || channels < 1 || channels > 4) throw io_error(path, "unsupported PNG layout");
+  if (width <= 0 || height <= 0 || channels < 1 || channels > 4) throw io_error(path, std::string("unsupported ") + name + " layout");
   // Exact sRGB decoding through a table of every code (256 or 65536 entries, computed in double).
   const int levels = sixteen ? 65536 : 256;
   std::vector<float> table(static_cast<std::size_t>(levels));
@@ -409,17 +419,55 @@ inline image read_png(const std::filesystem::path& path) {
   image out(width, height, 3);
   const int colour_channels = channels >= 3 ? 3 : 1;
   const std::size_t count = out.pixel_count();
-  for (int c = 0; c < 3; ++c) {
-    const int src_c = colour_channels == 3 ? c : 0;
-    float* dst = out.plane(c);
-    if (sixteen) {
-      const auto* src = static_cast<const std::uint16_t*>(pixels.get());
-      for (std::size_t i = 0; i < count; ++i) dst[i] = table[src[i * std::size_t(channels) + std::size_t(src_c)]];
-    } else {
-      const auto* src = static_cast<const std::uint8_t*>(pixels.get());
-      for (std::size_t i = 0; i < count; ++i) dst[i] = table[src[i * std::size_t(channels) + std::size_t(src_c)]];
+  if (at_maximum) at_maximum->assign(count, 0);
+  auto decode = [&](const auto* src) {
+    const unsigned top = unsigned(levels - 1);
+    for (int c = 0; c < 3; ++c) {
+      const int src_c = colour_channels == 3 ? c : 0;
+      float* dst = out.plane(c);
+      for (std::size_t i = 0; i < count; ++i) {
+        const unsigned code = src[i * std::size_t(channels) + std::size_t(src_c)];
+        dst[i] = table[code];
+        if (at_maximum && code == top) (*at_maximum)[i] = 1;
+      }
     }
+  };
+  if (sixteen) decode(static_cast<const std::uint16_t*>(pixels.get()));
+  else decode(static_cast<const std::uint8_t*>(pixels.get()));
+  return out;
+}
+
+}  // namespace detail
+
+/// Reads an 8- or 16-bit PNG (grey, grey+alpha, RGB or RGBA; alpha ignored, grey replicated),
+/// taken as sRGB and linearised exactly, into a 3-channel image. Throws io_error naming the file
+/// when it is missing, not a PNG, or corrupt.
+inline image read_png(const std::filesystem::path& path) { return detail::read_srgb(path, detail::srgb_format::png, nullptr); }
+
+/// Reads a JPEG (baseline or progressive, 8 bit, grey or RGB), taken as sRGB and linearised
+/// exactly, into a 3-channel image. Throws io_error naming the file when it is missing, not a JPEG,
+/// or corrupt.
+inline image read_jpeg(const std::filesystem::path& path) { return detail::read_srgb(path, detail::srgb_format::jpeg, nullptr); }
+
+/// Reads a Radiance RGBE (.hdr) file, linear radiance, into a 3-channel image. Throws io_error
+/// naming the file when it is missing, not a Radiance file, or corrupt.
+inline image read_hdr(const std::filesystem::path& path) {
+  const std::vector<unsigned char> bytes = read_file_bytes(path);
+  if (bytes.size() > std::size_t(INT32_MAX)) throw io_error(path, "Radiance HDR file too large");
+  const int size = int(bytes.size());
+  // stbi_loadf would also accept an 8-bit file and gamma-expand it; only true HDR files pass here.
+  if (!stbi_is_hdr_from_memory(bytes.data(), size)) throw io_error(path, "not a Radiance HDR file (expected a \"#?RADIANCE\" or \"#?RGBE\" header)");
+  int width = 0, height = 0, channels = 0;
+  std::unique_ptr<float, void (*)(void*)> pixels(stbi_loadf_from_memory(bytes.data(), size, &width, &height, &channels, 3),
+                                                 &stbi_image_free);
+  if (!pixels) {
+    const char* reason = stbi_failure_reason();
+    throw io_error(path, std::string("corrupt Radiance HDR file") + (reason ? std::string(" (") + reason + ")" : std::string()));
   }
+  if (width <= 0 || height <= 0) throw io_error(path, "empty Radiance HDR image");
+  image out(width, height, 3);
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t i = 0; i < out.pixel_count(); ++i) out.plane(c)[i] = pixels.get()[i * 3 + std::size_t(c)];
   return out;
 }
 
@@ -477,13 +525,24 @@ inline void write_png(const image& img, const std::filesystem::path& path, float
 
 // ---- by extension ------------------------------------------------------------------------------
 
-/// Reads an input image by extension (.exr linear, .png sRGB; case-insensitive) into 3 channels.
-/// Does not validate pixel values (see validate_pixels).
+/// The input image types read_image accepts, for messages.
+inline constexpr const char* readable_image_types = ".exr and .hdr (linear), .png, .jpg and .jpeg (sRGB)";
+
+/// True when read_image reads files with this path's extension (case-insensitive).
+inline bool is_readable_image(const std::filesystem::path& path) {
+  const std::string ext = detail::lower_extension(path);
+  return ext == ".exr" || ext == ".hdr" || ext == ".png" || ext == ".jpg" || ext == ".jpeg";
+}
+
+/// Reads an input image by extension into 3 linear channels: .exr and .hdr as linear, .png, .jpg
+/// and .jpeg as sRGB (case-insensitive). Does not validate pixel values (see validate_pixels).
 inline image read_image(const std::filesystem::path& path) {
   const std::string ext = detail::lower_extension(path);
   if (ext == ".exr") return read_exr(path);
+  if (ext == ".hdr") return read_hdr(path);
   if (ext == ".png") return read_png(path);
-  throw io_error(path, "unknown image type '" + path.extension().string() + "' (supported: .exr linear, .png sRGB)");
+  if (ext == ".jpg" || ext == ".jpeg") return read_jpeg(path);
+  throw io_error(path, "unknown image type '" + path.extension().string() + "' (supported: " + readable_image_types + ")");
 }
 
 /// Writes by extension: .exr as float32 EXR, .png as an 8-bit sRGB preview; atomically.

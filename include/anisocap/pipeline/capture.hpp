@@ -138,10 +138,14 @@ struct no_networks {};
 /// Captures the map set of one material from its photographs (one per configuration of `cap`).
 /// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
 /// `no_networks` for both to run the first guess and refine alone. `start`, when given, replaces
-/// the estimate (or the first guess).
+/// the estimate (or the first guess). `masks` (optional, one 1-channel image per photograph,
+/// 0 = left out, e.g. clipped pixels: data/photo_io.hpp) keep pixels out of every image loss
+/// (first guess, fine-tune, refine, the stages' reported losses); the estimator still sees whole
+/// photographs.
 template <class Estimator = no_networks, class AutoEncoderNet = no_networks>
 capture_result capture_material(const capture& given_cap, const std::vector<image>& given_photos, Estimator& estimator,
-                                AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr) {
+                                AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr,
+                                const std::vector<image>& masks = {}) {
   namespace fs = std::filesystem;
   using clock = std::chrono::steady_clock;
   if (given_photos.empty() || given_photos.size() != given_cap.images.size())
@@ -159,7 +163,7 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
     apply_exposure(cap, photos, result.exposure_scale);
   }
   const int W = photos[0].width(), H = photos[0].height();
-  const loss_targets targets = make_loss_targets(photos);
+  const loss_targets targets = make_loss_targets(photos, masks);
   auto image_loss = [&](const material_maps& m, brdf_features features) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
   };
@@ -182,7 +186,7 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
     if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, reporter("estimate"));
     if (checkpoints) write_maps(maps, estimate_folder, false);
   } else {
-    maps = start ? *start : initial_guess(cap, photos);
+    maps = start ? *start : initial_guess(cap, photos, {}, masks);
     first.ran = !start;
   }
   result.features = o.kernel.auto_tolerance > 0 ? analyse_kernel(maps, cap, o.kernel.auto_tolerance).features : o.kernel.features;
@@ -228,9 +232,9 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
 
 /// capture_material without networks: the first guess (or `start`) and refine.
 inline capture_result capture_material(const capture& cap, const std::vector<image>& photos, const capture_options& o,
-                                       const material_maps* start = nullptr) {
+                                       const material_maps* start = nullptr, const std::vector<image>& masks = {}) {
   no_networks none;
-  return capture_material(cap, photos, none, none, o, start);
+  return capture_material(cap, photos, none, none, o, start, masks);
 }
 
 }  // namespace anisocap

@@ -141,9 +141,13 @@ material_maps estimate(const std::vector<image>& photos, Estimator& estimator, c
 /// of each texel is the smallest value of B / (cos(theta_l) I / (pi r^2)) over the images that
 /// light it (the image where the specular lobe adds least), clamped to [0.02, 0.95]; the other
 /// parameters start at mid-range values (a'_s 0.3, sigma 0.15, F0 0.5, flat normal, alpha 0).
-inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {}) {
+/// Pixels that `masks` (optional, one 1-channel image per photograph, 0 = left out) leave out are
+/// not used.
+inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {},
+                                   const std::vector<image>& masks = {}) {
   if (photos.empty() || photos.size() != cap.images.size())
     throw std::invalid_argument("initial_guess: need one photograph per configuration");
+  if (!masks.empty() && masks.size() != photos.size()) throw std::invalid_argument("initial_guess: need one mask per photograph");
   const int w = photos[0].width(), h = photos[0].height();
   material_maps maps(w, h);
   const float start[parameter_count] = {0.5f, 0.5f, 0.5f, 0.3f, 0.3f, 0.3f, 0.15f, 0.15f, 0.5f, 0.0f, 0.0f, 0.0f};
@@ -160,7 +164,7 @@ inline material_maps initial_guess(const capture& cap, const std::vector<image>&
         const float lx = im.light[0] - p[0], ly = im.light[1] - p[1], lz = im.light[2];
         const float r2 = std::max(lx * lx + ly * ly + lz * lz, 1e-6f);
         const float cos_l = lz / std::sqrt(r2);
-        if (cos_l < 0.05f || im.camera[2] <= 0) continue;
+        if (cos_l < 0.05f || im.camera[2] <= 0 || (!masks.empty() && masks[k].at(0, x, y) == 0.0f)) continue;
         for (int c = 0; c < 3; ++c) {
           const float irradiance = cos_l * im.intensity[c] / (std::numbers::pi_v<float> * r2);
           best[c] = std::min(best[c], photos[k].at(c, x, y) / irradiance);

@@ -18,6 +18,10 @@ struct capture_image {
   vec3f camera{0, 0, 1};   ///< camera position
   vec3f light{0, 0, 1};    ///< point-light position
   vec3f intensity{1, 1, 1};///< light intensity per colour channel
+  /// Optional mask image, relative like `file`: pixels that are zero in every channel are left
+  /// out of the image loss (empty: every pixel is used).
+  std::string mask;
+  float exposure = 1.0f;   ///< factor the photograph's linear values are multiplied by on loading
 };
 
 /// The configurations of all photographs of one material.

@@ -344,9 +344,21 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
 
 }  // namespace detail
 
-/// log(B + 0.01) of every target image, computed once per capture for the fused loss.
+/// log(B + 0.01) of every target image, computed once per capture for the fused loss, with the
+/// pixels each image's loss uses.
+///
+/// Masks: a pixel with mask 0 is left out of the loss exactly: it adds 0 to the loss and 0 to every
+/// gradient entry, whatever its target holds. Image i's loss is the mean over its used pixels
+/// (and channels), so that each photograph weighs the same however much of it is masked: its terms
+/// carry the weight T / U_i, with T the texels and U_i the used pixels of the whole image. A crop
+/// keeps the whole image's weights, so crops' losses add up, by area, to the whole image's.
 struct loss_targets {
   std::vector<image> log_images;  ///< one 3-channel planar image per capture image
+  /// Empty: every pixel is used. Otherwise one 1-channel image per capture image: 0 = left out,
+  /// any other value = used.
+  std::vector<image> masks;
+  /// Per capture image, T / U_i (1 without masks); empty means 1 for every image.
+  std::vector<double> weights;
   int width = 0, height = 0;
 };
 
@@ -356,32 +368,62 @@ struct loss_targets {
 inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int width, int height, loss_targets& out) {
   if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 + width > from.width || y0 + height > from.height)
     throw std::invalid_argument("crop_loss_targets: window outside the targets");
-  if (out.width != width || out.height != height || out.log_images.size() != from.log_images.size()) {
+  if (out.width != width || out.height != height || out.log_images.size() != from.log_images.size() ||
+      out.masks.size() != from.masks.size()) {
     out.log_images.assign(from.log_images.size(), image(width, height, 3));
+    out.masks.assign(from.masks.size(), image(width, height, 1));
     out.width = width;
     out.height = height;
   }
+  out.weights = from.weights;
+  auto copy_window = [&](const image& src, image& dst, int c) {
+    for (int y = 0; y < height; ++y)
+      std::copy_n(src.plane(c) + std::size_t(y0 + y) * from.width + x0, width, dst.plane(c) + std::size_t(y) * width);
+  };
   for (std::size_t k = 0; k < from.log_images.size(); ++k)
-    for (int c = 0; c < 3; ++c)
-      for (int y = 0; y < height; ++y)
-        std::copy_n(from.log_images[k].plane(c) + std::size_t(y0 + y) * from.width + x0, width,
-                    out.log_images[k].plane(c) + std::size_t(y) * width);
+    for (int c = 0; c < 3; ++c) copy_window(from.log_images[k], out.log_images[k], c);
+  for (std::size_t k = 0; k < from.masks.size(); ++k) copy_window(from.masks[k], out.masks[k], 0);
 }
 
-/// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels).
-/// Throws std::invalid_argument on a NaN or infinite pixel; negative values count as 0.
-inline loss_targets make_loss_targets(const std::vector<image>& photos) {
+/// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels) and
+/// their masks (empty: every pixel used; else one 1-channel image per photograph of its size,
+/// 0 = left out). Throws std::invalid_argument on a NaN or infinite pixel where the mask uses it,
+/// on masks of the wrong number or size, and on an image whose every pixel is masked; negative
+/// values count as 0. Masked pixels get the target log(0.01) (their value never enters the loss).
+inline loss_targets make_loss_targets(const std::vector<image>& photos, const std::vector<image>& masks = {}) {
   loss_targets t;
   if (photos.empty()) throw std::invalid_argument("make_loss_targets: no images");
   t.width = photos[0].width();
   t.height = photos[0].height();
+  if (!masks.empty() && masks.size() != photos.size())
+    throw std::invalid_argument("make_loss_targets: " + std::to_string(masks.size()) + " masks for " + std::to_string(photos.size()) + " images");
   for (std::size_t i = 0; i < photos.size(); ++i) {
     const image& p = photos[i];
     if (p.width() != t.width || p.height() != t.height || p.channels() != 3)
       throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a different size or channel count");
+    const float* mask = nullptr;
+    double weight = 1.0;
+    if (!masks.empty()) {
+      const image& m = masks[i];
+      if (m.width() != t.width || m.height() != t.height || m.channels() != 1)
+        throw std::invalid_argument("make_loss_targets: mask " + std::to_string(i) + " is not a 1-channel image of the photographs' size");
+      mask = m.plane(0);
+      std::size_t used = 0;
+      for (std::size_t k = 0; k < m.pixel_count(); ++k) used += mask[k] != 0.0f;
+      if (used == 0) throw std::invalid_argument("make_loss_targets: every pixel of image " + std::to_string(i) + " is masked");
+      weight = double(m.pixel_count()) / double(used);
+      image stored(t.width, t.height, 1);
+      for (std::size_t k = 0; k < m.pixel_count(); ++k) stored.plane(0)[k] = mask[k] != 0.0f ? 1.0f : 0.0f;
+      t.masks.push_back(std::move(stored));
+    }
+    t.weights.push_back(weight);
     image l(p.width(), p.height(), 3);
     for (int c = 0; c < 3; ++c)
       for (std::size_t k = 0; k < p.pixel_count(); ++k) {
+        if (mask && mask[k] == 0.0f) {
+          l.plane(c)[k] = std::log(loss_epsilon);
+          continue;
+        }
         const float v = p.plane(c)[k];
         if (!std::isfinite(v))
           throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a non-finite value (" +
@@ -481,7 +523,8 @@ std::vector<image> render(const material_maps& maps, const capture& cap, const t
 /// The fused pass: image loss (MODEL.md 5) of the map set against the targets and, when `gradient`
 /// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
 /// No rendered image is materialised. Returns the loss
-///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|.
+///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|,
+/// the mean over the pixels each image's mask uses (loss_targets: masked pixels add exact zeros).
 /// `groups` (optional) skips unchanged texel groups and reports per-group losses (texel_groups).
 /// With `options.double_precision`, a float V dispatches to the double kernel.
 template <brdf_features F = all_features, class V = simd::batch<float>>
@@ -505,6 +548,9 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
                                 std::to_string(targets.log_images.size()) + " target images");
   if (targets.width != maps.width() || targets.height != maps.height())
     throw std::invalid_argument("loss_and_gradient: target images and maps differ in size");
+  if ((!targets.masks.empty() && targets.masks.size() != cap.images.size()) ||
+      (!targets.weights.empty() && targets.weights.size() != cap.images.size()))
+    throw std::invalid_argument("loss_and_gradient: the targets' masks or weights do not match the configurations");
   if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
     throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
   if (groups && groups->active && !groups->loss)
@@ -546,6 +592,15 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     for (std::size_t k = 0; k < configs.size(); ++k) {
       const auto s = detail::shade<F, V, N>(t, configs[k], cull);
       const V geometry = s.geometry.value;
+      // This image's weight per lane: T / U_k, and 0 where its mask leaves the pixel out.
+      V weight = targets.weights.empty() ? lane_weight : lane_weight * V(S(targets.weights[k]));
+      bool masked = false;
+      auto used = V(0) == V(0);  // every lane
+      if (!targets.masks.empty()) {
+        masked = true;
+        used = simd::load<V>(targets.masks[k].plane(0) + i) != V(0);
+        weight = simd::select(used, weight, V(0));
+      }
       V w_spec(0), w_geom(0);  // sum_c dL/dR_c * specular_c / ... (see below)
       for (int c = 0; c < 3; ++c) {
         const V intensity(configs[k].intensity[c]);
@@ -553,10 +608,13 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
         const V radiance = (kd + spec) * geometry * intensity; // R_c
         const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
-        const V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
-        loss_acc += simd::abs(diff) * lane_weight;
+        V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
+        // A masked lane's difference is 0 whatever its target: it adds +0 to the loss and to the
+        // gradient (weight 0, sign +), so no value of a masked target can reach the results.
+        if (masked) diff = simd::select(used, diff, V(0));
+        loss_acc += simd::abs(diff) * weight;
         // dL/dR_c = sign(diff) / (R_c + eps) * weight.
-        const V dl = simd::select(diff >= V(0), lane_weight, -lane_weight) * simd::reciprocal(radiance + V(loss_epsilon));
+        const V dl = simd::select(diff >= V(0), weight, -weight) * simd::reciprocal(radiance + V(loss_epsilon));
         const V dl_gi = dl * geometry * intensity;
         g_diffuse[c] += dl_gi * V(inv_pi);
         g_specular[c] += dl_gi * s.lobe;

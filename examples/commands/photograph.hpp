@@ -1,0 +1,102 @@
+#pragma once
+// `anisocap photograph`: synthetic perspective photographs (JPEG + photos.json) of a procedural
+// material or a map set, with the same configurations rendered directly in texture space beside
+// them, to test `rectify` + `capture` without a camera (calibration/photo_synthesis.hpp).
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "anisocap/calibration/photo_synthesis.hpp"
+#include "anisocap/data/capture_io.hpp"
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/data/procedural.hpp"
+#include "anisocap/render/configurations.hpp"
+
+namespace anisocap::commands {
+
+/// Registers `photograph`.
+inline void add_photograph_command(CLI::App& app) {
+  struct settings {
+    std::filesystem::path out = "anisocap-photographs";
+    std::optional<std::filesystem::path> maps;
+    int size = 128, images = 12;
+    std::uint64_t seed = 1;
+    std::string kind, set = "alpha", lookup = "bilinear";
+    photo_synthesis_options options;
+  };
+  auto s = std::make_shared<settings>();
+  auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, photos.json) of a material, with truth/ and the texture-space capture direct/");
+  cmd->add_option("-o,--out", s->out, "output folder: photos/, direct/, truth/")->capture_default_str();
+  cmd->add_option("--maps", s->maps, "map set to photograph (default: a procedural material)");
+  cmd->add_option("--size", s->size, "procedural material size in texels (square)")->capture_default_str()->check(CLI::PositiveNumber);
+  cmd->add_option("--seed", s->seed, "material, configuration and noise seed")->capture_default_str();
+  cmd->add_option("--kind", s->kind, "procedural material kind (plain_weave, twill, satin, brushed_metal, ...)");
+  cmd->add_option("--images", s->images, "number of photographs")->capture_default_str()->check(CLI::Range(4, 1000));
+  cmd->add_option("--set", s->set, "configuration set: alpha or beta")->capture_default_str()->check(CLI::IsMember({"alpha", "beta"}));
+  cmd->add_flag("--flash", s->options.flash, "light fixed to the camera (a phone's flash) instead of the configuration's light");
+  cmd->add_option("--flash-offset", s->options.flash_offset_mm, "flash offset from the lens in mm, camera coordinates x right, y down, z forward")
+      ->delimiter(',')->capture_default_str();
+  cmd->add_option("--photo-width", s->options.width, "photo width in pixels")->capture_default_str();
+  cmd->add_option("--photo-height", s->options.height, "photo height in pixels")->capture_default_str();
+  cmd->add_option("--sample-mm", s->options.longest_mm, "the sample's longest side in mm")->capture_default_str();
+  cmd->add_option("--white-fraction", s->options.white_fraction, "exposure: this fraction of the sample's pixels stays below white")->capture_default_str();
+  cmd->add_option("--lookup", s->lookup, "texture lookup between texel centres: bilinear, or nearest (each texel a patch of constant material)")
+      ->capture_default_str()->check(CLI::IsMember({"bilinear", "nearest"}));
+  cmd->add_option("--quality", s->options.jpeg_quality, "JPEG quality")->capture_default_str()->check(CLI::Range(1, 100));
+  cmd->add_option("--shot-noise", s->options.noise.shot, "sensor shot noise at white (relative standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--read-noise", s->options.noise.read, "sensor read noise (standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->callback([s] {
+    try {
+      photo_synthesis_options o = s->options;
+      o.seed = s->seed;
+      o.lookup = s->lookup == "nearest" ? texture_lookup::nearest : texture_lookup::bilinear;
+      material_maps truth;
+      if (s->maps) {
+        truth = read_maps(*s->maps);
+      } else {
+        procedural_options po;
+        if (!s->kind.empty()) {
+          po.kind = material_kind_from_name(s->kind);
+          if (!po.kind) throw std::invalid_argument("unknown --kind '" + s->kind + "'");
+        }
+        truth = generate_material(s->seed, s->size, s->size, po);
+      }
+      const capture configurations = s->set == "alpha" ? set_alpha(s->images, s->seed, truth.width(), truth.height())
+                                                       : set_beta(s->images, s->seed, truth.width(), truth.height());
+      std::fprintf(stderr, "photograph: %d photos of %dx%d px of a %dx%d-texel material (%s light)\n", s->images, o.width, o.height,
+                   truth.width(), truth.height(), o.flash ? "flash" : "separate");
+      const synthetic_photographs photos = photograph_capture(truth, configurations, o);
+      // The same configurations rendered in texture space, with the same sensor noise at the same
+      // exposure, as `synthesize` would make them: the reference a perfect rectification reaches.
+      std::vector<image> direct = render(truth, photos.texture_capture);
+      for (std::size_t i = 0; i < direct.size(); ++i) {
+        const float e = float(photos.exposures[i]);
+        for (int c = 0; c < 3; ++c)
+          for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] *= e;
+        add_sensor_noise(direct[i], o.noise, hash64(s->seed ^ (0x646972656374ULL + i)));
+        for (int c = 0; c < 3; ++c)
+          for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] /= e;
+      }
+      write_maps(truth, s->out / "truth");
+      write_synthetic_photographs(photos, s->out / "photos");
+      std::filesystem::create_directories(s->out / "direct");
+      file_transaction files;
+      for (std::size_t i = 0; i < direct.size(); ++i) write_exr(direct[i], s->out / "direct" / photos.texture_capture.images[i].file, files);
+      files.stage(s->out / "direct" / "capture.json", capture_to_json(photos.texture_capture));
+      files.commit();
+      std::fprintf(stderr, "photograph: photos and photos.json in %s, texture-space capture in %s, true maps in %s\n",
+                   (s->out / "photos").c_str(), (s->out / "direct").c_str(), (s->out / "truth").c_str());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "anisocap: error: %s\n", e.what());
+      std::exit(1);
+    }
+  });
+}
+
+}  // namespace anisocap::commands

@@ -1,0 +1,58 @@
+#pragma once
+// `anisocap rectify photos.json -o DIR [--resolution N]`: perspective photographs of a flat sample
+// to a texture-space capture that `anisocap capture DIR/capture.json` runs (calibration/rectify.hpp).
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <memory>
+
+#include "anisocap/calibration/markers.hpp"
+#include "anisocap/calibration/rectify.hpp"
+
+namespace anisocap::commands {
+
+/// Registers `rectify`.
+inline void add_rectify_command(CLI::App& app) {
+  struct settings {
+    std::filesystem::path photos, out = "anisocap-rectified";
+    rectify_options options;
+    marker_frame_options frame;
+  };
+  auto s = std::make_shared<settings>();
+  auto* cmd = app.add_subcommand("rectify", "perspective photographs of a flat sample (photos.json) to a texture-space capture");
+  cmd->add_option("photos", s->photos, "photos.json: sample size, camera, and per photo the file, corners and light")->required();
+  cmd->add_option("-o,--out", s->out, "output folder: rectified_NN.exr, mask_NN.png, capture.json")->capture_default_str();
+  cmd->add_option("--resolution", s->options.resolution, "texels along the sample's longest side (0: what the photos support)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--saturation", s->options.saturation, "linear level at or above which a pixel counts as clipped (0: only the format's largest code)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--tag-mm", s->frame.tag_mm, "the marker frame's tag size, as given to `markers` (photos without \"corners\")")->capture_default_str();
+  cmd->add_option("--gap-mm", s->frame.gap_mm, "the marker frame's gap, as given to `markers`")->capture_default_str();
+  cmd->callback([s] {
+    try {
+      rectify_options o = s->options;
+      o.progress = [](std::size_t done, std::size_t total, const std::string& line) {
+        std::fprintf(stderr, "rectify: %zu/%zu %s\n", done, total, line.c_str());
+      };
+      const photos_description d = read_photos_description(s->photos);
+      // Photos without "corners": the corners from the printed marker frame's tags.
+      const marker_frame frame = make_marker_frame(d.width_mm, d.height_mm, s->frame);
+      const corner_finder markers = [&](const photo& picture, const photos_description&, const std::string& name) {
+        return find_corners_from_markers(picture, frame, name);
+      };
+      const rectified_capture r = rectify(d, s->photos.parent_path(), o, markers);
+      write_rectified_capture(r, s->out);
+      std::fprintf(stderr, "rectify: %zu images of %dx%d texels (%.3g mm per texel), masks and capture.json in %s\n"
+                   "next: anisocap capture %s\n", r.photos.size(), r.width, r.height,
+                   std::max(d.width_mm, d.height_mm) / std::max(r.width, r.height), s->out.c_str(), (s->out / "capture.json").c_str());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "anisocap: error: %s\n", e.what());
+      std::exit(1);
+    }
+  });
+}
+
+}  // namespace anisocap::commands
