@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The renderer of MODEL.md 4 and the fused image loss of MODEL.md 5 with its gradient.
+/// The renderer of docs/method.md section 4 and the fused image loss of docs/method.md section 5 with its gradient.
 ///
 /// Texel-space rendering: pixel p of image i is the radiance leaving texel p towards camera c_i,
 /// lit by a point light at l_i with intensity I_i:
@@ -36,11 +36,11 @@
 
 namespace anisocap {
 
-/// The epsilon of the log image loss (MODEL.md 5, paper eq. 5).
+/// The epsilon of the log image loss (docs/method.md section 5, paper eq. 5).
 inline constexpr float loss_epsilon = 0.01f;
 
 /// Where a map set lies inside the whole material: texels render at their global positions
-/// (MODEL.md 4 decision), so a tile of a larger material renders exactly as it would in place.
+/// (docs/method.md section 4), so a tile of a larger material renders exactly as it would in place.
 struct tile_placement {
   int full_width = 0;   ///< whole material width in texels (0: the maps are the whole material)
   int full_height = 0;  ///< whole material height in texels
@@ -198,7 +198,7 @@ struct shading {
   bool specular_culled;       ///< every lane's lobe was negligible: lobe == 0, skip its gradient
 };
 
-/// Shades one block of texels under one configuration (MODEL.md 3-4).
+/// Shades one block of texels under one configuration (docs/method.md sections 3-4).
 ///
 /// The lobe's gradient is written in closed form rather than carried through forward-mode duals
 /// over all N parameters: with E = log(h.h F/F0 / h_z^4) - log(pi sx sy) - q / h_z^2 and
@@ -446,7 +446,7 @@ inline tile_placement resolve(const tile_placement& t, const material_maps& maps
   return r;
 }
 
-/// Texel positions (global, MODEL.md 4) for the lanes starting at flat index i.
+/// Texel positions (global, docs/method.md section 4) for the lanes starting at flat index i.
 template <class V>
 inline void texel_positions(std::size_t i, int width, const tile_placement& t, V& px, V& py) {
   using S = simd::scalar_t<V>;
@@ -520,7 +520,7 @@ std::vector<image> render(const material_maps& maps, const capture& cap, const t
   return out;
 }
 
-/// The fused pass: image loss (MODEL.md 5) of the map set against the targets and, when `gradient`
+/// The fused pass: image loss (docs/method.md section 5) of the map set against the targets and, when `gradient`
 /// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
 /// No rendered image is materialised. Returns the loss
 ///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|,
