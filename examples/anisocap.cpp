@@ -1,5 +1,6 @@
 // The `anisocap` program: synthesize procedural captures, render map sets, capture materials from
-// photographs, evaluate, train the networks, and a self-contained demo. One file per command under
+// photographs, evaluate, train the networks, a self-contained demo, and the calibration of real
+// photographs (markers, photograph, rectify). One file per command under
 // examples/commands/; `anisocap --help` and `anisocap <command> --help` list every option with its
 // default.
 #include <omp.h>

@@ -19,7 +19,7 @@ struct capture_settings {
   bool resume = false;
   model_choice models;
   capture_options options;
-  photo_options photo;  ///< clipped-pixel detection (--saturation, --fit-clipped)
+  photo_options photos;  ///< clipped-pixel detection (--saturation, --fit-clipped)
 };
 
 /// Runs a capture: writes the map set, re-renders, novel views, a contact sheet and report.json
@@ -28,21 +28,21 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const auto start = std::chrono::steady_clock::now();
   capture_options& o = s.options;
   const capture cap = read_capture(s.capture_file);
-  const std::vector<photo> loaded = load_capture_photos(cap, s.capture_file.parent_path(), s.photo);
+  const std::vector<photo> loaded = load_capture_photos(cap, s.capture_file.parent_path(), s.photos);
   const std::vector<image> photos = photo_pixels(loaded);
   const std::vector<image> masks = photo_masks(loaded);
   // Clipped and masked pixels, per image: never fitted silently.
   nlohmann::json photo_report = nlohmann::json::array();
   for (std::size_t i = 0; i < loaded.size(); ++i) {
     const photo& p = loaded[i];
-    const bool given_mask = !cap.images[i].mask.empty();
+    const capture_image& entry = cap.images[i];
     if (p.clipped > 0)
-      std::fprintf(stderr, "image %zu (%s): %.1f%% of pixels clipped, %s\n", i, cap.images[i].file.c_str(), 100.0 * p.clipped_fraction(),
-                   s.photo.exclude_clipped ? "excluded from the loss" : "FITTED (--fit-clipped)");
-    if (given_mask)
-      std::fprintf(stderr, "image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, cap.images[i].file.c_str(),
-                   100.0 * p.masked_fraction(), cap.images[i].mask.c_str(), p.clipped > 0 && s.photo.exclude_clipped ? " and clipping" : "");
-    photo_report.push_back({{"file", cap.images[i].file}, {"mask", cap.images[i].mask}, {"exposure", cap.images[i].exposure},
+      std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels clipped, %s\n", i, entry.file.c_str(), 100.0 * p.clipped_fraction(),
+                   s.photos.exclude_clipped ? "excluded from the loss" : "FITTED (--fit-clipped)");
+    if (!entry.mask.empty())
+      std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, entry.file.c_str(),
+                   100.0 * p.masked_fraction(), entry.mask.c_str(), p.clipped > 0 && s.photos.exclude_clipped ? " and clipping" : "");
+    photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure},
                             {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
   }
   std::optional<material_maps> truth, start_maps;
@@ -101,8 +101,8 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   report["kernel_used"] = kernel_used;
   report["precision"] = o.render.double_precision ? "double" : "float";
   report["exposure_scale"] = result.exposure_scale;
-  report["saturation"] = s.photo.saturation;
-  report["clipped_excluded"] = s.photo.exclude_clipped;
+  report["saturation"] = s.photos.saturation;
+  report["clipped_excluded"] = s.photos.exclude_clipped;
   report["photos"] = photo_report;
   report["threads"] = omp_get_max_threads();
   report["stages"] = nlohmann::json::array();
@@ -145,8 +145,9 @@ inline void add_capture_options(CLI::App* c, capture_settings& s) {
   add_model_options(c, s.models);
   c->add_flag("--resume", s.resume, "continue a killed run from OUT/.checkpoint");
   add_optimiser_options(c, s.options);
-  c->add_option("--saturation", s.photo.saturation, "linear level at or above which a pixel counts as clipped, in any format (EXR, HDR: the only clip test; 0: off). 8/16-bit PNG and JPEG pixels at the largest code are always clipped")->capture_default_str()->check(CLI::NonNegativeNumber);
-  c->add_flag_callback("--fit-clipped", [&s] { s.photo.exclude_clipped = false; },
+  c->add_option("--saturation", s.photos.saturation, "linear level at or above which a pixel counts as clipped, in any format (EXR, HDR: the only clip test; 0: off). 8/16-bit PNG and JPEG pixels at the largest code are always clipped")
+      ->check(CLI::NonNegativeNumber);
+  c->add_flag_callback("--fit-clipped", [&s] { s.photos.exclude_clipped = false; },
                        "fit clipped pixels instead of leaving them out of the loss (still counted and reported; for comparisons)");
 }
 

@@ -127,11 +127,9 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
 }
 
 /// Runs capture_material with the networks of `models` (loaded here) when `o.stages` needs them,
-/// else without networks. `masks` (optional, one per photograph, 0 = left out) keep pixels out of
-/// the image losses.
+/// else without networks; `masks` as capture_material's.
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
-                                  const capture_options& o, const material_maps* start = nullptr,
-                                  const std::vector<image>& masks = {}) {
+                                  const capture_options& o, const material_maps* start = nullptr, const std::vector<image>& masks = {}) {
   if (!o.stages.networks()) return capture_material(cap, photos, o, start, masks);
   if (!models.present())
     throw std::invalid_argument("the network stages need the " + models.preset + " weights: " + models.estimator().string() + " and " +

@@ -66,3 +66,9 @@
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
 #include "anisocap/pipeline/refine.hpp"
+
+#include "anisocap/calibration/camera.hpp"
+#include "anisocap/calibration/markers.hpp"
+#include "anisocap/calibration/photo_synthesis.hpp"
+#include "anisocap/calibration/photos_description.hpp"
+#include "anisocap/calibration/rectify.hpp"

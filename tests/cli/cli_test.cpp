@@ -2,6 +2,7 @@
 // that must give one clear message naming the file, a non-zero exit, and no output.
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -10,6 +11,9 @@
 #include <sstream>
 #include <string>
 
+#include <stb/stb_image_write.h>
+
+#include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/image_io.hpp"
 
 namespace fs = std::filesystem;
@@ -124,6 +128,51 @@ TEST_CASE("synthesize --shot-noise: inputs are the exact renders plus non-negati
     }
   CHECK(differ > int(exact.pixel_count()));
   CHECK(sum2 == doctest::Approx(expected).epsilon(0.3));
+}
+
+TEST_CASE("capture from JPEG photographs with clipped highlights: clipping reported, excluded, bad masks refused") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 32 --height 24 --images 6 --seed 3", t.path).status == 0);
+  // The renders as camera JPEGs, four times over-exposed (so that highlights clip at 255), with
+  // "exposure": 0.25 in the description to bring them back to the renders' units.
+  anisocap::capture cap = anisocap::read_capture(t.path / "syn/capture.json");
+  for (auto& im : cap.images) {
+    const anisocap::image img = anisocap::read_exr(t.path / "syn" / im.file);
+    std::vector<unsigned char> codes(img.pixel_count() * 3);
+    for (std::size_t i = 0; i < img.pixel_count(); ++i)
+      for (int c = 0; c < 3; ++c)
+        codes[i * 3 + std::size_t(c)] = static_cast<unsigned char>(
+            std::lround(255.0 * anisocap::linear_to_srgb(std::min(1.0, 4.0 * double(img.plane(c)[i])))));
+    im.file = fs::path(im.file).replace_extension(".jpg").string();
+    REQUIRE(stbi_write_jpg((t.path / "syn" / im.file).c_str(), img.width(), img.height(), 3, codes.data(), 95));
+    im.exposure = 0.25f;
+  }
+  anisocap::write_capture(cap, t.path / "syn/photos.json");
+  auto r = run("capture syn/photos.json -o out --stages refine --steps 20", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("(input_00.jpg): ") != std::string::npos);
+  CHECK(r.output.find("% of pixels clipped, excluded from the loss") != std::string::npos);
+  std::ifstream rep(t.path / "out/report.json");
+  std::stringstream s;
+  s << rep.rdbuf();
+  CHECK(s.str().find("\"clipped_fraction\"") != std::string::npos);
+  CHECK(s.str().find("\"input_05.jpg\"") != std::string::npos);
+  // --fit-clipped fits them, and says so.
+  r = run("capture syn/photos.json -o fitted --stages refine --steps 5 --fit-clipped", t.path);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("FITTED (--fit-clipped)") != std::string::npos);
+
+  // A mask of the wrong size: one error naming the mask file, nothing written.
+  const unsigned char ones[16 * 16] = {1};
+  REQUIRE(stbi_write_png((t.path / "syn/mask_02.png").c_str(), 16, 16, 1, ones, 16));
+  cap.images[2].mask = "mask_02.png";
+  anisocap::write_capture(cap, t.path / "syn/masked.json");
+  r = run("capture syn/masked.json -o bad --stages refine --steps 5", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("mask_02.png: the mask is 16x16 but its photograph is 32x24") != std::string::npos);
+  CHECK(std::count(r.output.begin(), r.output.end(), '\n') == 1);
+  CHECK_FALSE(fs::exists(t.path / "bad"));
 }
 
 TEST_CASE("bad input: one clear message naming the file, non-zero exit, no output") {

@@ -1,65 +1,249 @@
-// Masks in the fused loss (render/renderer.hpp, loss_targets): a masked pixel adds exact zeros to
-// the loss and to every gradient entry, whatever its target holds, in float and in double.
+// Masks in the fused image loss (render/renderer.hpp, loss_targets): masked pixels add exact zeros
+// to the loss and the gradient whatever their targets hold, each image's loss is the mean over its
+// used pixels, the gradient matches finite differences with a mask, and crops keep the weights.
 #include <doctest/doctest.h>
+#include <omp.h>
 
+#include <algorithm>
 #include <cmath>
-#include <limits>
+#include <cstring>
+#include <random>
 #include <vector>
 
 #include "anisocap/render/renderer.hpp"
 #include "render_reference.hpp"
+#include "support/gradient_check.hpp"
 
 using namespace anisocap;
 using namespace anisocap::testing;
 
-TEST_CASE("masked pixels add exact zeros to the loss and the gradient, whatever their targets hold") {
-  const int w = 37, h = 29;  // odd sizes: the last register of every image is partial
-  const material_maps maps = random_maps(w, h, 31);
-  const capture cap = random_capture(5, 17);
-  const std::vector<image> photos = render(random_maps(w, h, 32), cap);
-  // Per image a different scattered pattern; texels with x < 5 are masked in every image.
+namespace {
+
+/// Runs a scope on at most two OpenMP threads: the loss's reduction over threads adds two partial
+/// sums in either order (the same bits), while three or more may be added in a different order from
+/// run to run, which would blur a bit-for-bit comparison that has nothing to do with masks.
+struct two_threads {
+  int saved = omp_get_max_threads();
+  two_threads() { omp_set_num_threads(std::min(saved, 2)); }
+  ~two_threads() { omp_set_num_threads(saved); }
+};
+
+/// One mask per image, about `share` of the pixels left out (0), from `seed`.
+std::vector<image> random_masks(int w, int h, std::size_t n, double share, std::uint64_t seed) {
+  std::mt19937_64 gen(seed);
+  std::bernoulli_distribution out(share);
   std::vector<image> masks;
-  for (std::size_t k = 0; k < photos.size(); ++k) {
+  for (std::size_t k = 0; k < n; ++k) {
     image m(w, h, 1);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) m.at(0, x, y) = x < 5 || (x * 7 + y * 3 + int(k)) % 4 == 0 ? 0.0f : 1.0f;
+    for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] = out(gen) ? 0.0f : 1.0f;
+    m.plane(0)[k % m.pixel_count()] = 1.0f;  // never an empty image
     masks.push_back(std::move(m));
   }
-  const loss_targets clean = make_loss_targets(photos, masks);
-  // The same targets with NaN, infinities and huge values where the masks leave pixels out.
-  loss_targets garbage = clean;
-  const float junk[] = {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(),
-                        -std::numeric_limits<float>::infinity(), 1e30f, -1e30f};
-  int n = 0;
-  for (std::size_t k = 0; k < photos.size(); ++k)
-    for (int c = 0; c < 3; ++c)
-      for (int y = 0; y < h; ++y)
-        for (int x = 0; x < w; ++x)
-          if (masks[k].at(0, x, y) == 0.0f) garbage.log_images[k].at(c, x, y) = junk[n++ % 5];
+  return masks;
+}
 
-  for (const bool double_precision : {false, true}) {
-    CAPTURE(double_precision);
-    render_options o;
-    o.double_precision = double_precision;
-    material_maps g_clean(w, h), g_garbage(w, h);
-    const double l_clean = loss_and_gradient(maps, cap, clean, &g_clean, {}, o);
-    const double l_garbage = loss_and_gradient(maps, cap, garbage, &g_garbage, {}, o);
-    CHECK(std::isfinite(l_clean));
-    CHECK(l_garbage == l_clean);  // bit for bit
-    bool identical = true, zero_where_always_masked = true, some_nonzero = false;
-    for (int k = 0; k < parameter_count; ++k)
-      for (int y = 0; y < h; ++y)
-        for (int x = 0; x < w; ++x) {
-          const float a = g_clean.at(k, x, y), b = g_garbage.at(k, x, y);
-          identical &= a == b && std::signbit(a) == std::signbit(b);
-          if (x < 5) zero_where_always_masked &= a == 0.0f;
-          else some_nonzero |= a != 0.0f;
-        }
-    CHECK(identical);
-    CHECK(zero_where_always_masked);
-    CHECK(some_nonzero);
-    // The masks matter: without them the same maps and photographs give another loss.
-    const double l_unmasked = loss_and_gradient(maps, cap, make_loss_targets(photos), nullptr, {}, o);
-    CHECK(l_unmasked != l_clean);
+bool same_bits(const material_maps& a, const material_maps& b) {
+  for (int k = 0; k < parameter_count; ++k)
+    if (std::memcmp(a.plane(k), b.plane(k), a.texel_count() * sizeof(float)) != 0) return false;
+  return true;
+}
+
+struct scene {
+  int w = 21, h = 13;  // not a multiple of the SIMD width: the last block has padding lanes
+  material_maps maps = random_maps(21, 13, 41);
+  capture cap = random_capture(4, 42);
+  std::vector<image> photos = render(random_maps(21, 13, 43), cap);
+  std::vector<image> masks = random_masks(21, 13, 4, 0.3, 44);
+};
+
+/// Loss and gradient of every kernel path: SIMD float, scalar float, SIMD double.
+template <class Check>
+void for_each_path(const scene& s, const loss_targets& t, Check&& check) {
+  material_maps g(s.w, s.h);
+  double l = loss_and_gradient(s.maps, s.cap, t, &g);
+  check(l, g);
+  l = loss_and_gradient<all_features, float>(s.maps, s.cap, t, &g);
+  check(l, g);
+  render_options dbl;
+  dbl.double_precision = true;
+  l = loss_and_gradient(s.maps, s.cap, t, &g, {}, dbl);
+  check(l, g);
+}
+
+}  // namespace
+
+TEST_CASE("masked pixels: loss and gradient bit-identical whatever their targets hold") {
+  const two_threads threads;
+  const scene s;
+  const loss_targets base = make_loss_targets(s.photos, s.masks);
+  std::vector<double> losses;
+  std::vector<material_maps> grads;
+  for_each_path(s, base, [&](double l, const material_maps& g) {
+    losses.push_back(l);
+    grads.push_back(g);
+  });
+  // Targets changed at masked pixels only, directly in the log domain (huge, tiny, the rendered value).
+  const auto rendered = render(s.maps, s.cap);
+  for (int variant = 0; variant < 3; ++variant) {
+    loss_targets t = base;
+    for (std::size_t k = 0; k < t.log_images.size(); ++k)
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < t.log_images[k].pixel_count(); ++i)
+          if (t.masks[k].plane(0)[i] == 0.0f)
+            t.log_images[k].plane(c)[i] = variant == 0 ? 1e6f : variant == 1 ? -1e6f
+                                                                 : std::log(rendered[k].plane(c)[i] + loss_epsilon);
+    std::size_t path = 0;
+    for_each_path(s, t, [&](double l, const material_maps& g) {
+      INFO("variant " << variant << " path " << path);
+      CHECK(l == losses[path]);  // bit-identical, not approximately
+      CHECK(same_bits(g, grads[path]));
+      ++path;
+    });
   }
+  // Photographs changed at masked pixels (to 1e6 and to the rendered value): identical targets.
+  for (int variant = 0; variant < 2; ++variant) {
+    std::vector<image> photos = s.photos;
+    for (std::size_t k = 0; k < photos.size(); ++k)
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < photos[k].pixel_count(); ++i)
+          if (s.masks[k].plane(0)[i] == 0.0f) photos[k].plane(c)[i] = variant == 0 ? 1e6f : rendered[k].plane(c)[i];
+    const loss_targets t = make_loss_targets(photos, s.masks);
+    material_maps g(s.w, s.h);
+    CHECK(loss_and_gradient(s.maps, s.cap, t, &g) == losses[0]);
+    CHECK(same_bits(g, grads[0]));
+  }
+}
+
+TEST_CASE("masked pixels: an unmasked change does move the loss (the test above can fail)") {
+  const scene s;
+  loss_targets t = make_loss_targets(s.photos, s.masks);
+  const double before = loss_and_gradient(s.maps, s.cap, t, nullptr);
+  std::size_t used = 0;
+  while (t.masks[0].plane(0)[used] == 0.0f) ++used;
+  t.log_images[0].plane(1)[used] += 1.0f;
+  CHECK(loss_and_gradient(s.maps, s.cap, t, nullptr) != before);
+}
+
+TEST_CASE("masks: each image's loss is the mean over its used pixels; an all-ones mask changes nothing") {
+  const two_threads threads;
+  const scene s;
+  const loss_targets t = make_loss_targets(s.photos, s.masks);
+  const auto rendered = render(s.maps, s.cap);
+  double expected = 0;
+  for (std::size_t k = 0; k < s.cap.images.size(); ++k) {
+    double sum = 0;
+    std::size_t used = 0;
+    for (std::size_t i = 0; i < rendered[k].pixel_count(); ++i) {
+      if (s.masks[k].plane(0)[i] == 0.0f) continue;
+      ++used;
+      for (int c = 0; c < 3; ++c)
+        sum += std::abs(std::log(double(rendered[k].plane(c)[i]) + loss_epsilon) - std::log(double(s.photos[k].plane(c)[i]) + loss_epsilon));
+    }
+    CHECK(t.weights[k] == doctest::Approx(double(s.w * s.h) / double(used)));
+    expected += sum / (3.0 * double(used));
+  }
+  CHECK(loss_and_gradient(s.maps, s.cap, t, nullptr) == doctest::Approx(expected).epsilon(1e-5));
+
+  // All ones: the same bits as no mask at all.
+  std::vector<image> ones;
+  for (std::size_t k = 0; k < s.photos.size(); ++k) {
+    image m(s.w, s.h, 1);
+    for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] = 1.0f;
+    ones.push_back(std::move(m));
+  }
+  material_maps g_none(s.w, s.h), g_ones(s.w, s.h);
+  const double l_none = loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos), &g_none);
+  const double l_ones = loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos, ones), &g_ones);
+  CHECK(l_none == l_ones);
+  CHECK(same_bits(g_none, g_ones));
+}
+
+TEST_CASE("masks: a texel masked in every image gets an exactly zero gradient") {
+  scene s;
+  const int x = 5, y = 3;
+  for (auto& m : s.masks) m.at(0, x, y) = 0.0f;
+  material_maps g(s.w, s.h);
+  loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos, s.masks), &g);
+  bool any_nonzero_elsewhere = false;
+  for (int k = 0; k < parameter_count; ++k) {
+    CHECK(g.at(k, x, y) == 0.0f);
+    CHECK(!std::signbit(g.at(k, x, y)));  // +0, not -0
+    any_nonzero_elsewhere |= g.at(k, x + 1, y) != 0.0f;
+  }
+  CHECK(any_nonzero_elsewhere);
+}
+
+TEST_CASE("masks: the gradient matches central differences") {
+  scene s;
+  s.w = 7, s.h = 5;
+  s.maps = random_maps(7, 5, 51);
+  s.photos = render(random_maps(7, 5, 53), s.cap);
+  s.masks = random_masks(7, 5, 4, 0.4, 54);
+  const loss_targets t = make_loss_targets(s.photos, s.masks);
+  render_options dbl;
+  dbl.double_precision = true;
+  material_maps g(s.w, s.h);
+  loss_and_gradient(s.maps, s.cap, t, &g, {}, dbl);
+  material_maps m = s.maps;
+  for (int k = 0; k < parameter_count; ++k) {
+    float* x = m.plane(k);
+    const std::size_t n = m.texel_count();
+    std::vector<double> analytic(g.plane(k), g.plane(k) + n);
+    double scale = 1e-9;
+    for (double a : analytic) scale = std::max(scale, std::abs(a));
+    // Central differences on float maps: a step that float resolves, the loss in double.
+    const double step = 1.0 / 16384;  // small enough to stay clear of the kinks of the absolute values
+    std::vector<double> xd(x, x + n);
+    auto loss = [&] {
+      for (std::size_t i = 0; i < n; ++i) x[i] = float(xd[i]);
+      return loss_and_gradient(m, s.cap, t, nullptr, {}, dbl);
+    };
+    const auto r = check_gradient<double>(loss, xd.data(), n, analytic.data(), step);
+    for (std::size_t i = 0; i < n; ++i) x[i] = s.maps.plane(k)[i];
+    INFO("plane " << k << " worst texel " << r.worst_index << " max abs error " << r.max_abs_error << " scale " << scale);
+    CHECK(r.max_abs_error < 2e-3 * scale + 1e-7);
+  }
+}
+
+TEST_CASE("masks: crops keep the whole image's weights, so crop losses add up to the whole loss") {
+  const scene s;
+  const loss_targets t = make_loss_targets(s.photos, s.masks);
+  const double whole = loss_and_gradient(s.maps, s.cap, t, nullptr);
+  // Four tiles covering the material: area-weighted tile losses sum to the whole loss.
+  const int xs[] = {0, 10, 21}, ys[] = {0, 6, 13};
+  double sum = 0;
+  loss_targets crop;
+  for (int j = 0; j < 2; ++j)
+    for (int i = 0; i < 2; ++i) {
+      const int x0 = xs[i], y0 = ys[j], w = xs[i + 1] - x0, h = ys[j + 1] - y0;
+      crop_loss_targets(t, x0, y0, w, h, crop);
+      CHECK(crop.masks.size() == t.masks.size());
+      CHECK(crop.masks[2].at(0, 1, 1) == t.masks[2].at(0, x0 + 1, y0 + 1));
+      material_maps tile(w, h);
+      for (int k = 0; k < parameter_count; ++k)
+        for (int y = 0; y < h; ++y)
+          for (int x = 0; x < w; ++x) tile.at(k, x, y) = s.maps.at(k, x0 + x, y0 + y);
+      sum += loss_and_gradient(tile, s.cap, crop, nullptr, tile_placement{s.w, s.h, x0, y0}) * double(w * h) / double(s.w * s.h);
+    }
+  CHECK(sum == doctest::Approx(whole).epsilon(1e-5));
+}
+
+TEST_CASE("masks: wrong counts and sizes, and an image with every pixel masked, are refused") {
+  const scene s;
+  std::vector<image> masks = s.masks;
+  masks.pop_back();
+  CHECK_THROWS_AS(make_loss_targets(s.photos, masks), std::invalid_argument);
+  masks = s.masks;
+  masks[1] = image(s.w + 1, s.h, 1);
+  CHECK_THROWS_AS(make_loss_targets(s.photos, masks), std::invalid_argument);
+  masks = s.masks;
+  for (std::size_t i = 0; i < masks[2].pixel_count(); ++i) masks[2].plane(0)[i] = 0.0f;
+  CHECK_THROWS_WITH_AS(make_loss_targets(s.photos, masks), doctest::Contains("every pixel of image 2 is masked"), std::invalid_argument);
+  // A NaN target where the mask leaves the pixel out is harmless; where it is used, an error.
+  std::vector<image> photos = s.photos;
+  std::size_t masked = 0;
+  while (s.masks[0].plane(0)[masked] != 0.0f) ++masked;
+  photos[0].plane(0)[masked] = std::nanf("");
+  CHECK_NOTHROW(make_loss_targets(photos, s.masks));
+  CHECK_THROWS_AS(make_loss_targets(photos), std::invalid_argument);
 }

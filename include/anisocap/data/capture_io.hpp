@@ -7,8 +7,8 @@
 /// `intensity` is a number or [r, g, b]. Optional per image: `"mask": "mask_00.png"` (a PNG or EXR,
 /// one channel or RGB, of the photograph's size, relative to this file: pixels zero in every
 /// channel are left out of the loss) and `"exposure": 2.0` (the photograph's linear values are
-/// multiplied by it; data/photo_io.hpp reads both). Positions are in units of the material's longest side,
-/// origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
+/// multiplied by it; data/photo_io.hpp reads both). Positions are in units of the material's longest
+/// side, origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
 /// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
 /// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
 /// files are errors, each reported once with the file, the image index and the problem.

@@ -139,9 +139,9 @@ struct no_networks {};
 /// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
 /// `no_networks` for both to run the first guess and refine alone. `start`, when given, replaces
 /// the estimate (or the first guess). `masks` (optional, one 1-channel image per photograph,
-/// 0 = left out, e.g. clipped pixels: data/photo_io.hpp) keep pixels out of every image loss
-/// (first guess, fine-tune, refine, the stages' reported losses); the estimator still sees whole
-/// photographs.
+/// 0 = left out, e.g. clipped pixels: data/photo_io.hpp) keep pixels out of every image loss (the
+/// first guess, fine-tune with or without crops, refine and every stage's reported loss); the
+/// estimator still sees whole photographs.
 template <class Estimator = no_networks, class AutoEncoderNet = no_networks>
 capture_result capture_material(const capture& given_cap, const std::vector<image>& given_photos, Estimator& estimator,
                                 AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr,
@@ -230,7 +230,7 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
   return result;
 }
 
-/// capture_material without networks: the first guess (or `start`) and refine.
+/// capture_material without networks: the first guess (or `start`) and refine, with `masks` as there.
 inline capture_result capture_material(const capture& cap, const std::vector<image>& photos, const capture_options& o,
                                        const material_maps* start = nullptr, const std::vector<image>& masks = {}) {
   no_networks none;

@@ -141,8 +141,8 @@ material_maps estimate(const std::vector<image>& photos, Estimator& estimator, c
 /// of each texel is the smallest value of B / (cos(theta_l) I / (pi r^2)) over the images that
 /// light it (the image where the specular lobe adds least), clamped to [0.02, 0.95]; the other
 /// parameters start at mid-range values (a'_s 0.3, sigma 0.15, F0 0.5, flat normal, alpha 0).
-/// Pixels that `masks` (optional, one 1-channel image per photograph, 0 = left out) leave out are
-/// not used.
+/// Pixels that `masks` (optional, one 1-channel image per photograph, 0 = left out, e.g. clipped
+/// pixels: data/photo_io.hpp) leave out are not used.
 inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {},
                                    const std::vector<image>& masks = {}) {
   if (photos.empty() || photos.size() != cap.images.size())
