@@ -1,14 +1,24 @@
 #pragma once
 /// @file
 /// The SIMD backend: the one place that names xsimd's architectures. Kernels elsewhere write
-/// `simd::batch<float>` and stay portable; raw intrinsics belong here only (there are none yet).
+/// `simd::batch<float>` and stay portable; raw intrinsics belong here only (the
+/// reciprocal estimates below).
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
 #include <type_traits>
 
 #include <xsimd/xsimd.hpp>
 #if defined(__SSE__) || defined(__x86_64__)
-#include <xmmintrin.h>
+#include <immintrin.h>
+#endif
+
+/// Forces a kernel helper inline where the compiler's size heuristics would not: a helper that
+/// returns a struct of many registers otherwise passes it through memory in the hottest loop.
+#if defined(__GNUC__) || defined(__clang__)
+#define ANISOCAP_ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ANISOCAP_ALWAYS_INLINE inline
 #endif
 
 namespace anisocap::simd {
@@ -155,6 +165,78 @@ template <class T, class A>
 inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::min(a, b); }
 template <class T, class A>
 inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::max(a, b); }
+/// 1 / sqrt(x) for x > 0. Float batches: the hardware estimate (AVX-512 rsqrt14, AVX rsqrt: 14 or
+/// 12 bits) refined by one Newton step, within about 2 ulp of the correctly rounded value and a
+/// few times cheaper than a square root and a division. Scalars and doubles: 1 / sqrt(x).
+inline float inverse_sqrt(float x) { return 1.0f / std::sqrt(x); }
+inline double inverse_sqrt(double x) { return 1.0 / std::sqrt(x); }
+template <class T, class A>
+inline xsimd::batch<T, A> inverse_sqrt(const xsimd::batch<T, A>& x) {
+  using B = xsimd::batch<T, A>;
+  if constexpr (std::is_same_v<T, float> && std::is_base_of_v<xsimd::avx512f, A>) {
+    // The zero-masked form: the plain intrinsic trips GCC 12's -Wuninitialized on its undefined source.
+    const B y(_mm512_maskz_rsqrt14_ps(__mmask16(0xFFFF), x));
+    return y * xsimd::fnma(B(0.5f) * x, y * y, B(1.5f));
+  } else if constexpr (std::is_same_v<T, float> && sizeof(B) == 32 && std::is_base_of_v<xsimd::avx, A>) {
+    const B y(_mm256_rsqrt_ps(x));
+    return y * xsimd::fnma(B(0.5f) * x, y * y, B(1.5f));
+  } else {
+    return B(T(1)) / xsimd::sqrt(x);
+  }
+}
+
+/// 1 / x for finite non-zero x. Float batches: the hardware estimate refined by one Newton step
+/// (within about 2 ulp); scalars and doubles: an exact division.
+inline float reciprocal(float x) { return 1.0f / x; }
+inline double reciprocal(double x) { return 1.0 / x; }
+template <class T, class A>
+inline xsimd::batch<T, A> reciprocal(const xsimd::batch<T, A>& x) {
+  using B = xsimd::batch<T, A>;
+  if constexpr (std::is_same_v<T, float> && std::is_base_of_v<xsimd::avx512f, A>) {
+    const B y(_mm512_maskz_rcp14_ps(__mmask16(0xFFFF), x));
+    return y * xsimd::fnma(x, y, B(2.0f));
+  } else if constexpr (std::is_same_v<T, float> && sizeof(B) == 32 && std::is_base_of_v<xsimd::avx, A>) {
+    const B y(_mm256_rcp_ps(x));
+    return y * xsimd::fnma(x, y, B(2.0f));
+  } else {
+    return B(T(1)) / x;
+  }
+}
+
+/// log(x) for positive, normal, finite x (no checks for zero, negative, denormal, infinite or NaN
+/// input). Float batches: the exponent split off as in fdlibm (mantissa in [sqrt(1/2), sqrt(2))),
+/// then Cephes' logf polynomial for log(1 + f), which needs no division; within about 1 ulp.
+/// Scalars and doubles: std::log / xsimd::log.
+inline float log_positive(float x) { return std::log(x); }
+inline double log_positive(double x) { return std::log(x); }
+template <class T, class A>
+inline xsimd::batch<T, A> log_positive(const xsimd::batch<T, A>& x) {
+  if constexpr (std::is_same_v<T, float>) {
+    using B = xsimd::batch<float, A>;
+    using I = xsimd::batch<std::int32_t, A>;
+    I ix = xsimd::bitwise_cast<I>(x) + I(0x3f800000 - 0x3f3504f3);
+    const B k = xsimd::to_float(I((ix >> 23) - I(0x7f)));
+    ix = (ix & I(0x007fffff)) + I(0x3f3504f3);
+    const B f = xsimd::bitwise_cast<B>(ix) - B(1.0f);
+    const B z = f * f;
+    B p(7.0376836292e-2f);
+    p = xsimd::fma(p, f, B(-1.1514610310e-1f));
+    p = xsimd::fma(p, f, B(1.1676998740e-1f));
+    p = xsimd::fma(p, f, B(-1.2420140846e-1f));
+    p = xsimd::fma(p, f, B(1.4249322787e-1f));
+    p = xsimd::fma(p, f, B(-1.6668057665e-1f));
+    p = xsimd::fma(p, f, B(2.0000714765e-1f));
+    p = xsimd::fma(p, f, B(-2.4999993993e-1f));
+    p = xsimd::fma(p, f, B(3.3333331174e-1f));
+    // log(1 + f) = f - f^2/2 + f^3 p(f); k log 2 split into an exact high part and a correction.
+    B r = xsimd::fma(p * f, z, xsimd::fma(k, B(-2.12194440e-4f), f));
+    r = xsimd::fnma(B(0.5f), z, r);
+    return xsimd::fma(k, B(0.693359375f), r);
+  } else {
+    return xsimd::log(x);
+  }
+}
+
 /// a * b + c (one fused instruction for batches where the target has FMA).
 inline float fma(float a, float b, float c) { return a * b + c; }
 inline double fma(double a, double b, double c) { return a * b + c; }

@@ -4,6 +4,7 @@
 /// fine-tuning stage (the paper's section 5: estimator 5e-5, auto-encoder 1e-3, fine-tuning 7.5e-4,
 /// refinement 1e-4) and of the per-texel refine (pipeline/refine.hpp, through `adam_update`). The update is PyTorch's torch.optim.Adam (bias corrections folded into the
 /// step size and epsilon added after the corrected square root), so settings carry over.
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -70,18 +71,41 @@ class basic_adam {
 
   /// One update of every parameter that is not frozen, with the schedule's rate for this step;
   /// then zeroes their gradients (backward passes accumulate).
+  ///
+  /// Every parameter is cut into chunks of `chunk_size` elements and all chunks of all parameters
+  /// share one parallel loop: a network's many small parameters (biases, norms, deep layers below
+  /// the size worth a parallel region of their own) then run beside the large ones instead of one
+  /// after another on one thread. Chunk boundaries fall on whole registers, so each element gets
+  /// exactly the arithmetic it gets in a serial pass.
   void step() {
     const double rate = schedule(steps_);
-    for (auto& s : states_) {
+    chunks_.clear();
+    coefficients_.clear();
+    std::size_t total = 0;
+    for (std::size_t k = 0; k < states_.size(); ++k) {
+      state& s = states_[k];
       if (s.parameter->frozen) continue;
       if (s.parameter->size() != s.m.size())
         throw std::logic_error("adam: parameter '" + s.parameter->name + "' changed size after it was added");
       ++s.steps;
-      update(*s.parameter, s.m.data(), s.v.data(), adam_coefficients<T>(beta1, beta2, epsilon, rate, s.steps));
-      s.parameter->zero_grad();
+      coefficients_.emplace_back(beta1, beta2, epsilon, rate, s.steps);
+      const std::size_t n = s.parameter->size();
+      for (std::size_t b = 0; b < n; b += chunk_size)
+        chunks_.push_back({k, coefficients_.size() - 1, b, std::min(n, b + chunk_size)});
+      total += n;
+    }
+#pragma omp parallel for schedule(dynamic, 1) if (total >= (std::size_t(1) << 16) && chunks_.size() > 1)
+    for (std::ptrdiff_t c = 0; c < std::ptrdiff_t(chunks_.size()); ++c) {
+      const chunk& ch = chunks_[std::size_t(c)];
+      state& s = states_[ch.state];
+      update(*s.parameter, s.m.data(), s.v.data(), coefficients_[ch.coefficients], ch.begin, ch.end);
+      std::fill(s.parameter->grad.begin() + std::ptrdiff_t(ch.begin), s.parameter->grad.begin() + std::ptrdiff_t(ch.end), T(0));
     }
     ++steps_;
   }
+
+  /// Elements per work item of step() (a multiple of every register width).
+  static constexpr std::size_t chunk_size = 16384;
 
   /// Zeroes the gradients of every added parameter.
   void zero_grad() {
@@ -172,17 +196,24 @@ class basic_adam {
     long steps;
   };
 
-  /// adam_update over the parameter, the tail through padded registers.
-  void update(basic_parameter<T>& p, T* m, T* v, const adam_coefficients<T>& c) const {
+  /// Elements [begin, end) of the parameter state `state` with the coefficients
+  /// `coefficients_[coefficients]`: one work item of step().
+  struct chunk {
+    std::size_t state, coefficients, begin, end;
+  };
+
+  /// adam_update over elements [begin, end) of the parameter (begin a multiple of the register
+  /// width), the tail through padded registers.
+  void update(basic_parameter<T>& p, T* m, T* v, const adam_coefficients<T>& c, std::size_t begin,
+              std::size_t end) const {
     using B = simd::batch<T>;
     constexpr std::size_t W = B::size;
     auto kernel = [&](T* value, const T* grad, T* mm, T* vv) { adam_update(value, B::load_unaligned(grad), mm, vv, c); };
-    const std::size_t n = p.size();
-    const std::size_t body = n / W * W;
+    const std::size_t n = end;
+    const std::size_t body = begin + (end - begin) / W * W;
     T* value = p.value.data();
     const T* grad = p.grad.data();
-#pragma omp parallel for schedule(static) if (n >= (std::size_t(1) << 16))
-    for (std::ptrdiff_t i = 0; i < std::ptrdiff_t(body); i += W) kernel(value + i, grad + i, m + i, v + i);
+    for (std::size_t i = begin; i < body; i += W) kernel(value + i, grad + i, m + i, v + i);
     if (body < n) {
       // The tail through padded registers: the same arithmetic as the body.
       alignas(simd::alignment) T pv[W] = {}, pg[W] = {}, pm[W] = {}, pw[W] = {};
@@ -194,6 +225,8 @@ class basic_adam {
   }
 
   std::vector<state> states_;
+  std::vector<chunk> chunks_;                         // step()'s work items, kept to reuse the allocation
+  std::vector<adam_coefficients<T>> coefficients_;  // step()'s per-parameter constants, likewise
   long steps_ = 0;
 };
 

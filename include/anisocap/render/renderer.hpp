@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The renderer of MODEL.md 4 and the fused image loss of MODEL.md 5 with its gradient.
+/// The renderer of docs/method.md section 4 and the fused image loss of docs/method.md section 5 with its gradient.
 ///
 /// Texel-space rendering: pixel p of image i is the radiance leaving texel p towards camera c_i,
 /// lit by a point light at l_i with intensity I_i:
@@ -10,10 +10,13 @@
 ///   L = sum_i mean_{p,c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|
 /// and dL/d(maps) without materialising any rendered image.
 ///
-/// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 are
-/// `ad::dual`s over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
-/// compile-time `brdf_features` enable); albedos enter linearly and get their derivatives in closed
-/// form. Gradients are formed as (dL/dR * R) * dE, which stays finite when R is huge or tiny.
+/// Derivatives: the specular lobe's log E and the geometry term G = max(0, n.l) I / r^2 carry
+/// gradients over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
+/// compile-time `brdf_features` enable). E's derivatives in sx, sy, F0 and alpha are written in
+/// closed form (see `detail::shade`); the normal's two components reach E and G by the chain rule
+/// through h_z, the tangent frame and n.l; albedos enter linearly. The results are `ad::dual`s
+/// over the active parameters. Gradients are formed as (dL/dR * R) * dE, which stays finite when
+/// R is huge or tiny.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -33,11 +36,11 @@
 
 namespace anisocap {
 
-/// The epsilon of the log image loss (MODEL.md 5, paper eq. 5).
+/// The epsilon of the log image loss (docs/method.md section 5, paper eq. 5).
 inline constexpr float loss_epsilon = 0.01f;
 
 /// Where a map set lies inside the whole material: texels render at their global positions
-/// (MODEL.md 4 decision), so a tile of a larger material renders exactly as it would in place.
+/// (docs/method.md section 4), so a tile of a larger material renders exactly as it would in place.
 struct tile_placement {
   int full_width = 0;   ///< whole material width in texels (0: the maps are the whole material)
   int full_height = 0;  ///< whole material height in texels
@@ -116,21 +119,27 @@ inline std::vector<configuration_constants> to_constants(const capture& cap) {
   return out;
 }
 
-/// Per-texel quantities that do not depend on the configuration, computed once per block.
+/// Per-texel quantities that do not depend on the configuration, computed once per block, with the
+/// per-texel factors of the lobe's closed-form gradient (see `shade`).
 template <brdf_features F, class V, std::size_t N>
 struct texel_state {
-  using D = ad::dual<V, N>;
-  using slots = parameter_slots<F>;
   V px, py;                       ///< texel centre position
   V diffuse[3], specular[3];
-  D nx, ny, nz;                   ///< shading normal
-  D inv_s;                        ///< 1 / sqrt(1 - nx^2) (tangent normalisation)
-  D cos_a, sin_a;                 ///< rotation
-  D inv_sx2, inv_sy2;             ///< 1 / sigma^2
-  D log_norm;                     ///< -log(pi sx sy)
-  D inv_f0m1;                     ///< 1 / F0 - 1
+  V nx, ny, nz;                   ///< shading normal
+  V inv_s;                        ///< 1 / sqrt(1 - nx^2) (tangent normalisation)
+  /// dnz/dnx, dnz/dny and d(inv_s)/dnx (inv_s does not depend on ny); 0 where clamped. The normal's
+  /// two components are the only parameters that reach the lobe through the shading frame and the
+  /// geometry term through n.l.
+  V dnz_dnx, dnz_dny, dinv_s_dnx;
+  V cos_a, sin_a;                 ///< rotation
+  V inv_sx, inv_sy;               ///< 1 / sigma (inv_sy = inv_sx without anisotropy)
+  V inv_sx2, inv_sy2;             ///< 1 / sigma^2
+  V log_norm;                     ///< -log(pi sx sy)
+  V inv_f0m1;                     ///< 1 / F0 - 1
+  V d_inv_f0m1;                   ///< d(1 / F0 - 1) / dF0 = -1 / F0^2
+  V d_rotation;                   ///< dE/dalpha = d_rotation * hxl * hyl / h_z^2
 
-  /// Loads texel parameters at flat index i (lanes i..i+lanes-1), seeding the duals.
+  /// Loads texel parameters at flat index i (lanes i..i+lanes-1).
   void load(const material_maps& maps, std::size_t i, V px_, V py_) {
     using namespace ward_limits;
     px = px_; py = py_;
@@ -138,35 +147,41 @@ struct texel_state {
       diffuse[c] = simd::load<V>(maps.plane(diffuse_r + c) + i);
       specular[c] = simd::load<V>(maps.plane(specular_r + c) + i);
     }
-    auto seed = [&](int plane, int slot, V lower) {
-      V v = simd::load<V>(maps.plane(plane) + i);
-      v = simd::max(v, lower);
-      if constexpr (N > 0) return D::variable(v, std::size_t(slot));
-      else { (void)slot; return D(v); }
-    };
-    const D sx = seed(lobe_x, slots::sx, V(min_lobe));
-    D sy = sx;
-    if constexpr (F.anisotropic) sy = seed(lobe_y, slots::sy, V(min_lobe));
-    inv_sx2 = V(1) / (sx * sx);
-    inv_sy2 = V(1) / (sy * sy);
-    log_norm = -ad::log(V(std::numbers::pi_v<float>) * sx * sy);
+    // Clamped parameters (sx below min_lobe, ...) get the gradient of the clamped value, which
+    // points back into the valid range; optimisers keep parameters inside by construction.
+    auto clamped = [&](int plane, V lower) { return simd::max(simd::load<V>(maps.plane(plane) + i), lower); };
+    const V sx = clamped(lobe_x, V(min_lobe));
+    V sy = sx;
+    if constexpr (F.anisotropic) sy = clamped(lobe_y, V(min_lobe));
+    inv_sx = V(1) / sx;
+    inv_sy = F.anisotropic ? V(1) / sy : inv_sx;
+    inv_sx2 = inv_sx * inv_sx;
+    inv_sy2 = inv_sy * inv_sy;
+    log_norm = -simd::log(V(std::numbers::pi_v<float>) * sx * sy);
+    d_rotation = V(-2) * (inv_sx2 - inv_sy2);
     if constexpr (F.fresnel) {
-      const D f0 = seed(fresnel_f0, slots::f0, V(min_f0));
-      inv_f0m1 = V(1) / f0 - V(1);
+      const V inv_f0 = V(1) / clamped(fresnel_f0, V(min_f0));
+      inv_f0m1 = inv_f0 - V(1);
+      d_inv_f0m1 = -inv_f0 * inv_f0;
     }
     if constexpr (F.normal_map) {
-      nx = seed(normal_x, slots::nx_, V(-1));
-      ny = seed(normal_y, slots::ny_, V(-1));
-      D z2 = V(1) - nx * nx - ny * ny;
-      nz = ad::sqrt(ad::max(z2, V(min_normal_z2)));
-      inv_s = V(1) / ad::sqrt(ad::max(V(1) - nx * nx, V(min_normal_z2)));
+      nx = clamped(normal_x, V(-1));
+      ny = clamped(normal_y, V(-1));
+      const V z2 = V(1) - nx * nx - ny * ny, s2 = V(1) - nx * nx;
+      nz = simd::sqrt(simd::max(z2, V(min_normal_z2)));
+      inv_s = V(1) / simd::sqrt(simd::max(s2, V(min_normal_z2)));
+      const V inv_nz = V(1) / nz;
+      dnz_dnx = simd::select(z2 > V(min_normal_z2), -nx * inv_nz, V(0));
+      dnz_dny = simd::select(z2 > V(min_normal_z2), -ny * inv_nz, V(0));
+      dinv_s_dnx = simd::select(s2 > V(min_normal_z2), nx * inv_s * inv_s * inv_s, V(0));
     } else {
-      nx = D(V(0)); ny = D(V(0)); nz = D(V(1)); inv_s = D(V(1));
+      nx = V(0); ny = V(0); nz = V(1); inv_s = V(1);
+      dnz_dnx = dnz_dny = dinv_s_dnx = V(0);
     }
     if constexpr (F.anisotropic) {
-      const D a = seed(rotation, slots::alpha, V(-1e30f));
-      cos_a = ad::cos(a);
-      sin_a = ad::sin(a);
+      const V a = clamped(rotation, V(-1e30f));
+      cos_a = simd::cos(a);
+      sin_a = simd::sin(a);
     }
   }
 };
@@ -177,85 +192,153 @@ struct shading {
   V valid;                    ///< 1 where the texel is lit and seen, else 0
   V lobe;                     ///< exp(E): specular lobe times Fresnel ratio (0 if culled/invalid)
   ad::dual<V, N> log_lobe;    ///< E with its gradient
-  ad::dual<V, N> geometry;    ///< G = max(0, n.l) / r^2 with its gradient (intensity not included)
+  /// G = max(0, n.l) / r^2 with its gradient (intensity not included); only the normal slots of
+  /// the gradient are set (G depends on no other parameter), the others are left unset.
+  ad::dual<V, N> geometry;
   bool specular_culled;       ///< every lane's lobe was negligible: lobe == 0, skip its gradient
 };
 
-/// Shades one block of texels under one configuration (MODEL.md 3-4).
+/// Shades one block of texels under one configuration (docs/method.md sections 3-4).
+///
+/// The lobe's gradient is written in closed form rather than carried through forward-mode duals
+/// over all N parameters: with E = log(h.h F/F0 / h_z^4) - log(pi sx sy) - q / h_z^2 and
+/// q = hxl^2 / sx^2 + hyl^2 / sy^2 (hxl, hyl: h in the rotated tangent frame),
+///   dE/dsx = (2 (hxl^2 / sx^2) / h_z^2 - 1) / sx     (same for sy; isotropic: 2 q / h_z^2 - 2)
+///   dE/dF0 = d(1/F0 - 1)/dF0 (1 - v.h')^5 / (F/F0)
+///   dE/dalpha = -2 (1/sx^2 - 1/sy^2) hxl hyl / h_z^2  (dhxl/dalpha = hyl, dhyl/dalpha = -hxl)
+/// and the normal's two components go through h_z, the tangent frame and n.l by the chain rule
+/// with the per-texel dnz/dn and d(inv_s)/dnx.
 template <brdf_features F, class V, std::size_t N>
-inline shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
-  using D = ad::dual<V, N>;
+ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const configuration_constants& k, float cull_log_bound) {
+  using slots = parameter_slots<F>;
   using namespace ward_limits;
   shading<V, N> s;
   // Directions to light and camera.
   const V lx = V(k.lx) - t.px, ly = V(k.ly) - t.py, lz = V(k.lz);
   const V r2 = simd::max(lx * lx + ly * ly + lz * lz, V(min_distance2));
-  const V inv_r = V(1) / simd::sqrt(r2);
+  const V inv_r = simd::inverse_sqrt(r2);
   const V vx0 = V(k.cx) - t.px, vy0 = V(k.cy) - t.py, vz0 = V(k.cz);
-  const V inv_v = V(1) / simd::sqrt(simd::max(vx0 * vx0 + vy0 * vy0 + vz0 * vz0, V(min_distance2)));
+  const V inv_v = simd::inverse_sqrt(simd::max(vx0 * vx0 + vy0 * vy0 + vz0 * vz0, V(min_distance2)));
   const V ux = lx * inv_r, uy = ly * inv_r, uz = lz * inv_r;      // unit l
   const V wx = vx0 * inv_v, wy = vy0 * inv_v, wz = vz0 * inv_v;  // unit v
   const V hx = ux + wx, hy = uy + wy, hz = uz + wz;               // h = l + v (world)
   const V hh = simd::max(hx * hx + hy * hy + hz * hz, V(1e-12f));
 
-  D cos_l, cos_v, hn;
+  // n.l, n.v, h_z = n.h, and the derivatives of n.l and h_z in (nx, ny).
+  V cos_l = uz, cos_v = wz, hn = hz;
+  V dcos_l[2] = {V(0), V(0)}, dhn[2] = {V(0), V(0)};
   if constexpr (F.normal_map) {
     cos_l = t.nx * ux + t.ny * uy + t.nz * uz;
     cos_v = t.nx * wx + t.ny * wy + t.nz * wz;
     hn = t.nx * hx + t.ny * hy + t.nz * hz;
-  } else {
-    cos_l = D(uz); cos_v = D(wz); hn = D(hz);
+    if constexpr (N > 0) {
+      dcos_l[0] = simd::fma(uz, t.dnz_dnx, ux);
+      dcos_l[1] = simd::fma(uz, t.dnz_dny, uy);
+      dhn[0] = simd::fma(hz, t.dnz_dnx, hx);
+      dhn[1] = simd::fma(hz, t.dnz_dny, hy);
+    }
   }
-  const auto lit = (cos_l.value > V(0)) & (cos_v.value > V(0));
+  const auto lit = (cos_l > V(0)) & (cos_v > V(0));
   s.valid = simd::select(lit, V(1), V(0));
   // G = max(0, n.l) / r^2.
-  s.geometry = ad::select(lit, cos_l * (V(1) / r2), D(V(0)));
+  const V inv_r2 = simd::select(lit, inv_r * inv_r, V(0));
+  s.geometry.value = cos_l * inv_r2;
+  if constexpr (N > 0 && F.normal_map) {
+    s.geometry.grad[slots::nx_] = dcos_l[0] * inv_r2;
+    s.geometry.grad[slots::ny_] = dcos_l[1] * inv_r2;
+  }
   // Exponent q = h_x^2/sx^2 + h_y^2/sy^2 in the shading frame.
-  const D hn_safe = ad::max(hn, V(min_hz));
-  D q;
+  const auto hn_above = hn > V(min_hz);
+  const V hn_safe = simd::select(hn_above, hn, V(min_hz));
+  const V inv_hn = simd::reciprocal(hn_safe);
+  const V inv_hn2 = inv_hn * inv_hn;
+  V q, qx(0), qy(0), hxl(0), hyl(0);
+  V ht = hx, hb = hy, dht[2] = {V(0), V(0)}, dhb[2] = {V(0), V(0)};
   if constexpr (F.anisotropic) {
-    D ht, hb;
     if constexpr (F.normal_map) {
       // t = ((1,0,0) - nx n)/s, b = n x t = (0, nz, -ny)/s with s = sqrt(1 - nx^2).
-      ht = (hx - t.nx * hn) * t.inv_s;
-      hb = (t.nz * hy - t.ny * hz) * t.inv_s;
-    } else {
-      ht = D(hx); hb = D(hy);
+      const V ht0 = hx - t.nx * hn, hb0 = t.nz * hy - t.ny * hz;
+      ht = ht0 * t.inv_s;
+      hb = hb0 * t.inv_s;
+      if constexpr (N > 0) {
+        dht[0] = simd::fma(ht0, t.dinv_s_dnx, -simd::fma(t.nx, dhn[0], hn) * t.inv_s);
+        dht[1] = -(t.nx * dhn[1]) * t.inv_s;
+        dhb[0] = simd::fma(hb0, t.dinv_s_dnx, t.dnz_dnx * hy * t.inv_s);
+        dhb[1] = simd::fma(t.dnz_dny, hy, -hz) * t.inv_s;
+      }
     }
-    const D hxl = t.cos_a * ht + t.sin_a * hb;
-    const D hyl = t.cos_a * hb - t.sin_a * ht;
-    q = hxl * hxl * t.inv_sx2 + hyl * hyl * t.inv_sy2;
+    hxl = t.cos_a * ht + t.sin_a * hb;
+    hyl = t.cos_a * hb - t.sin_a * ht;
+    qx = hxl * hxl * t.inv_sx2;
+    qy = hyl * hyl * t.inv_sy2;
+    q = qx + qy;
   } else {
-    // Isotropic: h_x^2 + h_y^2 = |h|^2 - h_z^2, no tangent frame needed.
-    q = (hh - hn * hn) * t.inv_sx2;
+    // Isotropic: h_x^2 + h_y^2 in the shading frame = |h|^2 - h_z^2 = |h x n|^2, no tangent frame
+    // needed; the cross product avoids the cancellation of |h|^2 - h_z^2 when h is near n.
+    if constexpr (F.normal_map) {
+      const V cx = hy * t.nz - hz * t.ny, cy = hz * t.nx - hx * t.nz, cz = hx * t.ny - hy * t.nx;
+      q = (cx * cx + cy * cy + cz * cz) * t.inv_sx2;
+    } else {
+      q = (hx * hx + hy * hy) * t.inv_sx2;
+    }
   }
-  // Fresnel ratio F/F0 = 1 + (1/F0 - 1)(1 - v.h')^5; v.h' is frame-independent.
-  D log_arg;
-  const D inv_hn2 = V(1) / (hn_safe * hn_safe);
+  // Fresnel ratio F/F0 = 1 + (1/F0 - 1)(1 - v.h')^5, with v.h' = |l + v| / 2 for unit l and v.
+  V log_arg = hh * inv_hn2 * inv_hn2, ratio(1), m5(0);
   if constexpr (F.fresnel) {
-    const V c = (wx * hx + wy * hy + wz * hz) / simd::sqrt(hh);
-    const V m = simd::max(V(1) - c, V(0));
+    const V m = simd::max(V(1) - V(0.5) * simd::sqrt(hh), V(0));
     const V m2 = m * m;
-    const D ratio = V(1) + t.inv_f0m1 * (m2 * m2 * m);
-    log_arg = hh * ratio * inv_hn2 * inv_hn2;
-  } else {
-    log_arg = hh * inv_hn2 * inv_hn2;
+    m5 = m2 * m2 * m;
+    ratio = V(1) + t.inv_f0m1 * m5;
+    log_arg = log_arg * ratio;
   }
   // E = -q / h_z^2 + log((h.h) * F/F0 / h_z^4) - log(pi sx sy): the whole lobe as one exp.
-  D e = ad::log(log_arg) + t.log_norm - q * inv_hn2;
-  e = ad::min(e, V(max_log_lobe));
-  s.log_lobe = e;
+  const V e_raw = simd::log_positive(log_arg) + t.log_norm - q * inv_hn2;
+  const auto e_below = e_raw < V(max_log_lobe);
+  s.log_lobe.value = simd::select(e_below, e_raw, V(max_log_lobe));
+  if constexpr (N > 0) {
+    // Zero where E is clamped at max_log_lobe.
+    const V gate = simd::select(e_below, V(1), V(0));
+    const V gate_hn2 = gate * inv_hn2;
+    if constexpr (F.anisotropic) {
+      s.log_lobe.grad[slots::sx] = t.inv_sx * simd::fma(V(2) * gate_hn2, qx, -gate);
+      s.log_lobe.grad[slots::sy] = t.inv_sy * simd::fma(V(2) * gate_hn2, qy, -gate);
+      s.log_lobe.grad[slots::alpha] = t.d_rotation * gate_hn2 * hxl * hyl;
+    } else {
+      s.log_lobe.grad[slots::sx] = t.inv_sx * simd::fma(V(2) * gate_hn2, q, V(-2) * gate);
+    }
+    if constexpr (F.fresnel) s.log_lobe.grad[slots::f0] = gate * t.d_inv_f0m1 * m5 / ratio;
+    if constexpr (F.normal_map) {
+      // dE/dh_z through log(1 / h_z^4) and -q / h_z^2 (zero where h_z is clamped), and dE/dq.
+      V de_dhn = simd::select(hn_above, gate * inv_hn * simd::fma(V(2) * q, inv_hn2, V(-4)), V(0));
+      const V de_dq = -gate_hn2;
+      V de_dht(0), de_dhb(0);
+      if constexpr (F.anisotropic) {
+        // dq/dht and dq/dhb through the rotation into (hxl, hyl).
+        const V ax = V(2) * hxl * t.inv_sx2, ay = V(2) * hyl * t.inv_sy2;
+        de_dht = de_dq * (ax * t.cos_a - ay * t.sin_a);
+        de_dhb = de_dq * (ax * t.sin_a + ay * t.cos_a);
+      } else {
+        // q = (h.h - h_z^2) / sx^2 depends on the unclamped h_z.
+        de_dhn = simd::fma(de_dq * V(-2) * t.inv_sx2, hn, de_dhn);
+      }
+      for (int p = 0; p < 2; ++p) {
+        V g = de_dhn * dhn[p];
+        if constexpr (F.anisotropic) g = simd::fma(de_dht, dht[p], simd::fma(de_dhb, dhb[p], g));
+        s.log_lobe.grad[p == 0 ? slots::nx_ : slots::ny_] = g;
+      }
+    }
+  }
   // Culling test: a'_s <= 1, so the lobe's contribution is below exp(E) * G per unit intensity.
   s.specular_culled = false;
   if (cull_log_bound > -1e30f) {
-    const auto negligible = (e.value + simd::log(simd::max(s.geometry.value, V(1e-30f)))) < V(cull_log_bound);
+    const auto negligible = (s.log_lobe.value + simd::log(simd::max(s.geometry.value, V(1e-30f)))) < V(cull_log_bound);
     if (simd::all(negligible | !lit)) {
       s.specular_culled = true;
       s.lobe = V(0);
       return s;
     }
   }
-  s.lobe = simd::select(lit, simd::exp(e.value), V(0));
+  s.lobe = simd::select(lit, simd::exp(s.log_lobe.value), V(0));
   return s;
 }
 
@@ -363,7 +446,7 @@ inline tile_placement resolve(const tile_placement& t, const material_maps& maps
   return r;
 }
 
-/// Texel positions (global, MODEL.md 4) for the lanes starting at flat index i.
+/// Texel positions (global, docs/method.md section 4) for the lanes starting at flat index i.
 template <class V>
 inline void texel_positions(std::size_t i, int width, const tile_placement& t, V& px, V& py) {
   using S = simd::scalar_t<V>;
@@ -437,7 +520,7 @@ std::vector<image> render(const material_maps& maps, const capture& cap, const t
   return out;
 }
 
-/// The fused pass: image loss (MODEL.md 5) of the map set against the targets and, when `gradient`
+/// The fused pass: image loss (docs/method.md section 5) of the map set against the targets and, when `gradient`
 /// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
 /// No rendered image is materialised. Returns the loss
 ///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|,
@@ -525,13 +608,13 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
         const V radiance = (kd + spec) * geometry * intensity; // R_c
         const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
-        V diff = simd::log(radiance + V(loss_epsilon)) - target;
+        V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
         // A masked lane's difference is 0 whatever its target: it adds +0 to the loss and to the
         // gradient (weight 0, sign +), so no value of a masked target can reach the results.
         if (masked) diff = simd::select(used, diff, V(0));
         loss_acc += simd::abs(diff) * weight;
         // dL/dR_c = sign(diff) / (R_c + eps) * weight.
-        const V dl = simd::select(diff >= V(0), weight, -weight) / (radiance + V(loss_epsilon));
+        const V dl = simd::select(diff >= V(0), weight, -weight) * simd::reciprocal(radiance + V(loss_epsilon));
         const V dl_gi = dl * geometry * intensity;
         g_diffuse[c] += dl_gi * V(inv_pi);
         g_specular[c] += dl_gi * s.lobe;
@@ -541,7 +624,8 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       if constexpr (N > 0) {
         if (!s.specular_culled)
           for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_spec, s.log_lobe.grad[p], g_dual[p]);
-        for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_geom, s.geometry.grad[p], g_dual[p]);
+        if constexpr (F.normal_map)
+          for (int p : {slots::nx_, slots::ny_}) g_dual[p] = simd::fma(w_geom, s.geometry.grad[p], g_dual[p]);
       }
     }
     if (gradient) {
