@@ -98,6 +98,7 @@ struct synthesize_args {
   std::string set = "alpha";
   std::uint64_t seed = 1;
   std::string kind;
+  std::string materials = "original";  // mix the kind is drawn from when --kind is not given
   sensor_noise noise;  // simulated sensor noise on the rendered inputs (none by default)
 };
 
@@ -106,6 +107,7 @@ void synthesize(const synthesize_args& a) {
   if (a.width < 1 || a.height < 1) throw std::invalid_argument("--width and --height must be positive");
   if (a.images < 4) throw std::invalid_argument("--images must be at least 4 (set alpha needs 2 Fresnel and 2 independent)");
   procedural_options options;
+  options.mix = *material_mix_from_name(a.materials);
   if (!a.kind.empty()) {
     options.kind = material_kind_from_name(a.kind);
     if (!options.kind) throw std::invalid_argument("unknown --kind '" + a.kind + "'");
@@ -123,7 +125,7 @@ void synthesize(const synthesize_args& a) {
   write_images(photos, cap, a.out);
   write_capture(cap, a.out / "capture.json");
   std::fprintf(stderr, "synthesized %s (%s, seed %llu, %dx%d) with %d inputs (set %s) in %s\n",
-               material_kind_name(kind_for_seed(a.seed)), a.kind.empty() ? "kind from seed" : a.kind.c_str(),
+               material_kind_name(draw_procedural_parameters(a.seed, options).kind), a.kind.empty() ? "kind from seed" : "forced",
                static_cast<unsigned long long>(a.seed), a.width, a.height, a.images, a.set.c_str(), a.out.c_str());
 }
 
@@ -348,6 +350,8 @@ struct eval_args {
   std::vector<std::string> sets{"alpha", "beta"};
   std::uint64_t first_seed = 900000;  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
   sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)
+  std::string materials = "original";  // mix the materials' kinds are drawn from (procedural.hpp material_mix)
+  std::string families;                // non-empty: these families only, material m gets the (m mod n)-th
 };
 
 /// The paper's Table 1 on procedural validation materials (MODEL.md 9): per N, set and stage the
@@ -359,6 +363,9 @@ void eval_command(const eval_args& e, const capture_args& base) {
   for (int n : e.image_counts)
     if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
   e.noise.validate();
+  const std::vector<material_kind> families = material_kinds_from_names(e.families);
+  const auto mix = material_mix_from_name(e.materials);
+  if (!mix) throw std::invalid_argument("eval: --materials takes original, extended or training, got '" + e.materials + "'");
   {
     pipeline_options check;
     apply_optimiser_options(base, check);  // reject impossible options before any work
@@ -367,9 +374,10 @@ void eval_command(const eval_args& e, const capture_args& base) {
   if (!files.present()) throw std::invalid_argument("eval needs the " + base.preset + " weights in " + (base.models / base.preset).string());
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
   std::map<std::string, row_sum> rows;
+  std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
   std::vector<std::string> order;
   std::ostringstream csv;
-  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds\n";
+  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family\n";
   auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
     if (!rows.count(key)) order.push_back(key);
     auto& r = rows[key];
@@ -390,6 +398,19 @@ void eval_command(const eval_args& e, const capture_args& base) {
                     r.e.normal / k, r.e.lobes / k, r.e.rotation / k, r.e.fresnel / k, r.novel / k, r.seconds / k);
       md << line;
     }
+    md << "\nPer family (held out of training: leather, printed)\n\n| N | stage | set | family | materials | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for (const auto& key : order) {
+      const auto p1 = key.find('|'), p2 = key.rfind('|');
+      for (const family_errors& f : errors_by_family(family_rows[key])) {
+        char line[400];
+        std::snprintf(line, sizeof line, "| %s | %s | %s | %s%s | %d | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f |\n",
+                      key.substr(0, p1).c_str(), key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(),
+                      material_kind_name(f.kind), is_held_out(f.kind) ? " (held out)" : "", f.count, f.mean.diffuse,
+                      f.mean.specular, f.mean.normal, f.mean.lobes, f.mean.rotation, f.mean.fresnel, f.novel_view_loss);
+        md << line;
+      }
+    }
     fs::create_directories(e.out);
     file_transaction files_out;
     const std::string table = md.str(), rows_csv = csv.str();
@@ -403,7 +424,10 @@ void eval_command(const eval_args& e, const capture_args& base) {
     random_generator rng(hash64(seed ^ 0x6576616cULL));
     const int w = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
     const int h = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
-    const material_maps truth = generate_material(seed, w, h);
+    procedural_options material_options;
+    material_options.mix = *mix;
+    material_options.kind = evaluation_kind(m, seed, families, *mix);
+    const material_maps truth = generate_material(seed, w, h, material_options);
     const capture novel = novel_view_set(seed, w, h);
     for (int n : e.image_counts)
       for (const auto& set : e.sets) {
@@ -419,15 +443,16 @@ void eval_command(const eval_args& e, const capture_args& base) {
         const pipeline_result pr = run_network_pipeline(base, cap, photos, po);
         const double sec = seconds_since(t0);
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
-                     static_cast<unsigned long long>(seed), w, h, material_kind_name(kind_for_seed(seed)), n, set.c_str(), sec);
+                     static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
         auto record = [&](const char* stage, const material_maps& maps) {
           const parameter_errors pe = compare_maps(maps, truth);
           const double nv = novel_view_error(maps, truth, novel);
           const std::string key = std::to_string(n) + "|" + stage + "|" + set;
           add(key, pe, nv, sec);
+          family_rows[key].push_back({*material_options.kind, pe, nv});
           csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
               << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
-              << pe.fresnel << ',' << nv << ',' << sec << '\n';
+              << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << '\n';
         };
         if (pr.after_finetune) record("fine-tuned", *pr.after_finetune);
         record("refined", pr.maps);
@@ -486,7 +511,12 @@ int main(int argc, char** argv) {
   syn_cmd->add_option("--images", syn.images, "number of input images")->capture_default_str();
   syn_cmd->add_option("--set", syn.set, "configuration set: alpha (Fresnel + anisotropic pairs + independent) or beta (independent + mirror)")->capture_default_str();
   syn_cmd->add_option("--seed", syn.seed, "material and configuration seed")->capture_default_str();
-  syn_cmd->add_option("--kind", syn.kind, "force a material kind (plain_weave, twill, satin, brushed_metal, ...)");
+  syn_cmd->add_option("--kind", syn.kind,
+                      "force a material kind: plain, basket, twill, herringbone, satin, velvet, brushed, spun, leather, "
+                      "coated, printed, foil");
+  syn_cmd->add_option("--materials", syn.materials, "families the kind is drawn from without --kind: original, extended or training")
+      ->check(CLI::IsMember({"original", "extended", "training"}))
+      ->capture_default_str();
   add_noise_options(syn_cmd, syn.noise);
 
   fs::path maps_dir, render_capture, render_out;
@@ -535,6 +565,12 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--images", ev.image_counts, "input counts N")->delimiter(',')->capture_default_str();
   eval_cmd->add_option("--sets", ev.sets, "configuration sets")->delimiter(',')->capture_default_str();
   add_noise_options(eval_cmd, ev.noise);
+  eval_cmd->add_option("--materials", ev.materials, "families the materials are drawn from: original, extended or training")
+      ->check(CLI::IsMember({"original", "extended", "training"}))
+      ->capture_default_str();
+  eval_cmd->add_option("--families", ev.families,
+                       "evaluate these families only, comma-separated (e.g. leather,printed or brushed,spun,foil); "
+                       "material m gets the (m mod n)-th");
   eval_cmd->add_option("--preset", cap.preset, "network preset")->capture_default_str();
   eval_cmd->add_option("--models", cap.models, "weights folder")->capture_default_str();
   eval_cmd->add_option("--finetune-steps", cap.finetune_steps, "decoder fine-tune steps")->capture_default_str();
