@@ -1,5 +1,5 @@
 // Convolution benchmark: every convolution of the paper-width auto-encoder at 256 x 256 and a
-// representative set of the estimator's (MODEL.md 7), forward / backward-input / backward-weight,
+// representative set of the estimator's (docs/method.md section 7), forward / backward-input / backward-weight,
 // on 1 and 2 threads, as GFLOP/s and as a fraction of the FP32 FMA peak measured in the same run;
 // beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
 // step of the auto-encoder's decoder on one 256 x 256 tile.
@@ -227,7 +227,7 @@ ad::variable<C> leaky_relu(ad::tape& t, const ad::variable<C>& x) {
   return y;
 }
 
-/// The paper-width auto-encoder's decoder (MODEL.md 7): 5 transposed convolutions from the
+/// The paper-width auto-encoder's decoder (docs/method.md section 7): 5 transposed convolutions from the
 /// 8 x 8 x 1024 latent of a 256 x 256 tile back to 12 channels.
 struct decoder {
   nn::conv_transpose2d<1024, 512> d0{"dec0"};

@@ -4,7 +4,7 @@
 // render-loss targets). Counter `samples_per_s`: materials per second (an estimator sample is a
 // set of 5 input images). The paper preset runs once per repetition (it takes seconds).
 // Arguments: size, batch, loss (1: L1 + render loss, as training does; 0: L1 in network space only,
-// the loss bench/networks_torch.py gives the same networks in PyTorch). Counter `parameters`: the
+// the loss studies/networks_torch.py gives the same networks in PyTorch). Counter `parameters`: the
 // trainable parameter count (networks_torch.py checks its PyTorch networks against it).
 #include <benchmark/benchmark.h>
 #include <omp.h>

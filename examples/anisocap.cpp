@@ -191,7 +191,7 @@ model_files models_for(const capture_args& a) {
   return {a.models / a.preset / "estimator.safetensors", a.models / a.preset / "autoencoder.safetensors"};
 }
 
-/// Runs the network stages of MODEL.md 8 with the weights of `preset`.
+/// Runs the network stages of docs/method.md section 8 with the weights of `preset`.
 pipeline_result run_network_pipeline(const capture_args& a, const capture& cap, const std::vector<image>& photos,
                                      const pipeline_options& o) {
   const model_files files = models_for(a);
@@ -354,7 +354,7 @@ struct eval_args {
   std::string families;                // non-empty: these families only, material m gets the (m mod n)-th
 };
 
-/// The paper's Table 1 on procedural validation materials (MODEL.md 9): per N, set and stage the
+/// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and stage the
 /// mean over materials of each per-parameter MSE, the novel-view image loss and seconds per material.
 void eval_command(const eval_args& e, const capture_args& base) {
   if (e.count < 1 || e.min_size < 1 || e.max_size < e.min_size) throw std::invalid_argument("eval: need --count >= 1 and 1 <= --min-size <= --max-size");
@@ -476,7 +476,7 @@ void render_command(const fs::path& maps_dir, const fs::path& capture_file, cons
                out.c_str(), kernel.describe().c_str());
 }
 
-/// The paper's Table 1 row "12, refined, set alpha" (MODEL.md 9), for the demo's summary.
+/// The paper's Table 1 row "12, refined, set alpha" (docs/method.md section 9), for the demo's summary.
 void print_error_table(const nlohmann::json& errors) {
   struct row { const char* name; const char* key; double paper; };
   const row rows[] = {{"diffuse a_d", "diffuse", 0.0002}, {"specular a'_s", "specular", 0.0019},
@@ -584,7 +584,7 @@ int main(int argc, char** argv) {
   demo_cmd->add_option("--seed", demo_syn.seed, "material seed")->capture_default_str();
   demo_cmd->add_option("--size", demo_syn.width, "material size (square)")->capture_default_str();
   demo_cmd->add_option("--steps", cap.steps, "refine steps (default 500 after the networks, 1000 alone)");
-  // The demo runs the fast fine-tune schedule of bench/README.md "Run time against error": 800
+  // The demo runs the fast fine-tune schedule of studies/README.md "Run time against error": 800
   // steps at 8e-3 after a 200-step warm-up reach about the error of the paper's 5000 steps at
   // 7.5e-4 in a sixth of the time. --finetune-lr / --finetune-warmup override it.
   int demo_finetune_steps = 800;

@@ -4,6 +4,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DANISOCAP_BUILD_TESTS=OFF -DANISOCAP_BUILD_BENCH=OFF >/dev/null
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DANISOCAP_BUILD_TESTS=OFF -DANISOCAP_BUILD_BENCH=OFF -DANISOCAP_BUILD_STUDIES=OFF >/dev/null
 cmake --build build -j"$(nproc)" --target anisocap_program
 ./build/anisocap demo "$@"

@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Installs everything anisocap's build, tests and examples need, from Debian 12 packages.
-# `--bench` adds what the peer comparisons and plots need (PyTorch CPU, matplotlib).
+# `--studies` (also accepted as `--bench`) adds what the studies' PyTorch peer comparisons and
+# plots need (PyTorch CPU, matplotlib; studies/README.md).
 set -euo pipefail
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev)
-if [[ "${1:-}" == "--bench" ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
+if [[ "${1:-}" == "--studies" || "${1:-}" == "--bench" ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 missing=()
 for p in "${packages[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then

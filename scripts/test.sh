@@ -10,7 +10,7 @@ jobs=$(nproc)
 for arch in $archs; do
   dir=build-test-$arch
   echo "== building tests for -march=$arch in $dir"
-  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release -DANISOCAP_ARCH="$arch" -DANISOCAP_BUILD_BENCH=OFF >/dev/null
+  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release -DANISOCAP_ARCH="$arch" -DANISOCAP_BUILD_BENCH=OFF -DANISOCAP_BUILD_STUDIES=OFF >/dev/null
   cmake --build "$dir" -j"$jobs"
   echo "== running tests for -march=$arch"
   (cd "$dir" && ctest --output-on-failure -j1)

@@ -5,7 +5,7 @@ Synthesizes one 256 x 256 procedural material with 12 inputs (set alpha), runs `
 (the first guess from the photographs, then refine) for several step counts, and prints a Markdown
 table of steps, seconds, final image loss and per-parameter MSE against the true maps.
 
-usage: bench/refine_table.py BUILD/anisocap [--steps 0,100,250,500,1000,2000] [--seed 7] [--lr 0.03]
+usage: studies/refine_table.py BUILD/anisocap [--steps 0,100,250,500,1000,2000] [--seed 7] [--lr 0.03]
 """
 import argparse
 import json

@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """The fused render + image loss + gradient in PyTorch (autograd) beside anisocap's SIMD renderer.
 
-Usage: /usr/bin/python3 bench/render_torch.py PATH/TO/anisocap_bench_render [--runs 7] [--rounds 3]
+Usage: /usr/bin/python3 studies/render_torch.py PATH/TO/anisocap_bench_render [--runs 7] [--rounds 3]
 
 Runs anisocap's benchmark `fused/full/(simd|scalar)/{1,2}/0` (256 x 256 texels, 12 images, full
 kernel, 1 and 2 threads, no culling; Google Benchmark, 5 repetitions, medians) and times the same
-loss and gradient written with PyTorch autograd (bench/reference/ward_reference.py on float32
+loss and gradient written with PyTorch autograd (studies/reference/ward_reference.py on float32
 tensors, torch.set_num_threads(1) and (2)) on inputs of the same sizes and the same mix as bench/render.cpp
 (random maps in the same ranges, cameras and lights drawn the same way; a numpy generator instead
 of std::mt19937_64): median of the runs after one warm-up. Prints texel-image evaluations per

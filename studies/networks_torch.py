@@ -2,10 +2,10 @@
 """The estimation network and the auto-encoder of pipeline/networks.hpp in PyTorch, beside
 anisocap_bench_networks: training steps (forward, L1 loss, backward, Adam) per second.
 
-    OMP_WAIT_POLICY=passive /usr/bin/python3 bench/networks_torch.py build/bench/anisocap_bench_networks
+    OMP_WAIT_POLICY=passive /usr/bin/python3 studies/networks_torch.py build/bench/anisocap_bench_networks
 
 Debian's PyTorch calls the system BLAS for ConvTranspose2d and Linear; the netlib reference BLAS
-makes it several times slower. bench/README.md "Against PyTorch" runs it with OpenBLAS through
+makes it several times slower. studies/README.md "Against PyTorch" runs it with OpenBLAS through
 LD_LIBRARY_PATH; the header line prints which BLAS the process loaded. --transposed subpixel runs
 the transposed convolutions as oneDNN Conv2d + pixel_shuffle instead (by default both are timed).
 
@@ -51,7 +51,7 @@ ESTIMATOR = {
 }
 AUTOENCODER = {"compact": [32, 64, 128, 128, 128], "paper": [64, 128, 256, 512, 1024]}
 PARAMETERS = 12  # parameter_count: channels of the maps in network space
-IMAGES = 5       # training inputs per material (MODEL.md 6)
+IMAGES = 5       # training inputs per material (docs/method.md section 6)
 
 
 # Rows (and columns) of the 4x4 transposed kernel that output parity p reads at input offset

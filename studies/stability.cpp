@@ -1,10 +1,10 @@
-// Numerical stability of the capture (issue 6, part 3): the scenarios of
-// tests/pipeline/stability_test.cpp at bench size, printed as Markdown tables (bench/README.md,
+// Numerical stability of the capture: the scenarios of
+// tests/pipeline/stability_test.cpp at bench size, printed as Markdown tables (studies/README.md,
 // "Numerical stability"). Every run is `run_pipeline` with the refine stage only (first guess from
 // the photographs, then per-texel Adam, as `anisocap capture --stages refine`), exposure
 // normalisation on unless a row says otherwise.
 //
-//   anisocap_bench_stability [--size 256] [--images 12] [--steps 300] [--seed 7]
+//   anisocap_study_stability [--size 256] [--images 12] [--steps 300] [--seed 7]
 //
 // Rows: the unscaled capture against the truth; the capture with intensities and photographs
 // multiplied by a factor against the unscaled run (1 + 2^-23 shows how far one ulp of input moves
@@ -75,7 +75,7 @@ std::size_t non_finite(const material_maps& m) {
   return n;
 }
 
-/// Finite map values outside their parameter's range (MODEL.md 1).
+/// Finite map values outside their parameter's range (docs/method.md section 1).
 std::size_t out_of_range(const material_maps& m) {
   std::size_t bad = 0;
   for (std::size_t i = 0; i < m.texel_count(); ++i) {

@@ -1,4 +1,4 @@
-// The decoder fine-tune step (MODEL.md 8.3), taken apart: decode forward, maps from the network
+// The decoder fine-tune step (docs/method.md section 8.3), taken apart: decode forward, maps from the network
 // outputs, fused image loss + gradient, the chain rule back to the network outputs, backward
 // through the decoder, Adam. For the compact preset (shipped weights) and the paper preset
 // (seeded initial weights: the step's cost does not depend on the weights' values), on a
@@ -6,7 +6,7 @@
 // (pipeline_options::finetune_crop). Prints medians of --repeats steps after --warmup steps, in ms,
 // and the ratios that matter: a crop step against a whole step, the paper preset against compact.
 //
-// usage: anisocap_bench_finetune_step [--size 256] [--repeats 40] [--warmup 8] [--crop 4] [--models DIR]
+// usage: anisocap_study_finetune_step [--size 256] [--repeats 40] [--warmup 8] [--crop 4] [--models DIR]
 #include <omp.h>
 
 #include <algorithm>

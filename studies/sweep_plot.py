@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Run time against error from bench/sweep.cpp's CSV: a plot with the Pareto front and Markdown tables.
+"""Run time against error from studies/sweep.cpp's CSV: a plot with the Pareto front and Markdown tables.
 
 For every configuration (input count, path, fine-tune steps / early stopping, refine variant) the
 errors and seconds are averaged over the materials (mean error, median seconds). The Pareto front
@@ -8,7 +8,7 @@ error. Writes PNG (run time against novel-view error and against each per-parame
 prints Markdown: the front, the paper-default reference and the cheapest configuration that
 matches its novel-view error, the effect of each skip at one starting point, and a NaN/Inf count.
 
-usage: bench/sweep_plot.py bench/results/sweep_256.csv [--png bench/results/sweep_256.png]
+usage: studies/sweep_plot.py studies/results/sweep_256.csv [--png studies/results/sweep_256.png]
 """
 import argparse
 import csv
@@ -62,13 +62,13 @@ def pareto(points):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("csv", nargs="+", help="one or more CSVs of bench/sweep.cpp (same materials)")
+    ap.add_argument("csv", nargs="+", help="one or more CSVs of studies/sweep.cpp (same materials)")
     ap.add_argument("--png", default=None)
     ap.add_argument("--finetune-step-ms", type=float, default=23.0,
-                    help="quiet-machine fine-tune step (bench/README.md, capture pipeline) for the step-count cost model")
+                    help="quiet-machine fine-tune step (studies/README.md, capture pipeline) for the step-count cost model")
     ap.add_argument("--refine-step-ms", type=float, default=9.3, help="quiet-machine refine step, same source")
     ap.add_argument("--crop-step-ms", type=float, default=6.9,
-                    help="quiet-machine fine-tune step on a crop of 4 latent cells (bench/finetune_step.cpp)")
+                    help="quiet-machine fine-tune step on a crop of 4 latent cells (studies/finetune_step.cpp)")
     ap.add_argument("--x", choices=["model", "measured"], default="model",
                     help="seconds on the plot's x axis and for the front: the step-count model (load-independent, "
                          "comparable across CSVs) or the measured median")
@@ -193,7 +193,7 @@ def main():
         axes.flat[-1].text(0.0, 0.5, f"{len(materials)} procedural materials, 256 x 256, set alpha\n"
                            "compact preset; one point per configuration\n(fine-tune steps, early stopping, refine variant, N)",
                            fontsize=11, va="center")
-        fig.suptitle("anisocap: run time against error (bench/sweep.cpp)")
+        fig.suptitle("anisocap: run time against error (studies/sweep.cpp)")
         fig.tight_layout()
         tmp = args.png + ".tmp.png"
         fig.savefig(tmp, dpi=90)

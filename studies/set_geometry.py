@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What the configurations of set alpha and set beta let a texel see (MODEL.md 6), from capture.json files.
+"""What the configurations of set alpha and set beta let a texel see (docs/method.md section 6), from capture.json files.
 
 For every texel of a 33 x 33 grid over the material (flat, normal up) and every capture it prints
 the means over texels and captures of:
@@ -15,9 +15,9 @@ the means over texels and captures of:
     for i in $(seq 0 19); do for set in alpha beta; do
       build/anisocap synthesize -o cond/$set$i --width 32 --height 32 --images 12 --set $set --seed $((900000+i))
     done; done
-    python3 bench/set_geometry.py cond/alpha* cond/beta*
+    python3 studies/set_geometry.py cond/alpha* cond/beta*
 
-usage: python3 bench/set_geometry.py DIR [DIR ...]  (each DIR holds a capture.json; DIR names
+usage: python3 studies/set_geometry.py DIR [DIR ...]  (each DIR holds a capture.json; DIR names
        that start with "alpha" or "beta" are grouped by set). Needs numpy.
 """
 import json

@@ -6,7 +6,7 @@ spun metal whose F0 is off by 0.3 outweighs ten good fabrics). This script pairs
 the same materials and prints, per parameter and stage, the means, the medians and how many
 materials each set wins, so a claim "alpha beats beta" can be read three ways.
 
-usage: python3 bench/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
+usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
 Standard library only.
 """
 import argparse

@@ -1,18 +1,19 @@
-"""An independent implementation of MODEL.md sections 2-5 in array code (numpy or torch).
+"""An independent implementation of docs/method.md sections 2-5 in array code (numpy or torch).
 
-Written from MODEL.md alone, not from the C++ renderer, so that comparing the two checks both.
+Written from the method description (docs/method.md) alone, not from the C++ renderer, so that
+comparing the two checks both.
 Every function takes the array module `xp` (numpy or torch) and works on float64 numpy arrays or on
 torch tensors of any float dtype, with autograd (torch) flowing through all of it.
 
 Conventions (decisions documented in the C++ sources, matched here):
 - positions in units of the longest side n, origin at the material centre; texel (x, y) centre at
-  ((x + 0.5 - W/2)/n, (H/2 - (y + 0.5))/n, 0): row 0 at the top, +y up (MODEL.md 4);
+  ((x + 0.5 - W/2)/n, (H/2 - (y + 0.5))/n, 0): row 0 at the top, +y up (docs/method.md section 4);
 - the flat geometric frame t_g = (1,0,0); no height map (a map set with height.exr is rejected);
-- the specular factor includes (h.h) (MODEL.md 3, decision);
+- the specular factor includes (h.h) (docs/method.md section 3, decision);
 - F0 clamped below at 1e-4, sigma at 1e-4, h_z at 1e-6; n_z = sqrt(max(1 - nx^2 - ny^2, 1e-6));
 - radiance zero unless n.l > 0 and n.v > 0; r^2 = |l_pos - p|^2;
 - loss = sum over images of the mean over pixels and the 3 channels of
-  |log(R + 0.01) - log(B + 0.01)| (MODEL.md 5).
+  |log(R + 0.01) - log(B + 0.01)| (docs/method.md section 5).
 
 Map set arrays (height, width, ...): diffuse (...,3), specular a'_s (...,3), sx, sy, f0, nx, ny,
 alpha (each (height, width)). A capture is a list of dicts with 'camera', 'light' (3 floats) and
@@ -53,7 +54,7 @@ def _as_array(xp, values, like):
 
 
 def texel_positions(xp, width, height, like):
-    """Texel centres (height, width) x and y in scene units (MODEL.md 4 decision)."""
+    """Texel centres (height, width) x and y in scene units (docs/method.md section 4 decision)."""
     n = float(max(width, height))
     px = (np.arange(width) + 0.5 - 0.5 * width) / n
     py = (0.5 * height - (np.arange(height) + 0.5)) / n
@@ -62,7 +63,7 @@ def texel_positions(xp, width, height, like):
 
 
 def shading_frame(xp, nx, ny, alpha):
-    """MODEL.md 2 with the flat geometric frame: returns the rotated tangent x, bitangent y and
+    """docs/method.md section 2 with the flat geometric frame: returns the rotated tangent x, bitangent y and
     the normal n, each a tuple of 3 arrays (world components)."""
     nz = xp.sqrt(_clamp_min(xp, 1.0 - nx * nx - ny * ny, NZ2_MIN))
     # t = normalize(t_g - (t_g.n) n) with t_g = (1, 0, 0)
@@ -86,8 +87,8 @@ def _dot(a, b):
 def render(xp, maps, capture):
     """Renders every image of `capture`: returns an array (images, height, width, 3).
 
-    R_i(p) = f(p; v, l) max(0, n.l) I_i / |l_i - p|^2 (MODEL.md 4), f the bounded Ward BRDF with
-    Schlick Fresnel (MODEL.md 3), zero unless n.l > 0 and n.v > 0."""
+    R_i(p) = f(p; v, l) max(0, n.l) I_i / |l_i - p|^2 (docs/method.md section 4), f the bounded Ward BRDF with
+    Schlick Fresnel (docs/method.md section 3), zero unless n.l > 0 and n.v > 0."""
     diffuse, specular = maps["diffuse"], maps["specular"]
     sx = _clamp_min(xp, maps["sx"], SIGMA_MIN)
     sy = _clamp_min(xp, maps["sy"], SIGMA_MIN)
@@ -128,7 +129,7 @@ def render(xp, maps, capture):
 
 
 def image_loss(xp, rendered, targets):
-    """MODEL.md 5: sum over images of the mean over pixels and channels of the log L1 distance."""
+    """docs/method.md section 5: sum over images of the mean over pixels and channels of the log L1 distance."""
     per = xp.abs(xp.log(rendered + LOG_EPS) - xp.log(targets + LOG_EPS))
     return per.reshape(per.shape[0], -1).mean(1).sum()
 
@@ -136,7 +137,7 @@ def image_loss(xp, rendered, targets):
 # ---- file access (numpy) ---------------------------------------------------------------------
 
 def read_map_set(folder):
-    """Reads a map set folder (MODEL.md 1 file names) into float64 numpy arrays."""
+    """Reads a map set folder (docs/method.md section 1 file names) into float64 numpy arrays."""
     if os.path.exists(os.path.join(folder, "height.exr")):
         raise NotImplementedError(f"{folder}: height.exr present; the reference handles flat maps only")
     rd = lambda name: exr.read_rgb(os.path.join(folder, name))  # noqa: E731

@@ -1,6 +1,6 @@
 // Run time against error (issue 6): sweeps the knobs that trade time for accuracy on procedural
-// validation materials and writes one CSV row per (material, configuration). bench/sweep_plot.py
-// turns the CSV into the plot and the Pareto table of bench/README.md.
+// validation materials and writes one CSV row per (material, configuration). studies/sweep_plot.py
+// turns the CSV into the plot and the Pareto table of studies/README.md.
 //
 // Knobs: fine-tune steps (0 ... 5000, the paper's count) and fine-tune early stopping, refine steps,
 // refine early stopping, refine texel freezing, specular culling, automatic kernel choice, double
@@ -11,7 +11,7 @@
 // the maps a k-step run returns, and its time is the time to reach step k (observer overhead
 // excluded). Early stopping is read off the same trajectory with the pipeline's rule.
 //
-// usage: anisocap_bench_sweep [--materials 10] [--size 256] [--max-finetune 5000]
+// usage: anisocap_study_sweep [--materials 10] [--size 256] [--max-finetune 5000]
 //                             [--finetune-lr 7.5e-4] [--finetune-points 0,200,500,1000,2000,5000]
 //                             [--images 12,8] [--networks-only] [--long-refine] [--no-stops]
 //                             [--finetune-crop K] [--finetune-warmup W] [--finetune-half-life H]

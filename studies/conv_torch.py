@@ -2,7 +2,7 @@
 """PyTorch beside anisocap_bench_conv: the same convolution shapes, forward / backward-input /
 backward-weight, on 2 threads (torch.set_num_threads(2)), and a table of the ratio.
 
-    /usr/bin/python3 bench/conv_torch.py build/bench/anisocap_bench_conv
+    /usr/bin/python3 studies/conv_torch.py build/bench/anisocap_bench_conv
 
 Without the path it only times PyTorch. With it, it also runs the anisocap benchmark
 (--benchmark_format=json, medians of repetitions) and prints, per shape and pass: anisocap GFLOP/s

@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+"""Learning curves of the shipped networks: validation error per parameter against samples seen
+and against training wall time, across every training run that led to the shipped weights.
+
+Each run is given as KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN, where CSV is the
+validation.csv a `train-*` run wrote, BATCH its batch size, SAMPLES_BEFORE and HOURS_BEFORE what
+the weights it started from (`--init`) had already seen, and HOURS_OF_RUN the run's wall time (its
+steps are spread evenly over it). Example (the command behind models/learning_curves.png):
+
+    python3 models/learning_curves.py -o models/learning_curves.png \
+        estimator:models/compact/history/estimator_run1.csv:2:0:0:0.77 \
+        estimator:models/compact/estimator_validation.csv:2:11200:0.77:2.6 \
+        autoencoder:models/compact/history/autoencoder_run1.csv:4:0:0:1.05 \
+        autoencoder:models/compact/autoencoder_validation.csv:4:51344:1.05:2.6
+"""
+import argparse
+import csv
+import sys
+
+PARAMETERS = ["mse_diffuse", "mse_specular", "mse_normal", "mse_lobes", "mse_rotation", "mse_fresnel"]
+LABELS = ["a_d", "a'_s", "n_s", "sigma", "alpha", "F0"]
+
+
+def read_run(spec):
+    try:
+        kind, path, batch, samples_before, hours_before, hours = spec.split(":")
+        batch, samples_before = int(batch), int(samples_before)
+        hours_before, hours = float(hours_before), float(hours)
+    except ValueError:
+        sys.exit(f"learning_curves: '{spec}': expected KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN")
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as e:
+        sys.exit(f"learning_curves: {path}: {e.strerror}")
+    if not rows:
+        sys.exit(f"learning_curves: {path}: no validation rows")
+    last_step = float(rows[-1]["step"])
+    points = []
+    for r in rows:
+        step = float(r["step"])
+        points.append({"samples": samples_before + step * batch,
+                       "hours": hours_before + hours * step / last_step,
+                       **{p: float(r[p]) for p in PARAMETERS + ["val_loss"]}})
+    return kind, points
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", help="KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN")
+    ap.add_argument("-o", "--output", required=True, help="PNG to write")
+    args = ap.parse_args()
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = {}
+    for spec in args.runs:
+        kind, points = read_run(spec)
+        curves.setdefault(kind, []).extend(points)
+    kinds = sorted(curves)
+    fig, axes = plt.subplots(len(kinds), 2, figsize=(12, 4.2 * len(kinds)), squeeze=False)
+    for row, kind in enumerate(kinds):
+        points = sorted(curves[kind], key=lambda p: p["samples"])
+        for col, x in enumerate(["samples", "hours"]):
+            ax = axes[row][col]
+            for p, label in zip(PARAMETERS, LABELS):
+                ax.plot([q[x] for q in points], [q[p] for q in points], label=label, lw=1.2)
+            ax.set_yscale("log")
+            ax.set_xlabel("materials seen" if x == "samples" else "training wall time (hours, 1 loaded core)")
+            ax.set_ylabel("validation MSE (original ranges)")
+            ax.set_title(f"{kind}: validation error per parameter")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8, ncol=3)
+    fig.tight_layout()
+    fig.savefig(args.output, dpi=90)
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
