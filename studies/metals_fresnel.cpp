@@ -1,7 +1,9 @@
 // How well a capture separates a'_s from F0 on metals, against the number and the height of its
 // grazing (Fresnel) configurations: procedural metals are rendered under set alpha with 0, 2, 4, ...
 // Fresnel configurations in a camera-height band, refined per texel from the photographs' first
-// guess (pipeline/refine.hpp), and compared with the truth (compare_maps) and on three novel views.
+// guess (pipeline/refine.hpp; --stages refine) or from the compact estimator's estimate (--stages
+// estimate,refine: the pipeline without the decoder fine-tune), and compared with the truth
+// (compare_maps) and on three novel views.
 // One CSV row per material and configuration, and a Markdown table of the means on stdout.
 // studies/README.md, "Grazing configurations on metals", has the command and the result.
 #include <CLI/CLI.hpp>
@@ -11,11 +13,13 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "anisocap/anisocap.hpp"
+#include "anisocap/pipeline/capture_pipeline.hpp"
 
 namespace {
 
@@ -43,6 +47,8 @@ struct study_options {
   int threads = 1;
   std::uint64_t first_seed = 700000;
   std::string csv = "metals_fresnel.csv";
+  std::string stages = "refine";
+  std::string models = "models/compact";
 };
 
 band parse_band(const std::string& text) {
@@ -62,6 +68,16 @@ int run(const study_options& o) {
   omp_set_num_threads(o.threads);
   const std::vector<material_kind> kinds = material_kinds_from_names(o.kinds);
   if (kinds.empty()) throw std::invalid_argument("--kinds: give at least one family");
+  const pipeline_stages stages = pipeline_stages::parse(o.stages);
+  if (stages.encode || stages.finetune) throw std::invalid_argument("--stages: this study runs refine or estimate,refine");
+  std::unique_ptr<EstimationNet<estimator_compact>> estimator;
+  std::unique_ptr<AutoEncoder<autoencoder_compact>> autoencoder;
+  if (stages.estimate) {
+    if (o.size % 64 != 0) throw std::invalid_argument("--stages estimate needs --size a multiple of 64");
+    estimator = std::make_unique<EstimationNet<estimator_compact>>();
+    autoencoder = std::make_unique<AutoEncoder<autoencoder_compact>>();
+    nn::load_weights(o.models + "/estimator.safetensors", *estimator);
+  }
   std::vector<band> bands;
   for (const auto& h : o.heights) bands.push_back(parse_band(h));
   std::ostringstream csv;
@@ -89,11 +105,22 @@ int run(const study_options& o) {
             const capture cap = set_alpha(n, capture_seed, w, h, fresnel_options{f, b.low, b.high});
             const std::vector<image> photos = render(truth, cap);
             const auto start = std::chrono::steady_clock::now();
-            material_maps maps = initial_guess(cap, photos);
-            refine_options ro;
-            ro.steps = o.steps;
-            ro.learning_rate = float(o.learning_rate);
-            refine<all_features>(maps, cap, make_loss_targets(photos), ro);
+            material_maps maps;
+            if (estimator) {
+              pipeline_options pipeline;
+              pipeline.stages = stages;
+              pipeline.window = std::min(256, w);
+              pipeline.stride = std::max(32, pipeline.window / 4);
+              pipeline.refine.steps = o.steps;
+              pipeline.refine.learning_rate = float(o.learning_rate);
+              maps = run_pipeline(cap, photos, *estimator, *autoencoder, pipeline).maps;
+            } else {
+              maps = initial_guess(cap, photos);
+              refine_options ro;
+              ro.steps = o.steps;
+              ro.learning_rate = float(o.learning_rate);
+              refine<all_features>(maps, cap, make_loss_targets(photos), ro);
+            }
             const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
             const parameter_errors e = compare_maps(maps, truth);
             const double nv = novel_view_error(maps, truth, novel);
@@ -134,8 +161,8 @@ int run(const study_options& o) {
                 key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(), s.specular / k, s.fresnel / k, s.novel / k,
                 s.lobes / k, s.normal / k, s.diffuse / k, s.seconds / k);
   }
-  std::printf("\n(%d materials of %s, %d x %d, %d capture seed(s) each, refine %d steps at rate %g from the first guess; rows in %s)\n",
-              o.materials, o.kinds.c_str(), o.size, o.size, o.captures, o.steps, o.learning_rate, o.csv.c_str());
+  std::printf("\n(%d materials of %s, %d x %d, %d capture seed(s) each, stages %s, refine %d steps at rate %g; rows in %s)\n",
+              o.materials, o.kinds.c_str(), o.size, o.size, o.captures, o.stages.c_str(), o.steps, o.learning_rate, o.csv.c_str());
   return 0;
 }
 
@@ -156,6 +183,9 @@ int main(int argc, char** argv) {
   app.add_option("--threads", o.threads, "OpenMP threads")->check(CLI::PositiveNumber)->capture_default_str();
   app.add_option("--first-seed", o.first_seed, "seed of the first material")->capture_default_str();
   app.add_option("--csv", o.csv, "per-run rows")->capture_default_str();
+  app.add_option("--stages", o.stages, "refine (from the first guess) or estimate,refine (compact estimator first)")
+      ->capture_default_str();
+  app.add_option("--models", o.models, "folder of the compact estimator's weights")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   for (int f : o.fresnel)
     if (f < 0) {

@@ -1,7 +1,8 @@
 #pragma once
 /// @file
-/// Seeded procedural anisotropic materials: woven fabrics (plain, basket, twill, herringbone,
-/// satin), crushed velvet, and linearly or circularly brushed metal. They stand in for the Bonn
+/// Seeded procedural materials: woven fabrics (plain, basket, twill, herringbone, satin), crushed
+/// velvet, linearly or circularly brushed metal, leather, coated (lacquered), printed surfaces and
+/// metal foil on a fabric or print (docs/procedural.md). They stand in for the Bonn
 /// SVBRDF dataset the paper trains and evaluates on (MODEL.md 9), which is not available here:
 /// each seed gives one material_maps (MODEL.md 1) whose anisotropy follows its structure.
 ///
