@@ -99,6 +99,7 @@ struct synthesize_args {
   std::uint64_t seed = 1;
   std::string kind;
   std::string materials = "original";  // mix the kind is drawn from when --kind is not given
+  fresnel_options fresnel;  // set alpha's grazing configurations (default: the paper's 2)
   sensor_noise noise;  // simulated sensor noise on the rendered inputs (none by default)
 };
 
@@ -114,7 +115,7 @@ void synthesize(const synthesize_args& a) {
   }
   const material_maps truth = generate_material(a.seed, a.width, a.height, options);
   capture cap;
-  if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height);
+  if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height, a.fresnel);
   else if (a.set == "beta") cap = set_beta(a.images, a.seed, a.width, a.height);
   else throw std::invalid_argument("--set must be alpha or beta, got '" + a.set + "'");
   fs::create_directories(a.out);
@@ -352,6 +353,7 @@ struct eval_args {
   sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)
   std::string materials = "original";  // mix the materials' kinds are drawn from (procedural.hpp material_mix)
   std::string families;                // non-empty: these families only, material m gets the (m mod n)-th
+  fresnel_options fresnel;             // set alpha's grazing configurations (default: the paper's 2)
 };
 
 /// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and stage the
@@ -361,7 +363,8 @@ void eval_command(const eval_args& e, const capture_args& base) {
   for (const auto& set : e.sets)
     if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
   for (int n : e.image_counts)
-    if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
+    if (n < 4 || n < e.fresnel.count + 2)
+      throw std::invalid_argument("eval: --images values must be >= 4 and >= --fresnel + 2");
   e.noise.validate();
   const std::vector<material_kind> families = material_kinds_from_names(e.families);
   const auto mix = material_mix_from_name(e.materials);
@@ -431,7 +434,7 @@ void eval_command(const eval_args& e, const capture_args& base) {
     const capture novel = novel_view_set(seed, w, h);
     for (int n : e.image_counts)
       for (const auto& set : e.sets) {
-        const capture cap = set == "alpha" ? set_alpha(n, seed, w, h) : set_beta(n, seed, w, h);
+        const capture cap = set == "alpha" ? set_alpha(n, seed, w, h, e.fresnel) : set_beta(n, seed, w, h);
         auto photos = render(truth, cap);
         add_sensor_noise(photos, e.noise, seed ^ hash64(std::uint64_t(n) * 2 + (set == "beta")));
         pipeline_options po;
@@ -514,6 +517,11 @@ int main(int argc, char** argv) {
   syn_cmd->add_option("--kind", syn.kind,
                       "force a material kind: plain, basket, twill, herringbone, satin, velvet, brushed, spun, leather, "
                       "coated, printed, foil");
+  syn_cmd->add_option("--fresnel", syn.fresnel.count,
+                      "grazing (Fresnel) configurations in set alpha; 4 with N = 12 separates a'_s from F0 better on metals "
+                      "(studies/README.md)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   syn_cmd->add_option("--materials", syn.materials, "families the kind is drawn from without --kind: original, extended or training")
       ->check(CLI::IsMember({"original", "extended", "training"}))
       ->capture_default_str();
@@ -565,6 +573,9 @@ int main(int argc, char** argv) {
   eval_cmd->add_option("--images", ev.image_counts, "input counts N")->delimiter(',')->capture_default_str();
   eval_cmd->add_option("--sets", ev.sets, "configuration sets")->delimiter(',')->capture_default_str();
   add_noise_options(eval_cmd, ev.noise);
+  eval_cmd->add_option("--fresnel", ev.fresnel.count, "grazing (Fresnel) configurations in set alpha")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   eval_cmd->add_option("--materials", ev.materials, "families the materials are drawn from: original, extended or training")
       ->check(CLI::IsMember({"original", "extended", "training"}))
       ->capture_default_str();
