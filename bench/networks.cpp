@@ -1,4 +1,4 @@
-// Training-step cost of the networks (pipeline/networks.hpp, pipeline/training.hpp): one Adam step
+// Training-step cost of the networks (networks/estimator.hpp, training/training.hpp): one Adam step
 // (forward, backward through the render loss and L1, update) of the compact and paper presets,
 // without sample generation, and the cost of generating one training sample (material, 5 inputs,
 // render-loss targets). Counter `samples_per_s`: materials per second (an estimator sample is a
@@ -12,7 +12,7 @@
 #include <memory>
 #include <vector>
 
-#include "anisocap/pipeline/training.hpp"
+#include "anisocap/training/training.hpp"
 
 using namespace anisocap;
 
@@ -61,7 +61,7 @@ template <class Preset>
 void estimator_step(benchmark::State& state) {
   const int size = int(state.range(0)), batch = int(state.range(1));
   const bool render = state.range(2) != 0;
-  auto net = std::make_unique<EstimationNet<Preset>>(1);
+  auto net = std::make_unique<estimation_network<Preset>>(1);
   nn::adam opt(nn::learning_rate_schedule::constant(1e-5));
   opt.add_parameters(*net);
   const auto s = samples(batch, size, true);
@@ -92,11 +92,11 @@ template <class Preset>
 void autoencoder_step(benchmark::State& state) {
   const int size = int(state.range(0)), batch = int(state.range(1));
   const bool render = state.range(2) != 0;
-  auto net = std::make_unique<AutoEncoder<Preset>>(1);
+  auto net = std::make_unique<auto_encoder<Preset>>(1);
   nn::adam opt(nn::learning_rate_schedule::constant(1e-5));
   opt.add_parameters(*net);
   const auto s = samples(batch, size, false);
-  constexpr int Z = AutoEncoder<Preset>::latent_channels;
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
   ad::tape t;
   auto step = [&] {
     t.clear();

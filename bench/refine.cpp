@@ -4,6 +4,7 @@
 #include <omp.h>
 
 #include "anisocap/data/procedural.hpp"
+#include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/configurations.hpp"
 

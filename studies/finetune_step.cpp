@@ -3,7 +3,7 @@
 // through the decoder, Adam. For the compact preset (shipped weights) and the paper preset
 // (seeded initial weights: the step's cost does not depend on the weights' values), on a
 // 256 x 256 procedural tile with 12 inputs (set alpha), whole-tile steps and crop steps
-// (pipeline_options::finetune_crop). Prints medians of --repeats steps after --warmup steps, in ms,
+// (finetune_crop_options). Prints medians of --repeats steps after --warmup steps, in ms,
 // and the ratios that matter: a crop step against a whole step, the paper preset against compact.
 //
 // usage: anisocap_study_finetune_step [--size 256] [--repeats 40] [--warmup 8] [--crop 4] [--models DIR]
@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
+#include "anisocap/pipeline/capture.hpp"
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
@@ -40,14 +40,14 @@ struct step_times {
 };
 
 template <class P>
-step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int crop) {
+step_times time_steps(auto_encoder<P>& ae, int size, int repeats, int warmup, int crop) {
   const std::uint64_t seed = 920000;
   const material_maps truth = generate_material(seed, size, size);
   capture cap = set_alpha(12, seed, size, size);
   std::vector<image> photos = render(truth, cap);
   apply_exposure(cap, photos, exposure_scale(cap));
   const loss_targets targets = make_loss_targets(photos);
-  const auto z = pipeline_detail::encode_maps(ae, truth);
+  const auto z = encode(ae, truth);
   ae.freeze_encoder(true);
   nn::adam adam(nn::learning_rate_schedule::constant(1e-5));  // small: the weights barely move while timing
   ae.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
@@ -83,12 +83,12 @@ step_times time_steps(AutoEncoder<P>& ae, int size, int repeats, int warmup, int
   }
   // Crop steps, windows as the pipeline draws them.
   const int cells = z.width(), k = std::min(crop, cells);  // a square tile: z.height() too
-  pipeline_detail::crop_scratch scratch;
+  finetune_crops::scratch scratch;
   for (int s = 0; s < warmup + repeats; ++s) {
     const auto t0 = clock_type::now();
     t.clear();
-    const auto win = pipeline_detail::random_window(cells, cells, k, k, 1, s);
-    pipeline_detail::decoder_crop_step<all_features>(t, ae, z, win, k, k, size, size, cap, targets, {}, scratch);
+    const auto win = finetune_crops::random_window(cells, cells, k, k, 1, s);
+    finetune_crops::crop_step<all_features>(t, ae, z, win, k, k, size, size, cap, targets, {}, scratch);
     adam.step();
     if (s >= warmup) st.crop.push_back(ms_between(t0, clock_type::now()));
   }
@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
   std::printf("fine-tune step, %d x %d, 12 inputs, %d threads, medians of %d steps (ms)\n\n", size, size, omp_get_max_threads(), repeats);
   std::printf("| preset | decode | to maps | loss + gradient | chain rule | backward | Adam | whole step | crop step | crop / whole |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
-  AutoEncoder<autoencoder_compact> compact;
+  auto_encoder<autoencoder_compact> compact;
   try {
     nn::load_weights(models / "compact" / "autoencoder.safetensors", compact);
   } catch (const std::exception& e) {
@@ -129,7 +129,7 @@ int main(int argc, char** argv) {
   }
   const step_times c = time_steps(compact, size, repeats, warmup, crop);
   print("compact", c, crop);
-  auto paper = std::make_unique<AutoEncoder<autoencoder_paper>>(1);
+  auto paper = std::make_unique<auto_encoder<autoencoder_paper>>(1);
   const step_times p = time_steps(*paper, size, repeats, warmup, crop);
   print("paper", p, crop);
   std::printf("\npaper / compact whole step: %.2fx\n", median(p.total) / median(c.total));

@@ -19,7 +19,6 @@
 #include <vector>
 
 #include "anisocap/anisocap.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
 
 namespace {
 
@@ -70,12 +69,12 @@ int run(const study_options& o) {
   if (kinds.empty()) throw std::invalid_argument("--kinds: give at least one family");
   const pipeline_stages stages = pipeline_stages::parse(o.stages);
   if (stages.encode || stages.finetune) throw std::invalid_argument("--stages: this study runs refine or estimate,refine");
-  std::unique_ptr<EstimationNet<estimator_compact>> estimator;
-  std::unique_ptr<AutoEncoder<autoencoder_compact>> autoencoder;
+  std::unique_ptr<estimation_network<estimator_compact>> estimator;
+  std::unique_ptr<auto_encoder<autoencoder_compact>> autoencoder;
   if (stages.estimate) {
     if (o.size % 64 != 0) throw std::invalid_argument("--stages estimate needs --size a multiple of 64");
-    estimator = std::make_unique<EstimationNet<estimator_compact>>();
-    autoencoder = std::make_unique<AutoEncoder<autoencoder_compact>>();
+    estimator = std::make_unique<estimation_network<estimator_compact>>();
+    autoencoder = std::make_unique<auto_encoder<autoencoder_compact>>();
     nn::load_weights(o.models + "/estimator.safetensors", *estimator);
   }
   std::vector<band> bands;
@@ -107,13 +106,14 @@ int run(const study_options& o) {
             const auto start = std::chrono::steady_clock::now();
             material_maps maps;
             if (estimator) {
-              pipeline_options pipeline;
+              capture_options pipeline;
               pipeline.stages = stages;
-              pipeline.window = std::min(256, w);
-              pipeline.stride = std::max(32, pipeline.window / 4);
+              pipeline.estimate.window = std::min(256, w);
+              pipeline.estimate.stride = std::max(32, pipeline.estimate.window / 4);
+              pipeline.kernel = kernel_options::parse("full");  // the kernel the refine-only runs use
               pipeline.refine.steps = o.steps;
               pipeline.refine.learning_rate = float(o.learning_rate);
-              maps = run_pipeline(cap, photos, *estimator, *autoencoder, pipeline).maps;
+              maps = capture_material(cap, photos, *estimator, *autoencoder, pipeline).maps;
             } else {
               maps = initial_guess(cap, photos);
               refine_options ro;

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The estimation network and the auto-encoder of pipeline/networks.hpp in PyTorch, beside
+"""The estimation network and the auto-encoder of networks/estimator.hpp in PyTorch, beside
 anisocap_bench_networks: training steps (forward, L1 loss, backward, Adam) per second.
 
     OMP_WAIT_POLICY=passive /usr/bin/python3 studies/networks_torch.py build/bench/anisocap_bench_networks
@@ -127,8 +127,8 @@ def max_over_images(x, n):
     return x.reshape(x.shape[0] // n, n, *x.shape[1:]).amax(1)
 
 
-class EstimationNet(nn.Module):
-    """EstimationNet<Preset>: shared single-image U-Net with a global-feature track, two decoder
+class estimation_network(nn.Module):
+    """estimation_network<Preset>: shared single-image U-Net with a global-feature track, two decoder
     tracks max-pooled over each set's images, reducing heads to 9 + 3 channels."""
 
     def __init__(self, encoder, track1, track2):
@@ -161,8 +161,8 @@ class EstimationNet(nn.Module):
         return torch.cat([self.head1(f1, gp), self.head2(f2, gp)], 1)
 
 
-class AutoEncoder(nn.Module):
-    """AutoEncoder<Preset>: 5 convolutions 4x4/2 with leaky ReLU, batch norm -> z; 5 transposed
+class auto_encoder(nn.Module):
+    """auto_encoder<Preset>: 5 convolutions 4x4/2 with leaky ReLU, batch norm -> z; 5 transposed
     convolutions with leaky ReLU, tanh."""
 
     def __init__(self, E):
@@ -192,10 +192,10 @@ def make_step(kind, preset, size, batch, channels_last):
     torch.manual_seed(0)
     fmt = torch.channels_last if channels_last else torch.contiguous_format
     if kind == "estimator":
-        net = EstimationNet(**ESTIMATOR[preset])
+        net = estimation_network(**ESTIMATOR[preset])
         x = (torch.rand(batch * IMAGES, 3, size, size) * 2 - 1).contiguous(memory_format=fmt)
     else:
-        net = AutoEncoder(AUTOENCODER[preset])
+        net = auto_encoder(AUTOENCODER[preset])
         x = (torch.rand(batch, PARAMETERS, size, size) * 2 - 1).contiguous(memory_format=fmt)
     net = net.to(memory_format=fmt)
     net.train()

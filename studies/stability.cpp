@@ -1,6 +1,6 @@
 // Numerical stability of the capture: the scenarios of
 // tests/pipeline/stability_test.cpp at bench size, printed as Markdown tables (studies/README.md,
-// "Numerical stability"). Every run is `run_pipeline` with the refine stage only (first guess from
+// "Numerical stability"). Every run is `capture_material` with the refine stage only (first guess from
 // the photographs, then per-texel Adam, as `anisocap capture --stages refine`), exposure
 // normalisation on unless a row says otherwise.
 //
@@ -25,8 +25,8 @@
 
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/pipeline/capture.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "../tests/support/stability_scenes.hpp"
 
@@ -35,34 +35,21 @@ using namespace anisocap::testing;
 
 namespace {
 
-/// Smallest estimator: the refine-only runs construct but never use the networks.
-struct estimator_unused {
-  static constexpr std::array<int, 6> encoder{4, 4, 4, 4, 4, 8};
-  static constexpr std::array<int, 6> track1{8, 4, 4, 4, 4, 4};
-  static constexpr std::array<int, 6> track2{4, 4, 4, 4, 4, 4};
-  static constexpr const char* name = "unused";
-};
-/// Smallest auto-encoder, see estimator_unused.
-struct autoencoder_unused {
-  static constexpr std::array<int, 5> encoder{4, 4, 8, 8, 8};
-  static constexpr const char* name = "unused";
-};
-
 /// One refine-only pipeline run and its wall time.
 struct run_result {
-  pipeline_result pipeline;
+  capture_result pipeline;
   double seconds = 0;
 };
 
 run_result run_refine(const capture& cap, const std::vector<image>& photos, int steps, bool normalise = true) {
-  EstimationNet<estimator_unused> estimator(1);
-  AutoEncoder<autoencoder_unused> autoencoder(2);
-  pipeline_options o;
+  capture_options o;
   o.stages = pipeline_stages{false, false, false, true};
+  o.refine = refine_options{};  // from the first guess
   o.refine.steps = steps;
+  o.kernel = kernel_options::parse("full");
   o.normalise_exposure = normalise;
   const auto t0 = std::chrono::steady_clock::now();
-  run_result r{run_pipeline(cap, photos, estimator, autoencoder, o), 0};
+  run_result r{capture_material(cap, photos, o), 0};
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
 }

@@ -1,4 +1,4 @@
-// Run time against error (issue 6): sweeps the knobs that trade time for accuracy on procedural
+// Run time against error: sweeps the knobs that trade time for accuracy on procedural
 // validation materials and writes one CSV row per (material, configuration). studies/sweep_plot.py
 // turns the CSV into the plot and the Pareto table of studies/README.md.
 //
@@ -34,8 +34,9 @@
 
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/nn/early_stopping.hpp"
+#include "anisocap/pipeline/capture.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
@@ -67,10 +68,10 @@ bool all_finite(const material_maps& m) {
   return true;
 }
 
-/// The number of updates after which the pipeline's fine-tune early stopping (early_stopping in
-/// capture_pipeline.hpp; window means with crops) ends a run with this loss curve.
+/// The number of updates after which the fine-tune's early stopping (nn/early_stopping.hpp; window
+/// means with crops) ends a run with this loss curve.
 int stopping_step(const std::vector<double>& losses, double tolerance, bool window_mean, int patience = 200) {
-  early_stopping rule(tolerance, patience, window_mean);
+  nn::early_stopping rule(tolerance, patience, window_mean);
   for (int step = 0; step < int(losses.size()); ++step)
     if (rule.stop_after(step, losses[std::size_t(step)])) return step + 1;
   return int(losses.size());
@@ -123,8 +124,8 @@ int main(int argc, char** argv) {
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
   if (materials < 1 || size < 32 || max_finetune < 0) { std::fprintf(stderr, "sweep: bad option values\n"); return 2; }
-  EstimationNet<estimator_compact> estimator;
-  AutoEncoder<autoencoder_compact> autoencoder;
+  estimation_network<estimator_compact> estimator;
+  auto_encoder<autoencoder_compact> autoencoder;
   try {
     nn::load_weights(models / "compact" / "estimator.safetensors", estimator);
   } catch (const std::exception& e) {
@@ -201,13 +202,14 @@ int main(int argc, char** argv) {
       // Network path: estimate + encode, then one fine-tune trajectory observed at every step.
       nn::load_weights(ae_file, autoencoder);  // fresh decoder weights for every trajectory
       const int ft_max = n == 12 ? max_finetune : std::min(max_finetune, 1000);
-      pipeline_options po;
+      capture_options po;
+      po.kernel = kernel_options::parse("full");
       po.stages = pipeline_stages{true, true, true, false};
-      po.finetune_steps = ft_max;
-      po.finetune_learning_rate = finetune_lr;
-      po.finetune_crop = finetune_crop;
-      po.finetune_warmup = finetune_warmup;
-      po.finetune_half_life = finetune_half_life;
+      po.finetune.steps = ft_max;
+      po.finetune.learning_rate = finetune_lr;
+      po.finetune.crop.cells = finetune_crop;
+      po.finetune.warmup = finetune_warmup;
+      po.finetune.half_life = finetune_half_life;
       po.normalise_exposure = false;  // done above, identically for every path
       std::vector<double> losses;
       std::map<int, material_maps> snapshots;
@@ -215,7 +217,7 @@ int main(int argc, char** argv) {
       double observer_seconds = 0;
       auto ft_start = clock_type::now();
       bool started = false;
-      po.finetune_observer = [&](int updates, double loss, const std::function<material_maps()>& maps) {
+      po.finetune.observer = [&](int updates, double loss, const std::function<material_maps()>& maps) {
         const auto t_in = clock_type::now();
         if (!started) { started = true; ft_start = t_in; }
         losses.push_back(loss);
@@ -226,7 +228,7 @@ int main(int argc, char** argv) {
         observer_seconds += seconds_since(t_in);
       };
       const auto t_all = clock_type::now();
-      pipeline_result pr = run_pipeline(cap, photos, estimator, autoencoder, po);
+      capture_result pr = capture_material(cap, photos, estimator, autoencoder, po);
       const double total = seconds_since(t_all);
       double pre_seconds = 0, ft_seconds = 0;
       for (const auto& st : pr.stages) {

@@ -1,7 +1,6 @@
 #pragma once
 // Training subcommands of the `anisocap` program (train-estimator, train-autoencoder) and the
-// networks' evaluation (eval-networks). Registered by examples/anisocap.cpp through
-// add_train_commands(); issue 4, models/README.md.
+// networks' evaluation (eval-networks); models/README.md.
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
@@ -10,82 +9,51 @@
 #include <string>
 #include <vector>
 
-#include "anisocap/pipeline/training.hpp"
+#include "anisocap/training/training.hpp"
+#include "common.hpp"
 
 namespace anisocap::commands {
 
 namespace train_detail {
 
-/// Command-line settings of a training run (mirrors training::train_options).
+
+/// A training run: the network preset and the library's options.
 struct train_settings {
   std::string preset = "compact";
-  std::string out;
-  long steps = 2000;
-  int size = 128;
-  int batch = 2;
-  double learning_rate = 0;
-  unsigned long long seed = 1;
-  double checkpoint_minutes = 5;
-  long validate_every = 250;
-  int validation_count = 8;
-  bool resume = false;
-  std::string init;
-  double smoothness = 0.1;
-  double latent_noise = 0.1;
-  std::string materials = "original";
+  training::train_options options;
 };
 
-inline training::train_options to_options(const train_settings& s) {
-  training::train_options o;
-  o.out_dir = s.out;
-  o.steps = s.steps;
-  o.size = s.size;
-  o.batch = s.batch;
-  o.learning_rate = s.learning_rate;
-  o.seed = s.seed;
-  o.checkpoint_minutes = s.checkpoint_minutes;
-  o.validate_every = s.validate_every;
-  o.validation_count = s.validation_count;
-  o.resume = s.resume;
-  o.init_weights = s.init;
-  o.smoothness_weight = s.smoothness;
-  o.latent_noise = s.latent_noise;
-  o.mix = *material_mix_from_name(s.materials);
-  return o;
-}
-
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
+  training::train_options& o = s.options;
   cmd->add_option("--preset", s.preset, "network widths: compact or paper")->check(CLI::IsMember({"compact", "paper"}));
-  cmd->add_option("--out", s.out, "output folder (checkpoints, weights, validation.csv)")->required();
-  cmd->add_option("--steps", s.steps, "total optimiser steps (a resumed run continues up to this)");
-  cmd->add_option("--size", s.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
-  cmd->add_option("--batch", s.batch, "materials per step");
-  cmd->add_option("--lr", s.learning_rate, "Adam learning rate (default: the paper's, 5e-5 estimator / 1e-3 auto-encoder)");
-  cmd->add_option("--seed", s.seed, "run seed (initial weights and training materials)");
-  cmd->add_option("--checkpoint-minutes", s.checkpoint_minutes, "minutes between checkpoints");
-  cmd->add_option("--validate-every", s.validate_every, "steps between validations");
-  cmd->add_option("--validation-count", s.validation_count, "validation materials");
-  cmd->add_flag("--resume", s.resume, "continue from OUT/checkpoint.json");
-  cmd->add_option("--materials", s.materials,
-                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out "
-                  "leather and printed)")
-      ->check(CLI::IsMember({"original", "training"}));
-  cmd->add_option("--init", s.init, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
+  cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
+  cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
+  cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
+  cmd->add_option("--batch", o.batch, "materials per step");
+  cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder)");
+  cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
+  cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
+  cmd->add_option("--validate-every", o.validate_every, "steps between validations");
+  cmd->add_option("--validation-count", o.validation_count, "validation materials");
+  cmd->add_flag("--resume", o.resume, "continue from OUT/checkpoint.json");
+  add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
+                 "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
+  cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
-    cmd->add_option("--smoothness", s.smoothness, "weight of the latent smoothness term");
-    cmd->add_option("--latent-noise", s.latent_noise, "standard deviation of the latent step delta");
+    cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");
+    cmd->add_option("--latent-noise", o.latent_noise, "standard deviation of the latent step delta");
   }
 }
 
 /// Settings of eval-networks.
-struct eval_settings {
+struct network_eval_settings {
   std::string estimator = "models/compact/estimator.safetensors";
   std::string autoencoder = "models/compact/autoencoder.safetensors";
   int count = 30;
   int size = 256;
   std::string markdown;
-  std::string materials = "original";  ///< mix the validation materials' kinds are drawn from
-  std::string families;                ///< non-empty: comma-separated families, material i gets the (i mod n)-th
+  material_mix mix = material_mix::original;  ///< the mix the validation materials' kinds are drawn from
+  std::string families;  ///< non-empty: comma-separated families, material i gets the (i mod n)-th
 };
 
 inline std::string row(const char* name, const parameter_errors& e) {
@@ -96,11 +64,10 @@ inline std::string row(const char* name, const parameter_errors& e) {
 }
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation materials.
-inline void evaluate_networks(const eval_settings& s) {
+inline void evaluate_networks(const network_eval_settings& s) {
   const std::vector<material_kind> families = material_kinds_from_names(s.families);
-  const material_mix mix = *material_mix_from_name(s.materials);
-  EstimationNet<estimator_compact> estimator;
-  AutoEncoder<autoencoder_compact> autoencoder;
+  estimation_network<estimator_compact> estimator;
+  auto_encoder<autoencoder_compact> autoencoder;
   nn::load_weights(s.estimator, estimator);
   nn::load_weights(s.autoencoder, autoencoder);
   std::vector<training::sample> samples;
@@ -108,8 +75,8 @@ inline void evaluate_networks(const eval_settings& s) {
   for (int i = 0; i < s.count; ++i) {
     const std::uint64_t seed = training::validation_seed(i);
     procedural_options options;
-    options.mix = mix;
-    options.kind = evaluation_kind(i, seed, families, mix);
+    options.mix = s.mix;
+    options.kind = evaluation_kind(i, seed, families, s.mix);
     kinds.push_back(*options.kind);
     samples.push_back(training::make_sample(seed, s.size, true, options));
   }
@@ -137,7 +104,7 @@ inline void evaluate_networks(const eval_settings& s) {
     ae_all.push_back({kinds[i], a});
   }
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
-                   (families.empty() ? std::string(material_mix_name(mix)) + " mix" : "families " + s.families) + "), " +
+                   (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
                    ", 5 inputs (training set); MSE in the original ranges (compare_maps)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | F0 |\n|---|---|---|---|---|---|---|\n";
@@ -164,58 +131,49 @@ inline void evaluate_networks(const eval_settings& s) {
 
 }  // namespace train_detail
 
-/// Adds the training subcommands to `app`. Each returns, through `actions`, the function to run
-/// when its subcommand was chosen (the program runs every action whose subcommand parsed).
-inline void add_train_commands(CLI::App& app, std::vector<std::pair<CLI::App*, std::function<void()>>>& actions) {
+/// Registers `anisocap train-estimator`, `train-autoencoder` and `eval-networks`.
+inline void add_train_commands(CLI::App& app) {
   using namespace train_detail;
   auto est = std::make_shared<train_settings>();
-  est->learning_rate = 0;
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
-  actions.emplace_back(est_cmd, [est] {
-    const auto o = to_options(*est);
+  est_cmd->callback([est] {
+    const auto& o = est->options;
     if (est->preset == "paper") {
-      auto net = std::make_unique<EstimationNet<estimator_paper>>(est->seed);
+      auto net = std::make_unique<estimation_network<estimator_paper>>(o.seed);
       training::train_estimator(o, *net);
     } else {
-      auto net = std::make_unique<EstimationNet<estimator_compact>>(est->seed);
+      auto net = std::make_unique<estimation_network<estimator_compact>>(o.seed);
       training::train_estimator(o, *net);
     }
   });
   auto ae = std::make_shared<train_settings>();
-  ae->batch = 4;
+  ae->options = training::train_options::autoencoder();
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
-  actions.emplace_back(ae_cmd, [ae] {
-    const auto o = to_options(*ae);
+  ae_cmd->callback([ae] {
+    const auto& o = ae->options;
     if (ae->preset == "paper") {
-      auto net = std::make_unique<AutoEncoder<autoencoder_paper>>(ae->seed);
+      auto net = std::make_unique<auto_encoder<autoencoder_paper>>(o.seed);
       training::train_autoencoder(o, *net);
     } else {
-      auto net = std::make_unique<AutoEncoder<autoencoder_compact>>(ae->seed);
+      auto net = std::make_unique<auto_encoder<autoencoder_compact>>(o.seed);
       training::train_autoencoder(o, *net);
     }
   });
-  auto ev = std::make_shared<eval_settings>();
+  auto ev = std::make_shared<network_eval_settings>();
   auto* ev_cmd = app.add_subcommand("eval-networks", "per-parameter errors of the compact estimator (against the mean-map baseline) and auto-encoder");
   ev_cmd->add_option("--estimator", ev->estimator, "estimator weights");
   ev_cmd->add_option("--autoencoder", ev->autoencoder, "auto-encoder weights");
   ev_cmd->add_option("--count", ev->count, "validation materials");
   ev_cmd->add_option("--size", ev->size, "material size (multiple of 64)");
   ev_cmd->add_option("--markdown", ev->markdown, "also write the table to this file");
-  ev_cmd->add_option("--materials", ev->materials, "families the materials are drawn from: original, extended or training")
-      ->check(CLI::IsMember({"original", "extended", "training"}));
+  add_mix_option(ev_cmd, ev->mix, {material_mix::original, material_mix::extended, material_mix::training},
+                 "families the materials are drawn from: original, extended or training");
   ev_cmd->add_option("--families", ev->families,
                      "evaluate these families only, comma-separated (e.g. leather,printed); material i gets the (i mod n)-th")
-      ->check([](const std::string& list) {
-        try {
-          material_kinds_from_names(list);
-          return std::string();
-        } catch (const std::invalid_argument& e) {
-          return std::string(e.what());
-        }
-      });
-  actions.emplace_back(ev_cmd, [ev] { evaluate_networks(*ev); });
+      ->check(family_list_check());
+  ev_cmd->callback([ev] { evaluate_networks(*ev); });
 }
 
 }  // namespace anisocap::commands

@@ -1,4 +1,4 @@
-// Tests for data/capture_io.hpp: capture.json round trips, every malformed case of issue 2 item 5
+// Tests for data/capture_io.hpp: capture.json round trips, every malformed case
 // (one error naming the file, the image and the problem), and loading the capture's images.
 #include <doctest/doctest.h>
 

@@ -1,7 +1,8 @@
-// The data/ umbrella header compiles on its own and gives the whole data API.
-#include <doctest/doctest.h>
+// The umbrella header compiles on its own (the first include of this file) and gives every
+// public name, the data API among them.
+#include "anisocap/anisocap.hpp"
 
-#include "anisocap/data/data.hpp"
+#include <doctest/doctest.h>
 
 TEST_CASE("data umbrella: every data header is reachable") {
   CHECK(anisocap::map_file_names.size() == 7);

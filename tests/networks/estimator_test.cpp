@@ -1,4 +1,4 @@
-// EstimationNet (pipeline/networks.hpp): shapes for odd sizes and 1, 3, 5 images, invariance to
+// estimation_network (networks/estimator.hpp): shapes for odd sizes and 1, 3, 5 images, invariance to
 // the order of the images (max-pool), output ranges, multiple sets in one batch.
 #include <doctest/doctest.h>
 
@@ -7,11 +7,12 @@
 #include <vector>
 
 #include "anisocap/core/random.hpp"
-#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
 #include "tiny_presets.hpp"
 
 using namespace anisocap;
-using Net = EstimationNet<testing::estimator_tiny>;
+using Net = estimation_network<testing::estimator_tiny>;
 
 namespace {
 std::vector<image> random_photos(int n, int width, int height, std::uint64_t seed) {
@@ -27,7 +28,7 @@ std::vector<image> random_photos(int n, int width, int height, std::uint64_t see
   return photos;
 }
 
-/// True when every value of the map set lies in its parameter's valid range (MODEL.md 1).
+/// True when every value of the map set lies in its parameter's valid range (docs/method.md section 1).
 bool in_range(const material_maps& m) {
   for (int y = 0; y < m.height(); ++y)
     for (int x = 0; x < m.width(); ++x) {

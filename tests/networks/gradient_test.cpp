@@ -5,7 +5,8 @@
 #include <vector>
 
 #include "anisocap/core/random.hpp"
-#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
 #include "support/gradient_check.hpp"
 #include "tiny_presets.hpp"
 
@@ -24,7 +25,7 @@ void check_parameter(nn::basic_parameter<double>& p, const std::function<double(
 }  // namespace
 
 TEST_CASE("estimator gradient: end to end in double against central differences") {
-  EstimationNet<anisocap::testing::estimator_tiny, double> net(7);
+  estimation_network<anisocap::testing::estimator_tiny, double> net(7);
   ad::tape t;
   random_generator rng(21);
   tensor<3, double> input(4, 64, 64);
@@ -56,7 +57,7 @@ TEST_CASE("estimator gradient: end to end in double against central differences"
 }
 
 TEST_CASE("auto-encoder gradient: end to end in double, and a frozen encoder gets no gradient") {
-  AutoEncoder<anisocap::testing::autoencoder_tiny, double> net(8);
+  auto_encoder<anisocap::testing::autoencoder_tiny, double> net(8);
   random_generator rng(22);
   tensor<parameter_count, double> input(2, 64, 32);
   for (std::size_t i = 0; i < input.size(); ++i) input.data()[i] = rng.uniform() * 2 - 1;

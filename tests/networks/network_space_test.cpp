@@ -1,4 +1,4 @@
-// Network space (pipeline/network_space.hpp): round trips per parameter, ranges, the chain rule
+// Network space (networks/network_space.hpp): round trips per parameter, ranges, the chain rule
 // of network_to_maps against finite differences, and the photographs' eq. 7 map.
 #include <doctest/doctest.h>
 
@@ -7,7 +7,7 @@
 
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/pipeline/network_space.hpp"
+#include "anisocap/networks/network_space.hpp"
 
 using namespace anisocap;
 namespace ns = anisocap::network_space;

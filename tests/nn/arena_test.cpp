@@ -1,4 +1,4 @@
-// The arena test (issue 3): a small fixed-size network (convolutions included) trained with Adam allocates nothing after
+// The arena test: a small fixed-size network (convolutions included) trained with Adam allocates nothing after
 // its first step, neither through the library's aligned allocator nor through operator new (this
 // file replaces the global operator new to count every heap allocation of the program).
 #include <doctest/doctest.h>

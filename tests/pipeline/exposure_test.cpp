@@ -3,8 +3,9 @@
 #include <cmath>
 
 #include "../render/render_reference.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
+#include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/configurations.hpp"
 

@@ -1,4 +1,4 @@
-// Numerical stability of the capture (issue 6, part 3): the per-texel refine and the pipeline on
+// Numerical stability of the capture: the per-texel refine and the pipeline on
 // procedural materials under saturated highlights, near-grazing configurations, corrupted inputs
 // and intensities scaled by 1e-4 and 1e4. Measured values are in the comments beside each bound;
 // bench/stability.cpp prints the same scenarios at 256 x 256 (bench/README.md, "Numerical
@@ -24,8 +24,9 @@
 #include "../support/stability_scenes.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "../support/capture_options.hpp"
+#include "anisocap/pipeline/capture.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/configurations.hpp"
 
@@ -43,7 +44,7 @@ struct procedural_scene {
       : truth(generate_material(seed, size, size)), cap(set_alpha(images, seed, size, size)), photos(render(truth, cap)) {}
 };
 
-/// Number of map values that are not finite or lie outside their parameter's range (MODEL.md 1):
+/// Number of map values that are not finite or lie outside their parameter's range (docs/method.md section 1):
 /// albedos and F0 in [0, 1], lobe widths in (0, 1], normal (x, y) inside the unit disc, alpha in
 /// [-pi/2, pi/2].
 std::size_t invalid_values(const material_maps& m) {
@@ -75,10 +76,10 @@ double fraction_at_or_above(const std::vector<image>& photos, float level) {
 }
 
 /// Runs the pipeline with fresh tiny networks (same seeds each call, so runs are comparable).
-pipeline_result run_tiny(const capture& cap, const std::vector<image>& photos, const pipeline_options& o) {
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> autoencoder(2);
-  return run_pipeline(cap, photos, estimator, autoencoder, o);
+capture_result run_tiny(const capture& cap, const std::vector<image>& photos, const capture_options& o) {
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> autoencoder(2);
+  return capture_material(cap, photos, estimator, autoencoder, o);
 }
 
 /// Largest difference per parameter group between two map sets, for messages and checks.
@@ -182,16 +183,16 @@ TEST_CASE("stability: a photograph with a NaN or infinite pixel is refused by th
     CHECK(message.find("image 3") != std::string::npos);
     CHECK(message.find("(17, 5)") != std::string::npos);
 
-    EstimationNet<estimator_tiny> estimator(1);
-    AutoEncoder<autoencoder_tiny> autoencoder(2);
-    pipeline_options po;
+    estimation_network<estimator_tiny> estimator(1);
+    auto_encoder<autoencoder_tiny> autoencoder(2);
+    capture_options po = measured_capture_options();
     po.stages = pipeline_stages{false, false, false, true};
     po.refine.steps = 5;
-    CHECK_THROWS_AS(run_pipeline(s.cap, photos, estimator, autoencoder, po), std::invalid_argument);
+    CHECK_THROWS_AS(capture_material(s.cap, photos, estimator, autoencoder, po), std::invalid_argument);
   }
 }
 
-// Scaling a capture's intensities and photographs by one factor must not change its maps: run_pipeline
+// Scaling a capture's intensities and photographs by one factor must not change its maps: capture_material
 // normalises the exposure first (pipeline/exposure.hpp). For a power of two the normalised inputs
 // are bit-identical, and so must the maps be. For 1e-4 and 1e4 they agree up to float rounding
 // (relative 1e-7), which the optimisers then amplify: Adam's first steps move each variable by
@@ -202,15 +203,15 @@ TEST_CASE("stability: a photograph with a NaN or infinite pixel is refused by th
 // mean squared differences, with the normalisation switched off as the counter-example.
 TEST_CASE("stability: intensities and photographs scaled by 1e-4 and 1e4 give the maps of the unscaled capture") {
   const procedural_scene s(24, 48, 8);
-  pipeline_options o;
+  capture_options o = measured_capture_options();
   o.stages = pipeline_stages{false, false, false, true};  // refine from the first guess
   o.refine.steps = 100;
-  const pipeline_result reference = run_tiny(s.cap, s.photos, o);
+  const capture_result reference = run_tiny(s.cap, s.photos, o);
   REQUIRE(invalid_values(reference.maps) == 0);
   for (const float factor : {0x1p-13f, 0x1p13f}) {
     CAPTURE(factor);
     const auto [cap, photos] = scaled(s.cap, s.photos, factor);
-    const pipeline_result r = run_tiny(cap, photos, o);
+    const capture_result r = run_tiny(cap, photos, o);
     CHECK(r.exposure_scale == reference.exposure_scale / factor);
     CHECK(group_differences(r.maps, reference.maps).largest() == 0.0);
     CHECK(r.stages.back().loss == doctest::Approx(reference.stages.back().loss).epsilon(1e-9));
@@ -218,7 +219,7 @@ TEST_CASE("stability: intensities and photographs scaled by 1e-4 and 1e4 give th
   for (const float factor : {1e-4f, 1e4f}) {
     CAPTURE(factor);
     const auto [cap, photos] = scaled(s.cap, s.photos, factor);
-    const pipeline_result r = run_tiny(cap, photos, o);
+    const capture_result r = run_tiny(cap, photos, o);
     CHECK(r.exposure_scale == doctest::Approx(reference.exposure_scale / factor).epsilon(1e-6));
     const parameter_errors e = compare_maps(r.maps, reference.maps);
     INFO("refine only, x" << factor << ": largest |difference| " << group_differences(r.maps, reference.maps)
@@ -237,7 +238,7 @@ TEST_CASE("stability: intensities and photographs scaled by 1e-4 and 1e4 give th
   // differ well beyond the bounds above (measured: a_d 1.1e-3, n 0.033, alpha 0.16).
   o.normalise_exposure = false;
   const auto [dark_cap, dark_photos] = scaled(s.cap, s.photos, 1e-4f);
-  const pipeline_result raw = run_tiny(dark_cap, dark_photos, o);
+  const capture_result raw = run_tiny(dark_cap, dark_photos, o);
   CHECK(raw.exposure_scale == 1.0);
   const parameter_errors e = compare_maps(raw.maps, reference.maps);
   CHECK(e.diffuse > 2e-4);
@@ -250,18 +251,18 @@ TEST_CASE("stability: intensities and photographs scaled by 1e-4 and 1e4 give th
 // refine of a_d 1.3e-3, n 0.012, alpha 0.016, as 1e-4 and 1e4 do.
 TEST_CASE("stability: the four-stage pipeline on tiny networks is invariant to the photographs' units") {
   const procedural_scene s(25, 64, 8);
-  pipeline_options o;
-  o.window = 64;
-  o.stride = 64;
-  o.finetune_steps = 10;
+  capture_options o = measured_capture_options();
+  o.estimate.window = 64;
+  o.estimate.stride = 64;
+  o.finetune.steps = 10;
   o.refine.steps = 30;
-  const pipeline_result reference = run_tiny(s.cap, s.photos, o);
+  const capture_result reference = run_tiny(s.cap, s.photos, o);
   REQUIRE(reference.stages.size() == 4);
   REQUIRE(reference.after_finetune.has_value());
   for (const float factor : {0x1p-13f, 0x1p13f}) {
     CAPTURE(factor);
     const auto [cap, photos] = scaled(s.cap, s.photos, factor);
-    const pipeline_result r = run_tiny(cap, photos, o);
+    const capture_result r = run_tiny(cap, photos, o);
     REQUIRE(r.after_finetune.has_value());
     CHECK(group_differences(*r.after_finetune, *reference.after_finetune).largest() == 0.0);
     CHECK(group_differences(r.maps, reference.maps).largest() == 0.0);
@@ -269,7 +270,7 @@ TEST_CASE("stability: the four-stage pipeline on tiny networks is invariant to t
   for (const float factor : {1e-4f, 1e4f}) {
     CAPTURE(factor);
     const auto [cap, photos] = scaled(s.cap, s.photos, factor);
-    const pipeline_result r = run_tiny(cap, photos, o);
+    const capture_result r = run_tiny(cap, photos, o);
     REQUIRE(r.after_finetune.has_value());
     CHECK(invalid_values(r.maps) == 0);
     const parameter_errors fine = compare_maps(*r.after_finetune, *reference.after_finetune);
@@ -296,14 +297,14 @@ TEST_CASE("stability: the four-stage pipeline on tiny networks is invariant to t
 // compared by mean squared difference, and each run's error against the truth must agree.
 TEST_CASE("stability: the pipeline in float agrees with the pipeline with double-precision loss kernels") {
   const procedural_scene s(27, 64, 8);
-  pipeline_options o;
-  o.window = 64;
-  o.stride = 64;
-  o.finetune_steps = 10;
+  capture_options o = measured_capture_options();
+  o.estimate.window = 64;
+  o.estimate.stride = 64;
+  o.finetune.steps = 10;
   o.refine.steps = 60;
-  const pipeline_result single = run_tiny(s.cap, s.photos, o);
+  const capture_result single = run_tiny(s.cap, s.photos, o);
   o.render.double_precision = true;
-  const pipeline_result twice = run_tiny(s.cap, s.photos, o);
+  const capture_result twice = run_tiny(s.cap, s.photos, o);
   REQUIRE(invalid_values(single.maps) == 0);
   REQUIRE(invalid_values(twice.maps) == 0);
   // Same loss at every stage within 1 %.

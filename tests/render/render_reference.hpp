@@ -1,5 +1,5 @@
 #pragma once
-// A slow, literal implementation of MODEL.md 4-5 on top of ward_evaluate, in double, with exact
+// A slow, literal implementation of docs/method.md section 4-5 on top of ward_evaluate, in double, with exact
 // gradients from dual numbers: the reference the fast renderer is tested against.
 #include <array>
 #include <cmath>
@@ -89,7 +89,7 @@ std::array<T, 3> reference_radiance(const material_maps& m, const capture_image&
   return reference_radiance<T>(texel_parameters<T>(m, x, y), im, x, y, m.width(), m.height());
 }
 
-/// Loss of MODEL.md 5 and its exact gradient (plane-major: grad[k * w * h + y * w + x]).
+/// Loss of docs/method.md section 5 and its exact gradient (plane-major: grad[k * w * h + y * w + x]).
 template <brdf_features F>
 double reference_loss(const material_maps& m, const capture& cap, const loss_targets& targets, std::vector<double>& grad) {
   using D = ad::dual<double, 12>;

@@ -1,4 +1,4 @@
-// The fused renderer against the readable reference `ward_evaluate` (MODEL.md 3-4), which is itself
+// The fused renderer against the readable reference `ward_evaluate` (docs/method.md section 3-4), which is itself
 // checked against finite differences in tests/brdf/ward_test.cpp.
 #include <doctest/doctest.h>
 

@@ -12,7 +12,7 @@
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/random.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/render/configurations.hpp"
 

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The 12 appearance parameters per texel (MODEL.md 1), stored as planes (structure of arrays) so
+/// The 12 appearance parameters per texel (docs/method.md section 1), stored as planes (structure of arrays) so
 /// that renderers and optimisers load 16 consecutive texels of one parameter into one register.
 #include <cmath>
 #include <cstddef>
@@ -26,6 +26,8 @@ inline constexpr int parameter_count = 12;
 
 /// Smallest lobe width the library produces or accepts when sanitising (keeps exp() finite).
 inline constexpr float min_lobe_width = 1e-4f;
+/// log(min_lobe_width): the lower end of the lobe widths' log range (network space, refine).
+inline const double log_min_lobe_width = std::log(double(min_lobe_width));
 
 /// A map set: 12 planes of width x height floats, plus an optional height map.
 /// Texel (x, y) of plane k is `plane(k)[y * width + x]`; row 0 is the top row (largest y in scene).

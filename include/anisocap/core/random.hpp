@@ -6,7 +6,7 @@
 ///
 /// Why not <random>: the engines are portable but the distributions (std::uniform_real_distribution,
 /// std::normal_distribution, ...) are implementation-defined and differ between libstdc++, libc++
-/// and MSVC, so a seed would describe a different capture or material on each (MODEL.md 6 asks for
+/// and MSVC, so a seed would describe a different capture or material on each (docs/method.md section 6 asks for
 /// "the same configuration on every machine").
 ///
 /// What is bit-identical everywhere: next_u64(), uniform() (an exact conversion of 53 bits),

@@ -1,11 +1,11 @@
 #pragma once
 /// @file
-/// `capture.json`, the description of a capture (issue 2, item 5):
+/// `capture.json`, the description of a capture:
 ///
 ///     {"images": [{"file": "input_00.exr", "camera": [x, y, z], "light": [x, y, z], "intensity": 1.0}, ...]}
 ///
 /// `intensity` is a number or [r, g, b]. Positions are in units of the material's longest side,
-/// origin at its centre, z up, the material in the plane z = 0 (MODEL.md 4). The reader is strict
+/// origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
 /// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
 /// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
 /// files are errors, each reported once with the file, the image index and the problem.
@@ -49,7 +49,7 @@ inline void check_capture_image(const capture_image& im, std::size_t index, cons
   if (!(im.camera[2] > 0))
     fail("camera z = " + std::to_string(im.camera[2]) +
          " is at or below the material plane z = 0; the camera must see the material from above");
-  // A light below the plane is allowed: it lights nothing (MODEL.md 4, max(0, n.l)).
+  // A light below the plane is allowed: it lights nothing (docs/method.md section 4, max(0, n.l)).
 }
 
 /// Checks every image and that no file is used twice.

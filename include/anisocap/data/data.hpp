@@ -1,10 +1,9 @@
 #pragma once
 /// @file
-/// Umbrella header for data/: image files, capture descriptions, map sets and procedural materials.
+/// Umbrella header for data/: image files, capture descriptions, map sets, procedural materials and
+/// errors by family.
 #include "anisocap/data/image_io.hpp"    // EXR / PNG in and out, atomic file transactions, pixel checks
-#include "anisocap/data/capture_io.hpp"  // capture.json (issue 2, item 5)
+#include "anisocap/data/capture_io.hpp"  // capture.json
 #include "anisocap/data/map_io.hpp"      // map sets: diffuse, specular, lobes, fresnel, normal, rotation, height
-// Procedural materials are written by another engineer in parallel; included once present.
-#if __has_include("anisocap/data/procedural.hpp")
-#include "anisocap/data/procedural.hpp"  // seeded procedural fabrics and brushed metal
-#endif
+#include "anisocap/data/procedural.hpp"  // seeded procedural fabrics, metals, leather, coated, printed and foil
+#include "anisocap/data/family_errors.hpp"  // evaluation errors grouped by procedural family

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// Map sets (issue 2, item 5): a folder of float32 RGB EXR files holding the 12 appearance
-/// parameters of MODEL.md 1, plus sRGB PNG previews beside them.
+/// Map sets: a folder of float32 RGB EXR files holding the 12 appearance
+/// parameters of docs/method.md section 1, plus sRGB PNG previews beside them.
 ///
 /// | file           | R          | G          | B                      | preview (8-bit PNG)             |
 /// |----------------|------------|------------|------------------------|---------------------------------|
@@ -21,7 +21,7 @@
 /// all six required files present, equal sizes, finite values; albedos and F0 in [0,1], lobe
 /// widths in (0,1], n_x² + n_y² <= 1, each within `map_tolerance` (values that far outside
 /// are clamped; lobe widths below `min_lobe_width` are raised to it; normals slightly longer
-/// than 1 are rescaled). alpha is pi-periodic (MODEL.md 1), so values outside [-pi/2, pi/2] are
+/// than 1 are rescaled). alpha is pi-periodic (docs/method.md section 1), so values outside [-pi/2, pi/2] are
 /// wrapped modulo pi into that range rather than refused.
 #include <algorithm>
 #include <array>

@@ -3,10 +3,10 @@
 /// Seeded procedural materials: woven fabrics (plain, basket, twill, herringbone, satin), crushed
 /// velvet, linearly or circularly brushed metal, leather, coated (lacquered), printed surfaces and
 /// metal foil on a fabric or print (docs/procedural.md). They stand in for the Bonn
-/// SVBRDF dataset the paper trains and evaluates on (MODEL.md 9), which is not available here:
-/// each seed gives one material_maps (MODEL.md 1) whose anisotropy follows its structure.
+/// SVBRDF dataset the paper trains and evaluates on (docs/method.md section 9), which is not available here:
+/// each seed gives one material_maps (docs/method.md section 1) whose anisotropy follows its structure.
 ///
-/// Conventions (MODEL.md 2): the rotation alpha turns the lobe frame's x axis from +x (image
+/// Conventions (docs/method.md section 2): the rotation alpha turns the lobe frame's x axis from +x (image
 /// columns) towards +y (up in the scene, towards row 0). For a thread, x runs along its fibres and
 /// **decision** sigma_x (along the fibres) < sigma_y (across): a cylinder's normals spread across
 /// its axis, so its highlight is wide across the thread, as in Ward's brushed metal (grooves along
@@ -324,7 +324,7 @@ inline std::int64_t floor_mod(std::int64_t a, std::int64_t m) { return ((a % m) 
 
 inline std::int64_t floor_div(std::int64_t a, std::int64_t m) { return (a - floor_mod(a, m)) / m; }
 
-/// Wraps an angle into [-pi/2, pi/2] (alpha is pi-periodic, MODEL.md 1).
+/// Wraps an angle into [-pi/2, pi/2] (alpha is pi-periodic, docs/method.md section 1).
 inline double wrap_half_turn(double angle) {
   double a = angle - std::numbers::pi * std::round(angle / std::numbers::pi);
   return std::clamp(a, -std::numbers::pi / 2, std::numbers::pi / 2);
@@ -970,7 +970,7 @@ inline texel_values foil_texel(const procedural_parameters& p, const texel_conte
 }
 
 /// A texel's 12 parameters (parameter_index order) with every value forced into its valid range
-/// (MODEL.md 1), so no map the generator writes can be rejected by a renderer or an optimiser.
+/// (docs/method.md section 1), so no map the generator writes can be rejected by a renderer or an optimiser.
 inline std::array<float, parameter_count> finish(const texel_values& t) {
   std::array<float, parameter_count> out{};
   for (int k = 0; k < 3; ++k) {
@@ -1017,7 +1017,7 @@ inline std::array<float, parameter_count> procedural_sample(const procedural_par
 
 /// The maps of the material described by `p`, width x height texels (any positive size).
 /// Texel (x, y) is sampled at its centre, (x + 0.5 - W/2, H/2 - y - 0.5) texels from the middle
-/// of the image, y up (row 0 at the top, MODEL.md 4). Rows are independent: OpenMP over rows.
+/// of the image, y up (row 0 at the top, docs/method.md section 4). Rows are independent: OpenMP over rows.
 inline material_maps generate_material(const procedural_parameters& p, int width, int height) {
   using namespace procedural_detail;
   if (width <= 0 || height <= 0)

@@ -1,8 +1,8 @@
 #pragma once
 /// @file
-/// Element-wise activations of the estimator and the auto-encoder (MODEL.md 7): leaky ReLU
+/// Element-wise activations of the estimator and the auto-encoder (docs/method.md section 7): leaky ReLU
 /// (Deschaintre's encoder), SELU, tanh (the output layers map to the [-1, 1] network space of
-/// MODEL.md 1). Each is eager on whole tensors and records one backward closure.
+/// docs/method.md section 1). Each is eager on whole tensors and records one backward closure.
 #include <cstddef>
 
 #include "anisocap/ad/reverse/tape.hpp"

@@ -1,73 +1,48 @@
 #pragma once
 /// @file
 /// Adam (Kingma and Ba 2015) with a learning-rate schedule: the optimiser of every training and
-/// fine-tuning stage (MODEL.md 7 and 8: estimator 5e-5, auto-encoder 1e-3, fine-tuning 7.5e-4,
-/// refinement 1e-4). The update is PyTorch's torch.optim.Adam (bias corrections folded into the
+/// fine-tuning stage (the paper's section 5: estimator 5e-5, auto-encoder 1e-3, fine-tuning 7.5e-4,
+/// refinement 1e-4) and of the per-texel refine (pipeline/refine.hpp, through `adam_update`). The update is PyTorch's torch.optim.Adam (bias corrections folded into the
 /// step size and epsilon added after the corrected square root), so settings carry over.
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <string>
 #include <stdexcept>
 #include <vector>
 
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/simd.hpp"
 #include "anisocap/nn/parameter.hpp"
+#include "anisocap/nn/safetensors.hpp"
+#include "anisocap/nn/schedule.hpp"
 
 namespace anisocap::nn {
 
-/// Learning rate as a function of the optimiser's step number (0 for the first step).
-class learning_rate_schedule {
- public:
-  /// The same rate at every step.
-  static learning_rate_schedule constant(double rate) { return {rate, 1, 1.0, kind::constant}; }
-  /// rate * factor^floor(step / every): the rate drops by `factor` every `every` steps.
-  static learning_rate_schedule step_decay(double rate, long every, double factor) {
-    if (every <= 0) throw std::invalid_argument("learning_rate_schedule::step_decay: every must be positive");
-    return {rate, every, factor, kind::step};
-  }
-  /// rate * factor^(step / every): a smooth decay by `factor` per `every` steps.
-  static learning_rate_schedule exponential_decay(double rate, double factor, long every = 1) {
-    if (every <= 0) throw std::invalid_argument("learning_rate_schedule::exponential_decay: every must be positive");
-    return {rate, every, factor, kind::exponential};
-  }
-
-  /// The same schedule with a linear warm-up: step s < `steps` gets (s + 1) / steps of its rate
-  /// (large rates that diverge from a cold start become usable). 0: no warm-up.
-  learning_rate_schedule with_warmup(long steps) const {
-    if (steps < 0) throw std::invalid_argument("learning_rate_schedule::with_warmup: steps must not be negative");
-    learning_rate_schedule s = *this;
-    s.warmup_ = steps;
-    return s;
-  }
-
-  /// The same schedule with every rate multiplied by `factor`.
-  learning_rate_schedule scaled(double factor) const {
-    learning_rate_schedule s = *this;
-    s.rate_ *= factor;
-    return s;
-  }
-
-  /// The learning rate of step `step` (counted from 0).
-  double operator()(long step) const {
-    const double ramp = step < warmup_ ? double(step + 1) / double(warmup_) : 1.0;
-    switch (kind_) {
-      case kind::constant: return ramp * rate_;
-      case kind::step: return ramp * rate_ * std::pow(factor_, double(step / every_));
-      case kind::exponential: return ramp * rate_ * std::pow(factor_, double(step) / double(every_));
-    }
-    return rate_;
-  }
-
- private:
-  enum class kind { constant, step, exponential };
-  learning_rate_schedule(double rate, long every, double factor, kind k)
-      : rate_(rate), every_(every), factor_(factor), kind_(k) {}
-  double rate_;
-  long every_;
-  double factor_;
-  kind kind_;
-  long warmup_ = 0;
+/// The constants of one Adam update at step t (counted from 1) with learning rate `rate`.
+template <class T>
+struct adam_coefficients {
+  T beta1, beta2, one_minus_beta1, one_minus_beta2, epsilon;
+  T step_size;                 ///< rate / (1 - beta1^t)
+  T inverse_root_correction2;  ///< 1 / sqrt(1 - beta2^t)
+  adam_coefficients(double b1, double b2, double eps, double rate, long t)
+      : beta1(T(b1)), beta2(T(b2)), one_minus_beta1(T(1 - b1)), one_minus_beta2(T(1 - b2)), epsilon(T(eps)),
+        step_size(T(rate / (1 - std::pow(b1, double(t))))), inverse_root_correction2(T(1 / std::sqrt(1 - std::pow(b2, double(t))))) {}
 };
+
+/// The Adam update of one register of values (Kingma and Ba 2015, Algorithm 1, in PyTorch's form):
+/// m = b1 m + (1 - b1) g;  v = b2 v + (1 - b2) g^2;  p -= step_size m / (sqrt(v) / sqrt(1 - b2^t) + eps).
+/// The one kernel behind basic_adam and the per-texel refine.
+template <class B, class T>
+inline void adam_update(T* value, const B& g, T* m, T* v, const adam_coefficients<T>& c) {
+  const B m1 = B(c.beta1) * B::load_unaligned(m) + B(c.one_minus_beta1) * g;
+  const B v1 = B(c.beta2) * B::load_unaligned(v) + B(c.one_minus_beta2) * (g * g);
+  m1.store_unaligned(m);
+  v1.store_unaligned(v);
+  (B::load_unaligned(value) - B(c.step_size) * m1 / (xsimd::sqrt(v1) * B(c.inverse_root_correction2) + B(c.epsilon)))
+      .store_unaligned(value);
+}
 
 /// Adam over a set of parameters. State (first and second moments, step count) is kept per
 /// parameter and allocated when the parameter is added, so `step()` allocates nothing. Frozen
@@ -102,9 +77,7 @@ class basic_adam {
       if (s.parameter->size() != s.m.size())
         throw std::logic_error("adam: parameter '" + s.parameter->name + "' changed size after it was added");
       ++s.steps;
-      const double correction1 = 1 - std::pow(beta1, double(s.steps));
-      const double correction2 = 1 - std::pow(beta2, double(s.steps));
-      update(*s.parameter, s.m.data(), s.v.data(), T(rate / correction1), T(1 / std::sqrt(correction2)));
+      update(*s.parameter, s.m.data(), s.v.data(), adam_coefficients<T>(beta1, beta2, epsilon, rate, s.steps));
       s.parameter->zero_grad();
     }
     ++steps_;
@@ -125,6 +98,37 @@ class basic_adam {
   void for_each_state(F&& f) {
     for (auto& s : states_) f(*s.parameter, s.m, s.v, s.steps);
   }
+  /// Adds the optimiser's state to a check-point: per parameter "adam.m.<name>", "adam.v.<name>"
+  /// (moments) and "adam.steps.<name>" (update count), and the step counter as metadata
+  /// "adam.steps". The one key scheme of every check-point (training and fine-tune).
+  void save_state(safetensors_file& file) {
+    for (auto& s : states_) {
+      const std::int64_t count = s.steps;
+      file.template add<T>("adam.m." + s.parameter->name, {std::int64_t(s.m.size())}, s.m.data(), s.m.size());
+      file.template add<T>("adam.v." + s.parameter->name, {std::int64_t(s.v.size())}, s.v.data(), s.v.size());
+      file.template add<std::int64_t>("adam.steps." + s.parameter->name, {1}, &count, 1);
+    }
+    file.metadata.emplace_back("adam.steps", std::to_string(steps_));
+  }
+  /// Restores what save_state wrote; throws std::runtime_error naming `name` (the file) when a
+  /// parameter's state is missing or has the wrong size.
+  void load_state(const safetensors_file& file, const std::string& name) {
+    for (auto& s : states_) {
+      const auto* em = file.find("adam.m." + s.parameter->name);
+      const auto* ev = file.find("adam.v." + s.parameter->name);
+      const auto* es = file.find("adam.steps." + s.parameter->name);
+      if (!em || !ev || !es || em->count() != s.m.size() || ev->count() != s.v.size())
+        throw std::runtime_error(name + ": optimiser state of '" + s.parameter->name + "' is missing or has the wrong size");
+      std::memcpy(static_cast<void*>(s.m.data()), file.bytes(*em).data(), s.m.size() * sizeof(T));
+      std::memcpy(static_cast<void*>(s.v.data()), file.bytes(*ev).data(), s.v.size() * sizeof(T));
+      std::int64_t count;
+      std::memcpy(&count, file.bytes(*es).data(), sizeof count);
+      s.steps = long(count);
+    }
+    for (const auto& [key, value] : file.metadata)
+      if (key == "adam.steps") steps_ = std::stol(value);
+  }
+
   /// The learning rate the next step will use.
   double learning_rate() const { return schedule(steps_); }
 
@@ -168,19 +172,11 @@ class basic_adam {
     long steps;
   };
 
-  /// m = b1 m + (1 - b1) g;  v = b2 v + (1 - b2) g^2;  p -= step_size m / (sqrt(v) / sqrt(1 - b2^t) + eps).
-  void update(basic_parameter<T>& p, T* m, T* v, T step_size, T inverse_root_correction2) const {
+  /// adam_update over the parameter, the tail through padded registers.
+  void update(basic_parameter<T>& p, T* m, T* v, const adam_coefficients<T>& c) const {
     using B = simd::batch<T>;
     constexpr std::size_t W = B::size;
-    const T b1 = T(beta1), b2 = T(beta2), c1 = T(1 - beta1), c2 = T(1 - beta2), eps = T(epsilon);
-    auto kernel = [&](T* value, const T* grad, T* mm, T* vv) {
-      const B g = B::load_unaligned(grad);
-      const B m1 = b1 * B::load_unaligned(mm) + c1 * g;
-      const B v1 = b2 * B::load_unaligned(vv) + c2 * (g * g);
-      m1.store_unaligned(mm);
-      v1.store_unaligned(vv);
-      (B::load_unaligned(value) - step_size * m1 / (xsimd::sqrt(v1) * inverse_root_correction2 + eps)).store_unaligned(value);
-    };
+    auto kernel = [&](T* value, const T* grad, T* mm, T* vv) { adam_update(value, B::load_unaligned(grad), mm, vv, c); };
     const std::size_t n = p.size();
     const std::size_t body = n / W * W;
     T* value = p.value.data();

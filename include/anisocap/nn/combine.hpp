@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// Operations that join tensors: element-wise sum, concatenation along channels (U-Net skip
-/// connections, MODEL.md 7) and the per-channel bias broadcast that adds the estimator's global
+/// connections, docs/method.md section 7) and the per-channel bias broadcast that adds the estimator's global
 /// feature vector to every pixel of the next layer (Deschaintre 2018's global-feature track).
 #include <algorithm>
 #include <cstddef>
@@ -61,7 +61,7 @@ ad::variable<C1 + C2, T> concat(ad::tape& t, const ad::variable<C1, T>& a, const
 }
 
 /// x + v broadcast over pixels: v holds one C-vector per batch entry (batch x 1 x 1 x C), added to
-/// every pixel of that entry. This is how the global-feature track feeds a layer (MODEL.md 7).
+/// every pixel of that entry. This is how the global-feature track feeds a layer (docs/method.md section 7).
 template <int C, class T>
 ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, const ad::variable<C, T>& v) {
   if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)

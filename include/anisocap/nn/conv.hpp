@@ -3,7 +3,7 @@
 /// 2-d convolution on NHWC tensors: forward, backward for the input, backward for the weights,
 /// and the `conv2d` layer that records them on the tape. The estimator's and the auto-encoder's
 /// encoders are 4x4 stride-2 convolutions, their decoders and heads 3x3 / 4x4 stride-1 and 1x1
-/// ones (MODEL.md 7).
+/// ones (docs/method.md section 7).
 ///
 /// Weight layout [K][K][Cin][Cout] (kh, kw, in, out), bias [Cout]. Every pass is a direct
 /// convolution blocked in registers (see detail/conv_kernels.hpp): no im2col matrix is built.

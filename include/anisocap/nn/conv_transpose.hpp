@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// 4x4 stride-2 padding-1 transposed convolution (output 2H x 2W), the up-sampling layer of the
-/// auto-encoder's decoder (MODEL.md 7, after Gao 2019). Same semantics as PyTorch's
+/// auto-encoder's decoder (docs/method.md section 7, after Gao 2019). Same semantics as PyTorch's
 /// ConvTranspose2d(Cin, Cout, 4, stride=2, padding=1): out[2i-1+kh][2j-1+kw] += in[i][j] W[kh][kw].
 ///
 /// Weight layout [4][4][Cin][Cout] (kh, kw, in, out), bias [Cout]. Each output parity is a 2x2

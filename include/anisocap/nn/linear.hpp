@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// Fully connected layer, applied to every pixel's channel vector. On the batch x 1 x 1 x C output
-/// of `spatial_mean` it is the dense layer of the estimator's global-feature track (MODEL.md 7).
+/// of `spatial_mean` it is the dense layer of the estimator's global-feature track (docs/method.md section 7).
 #include <cstddef>
 #include <cstdint>
 #include <string>

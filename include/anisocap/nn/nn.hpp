@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Umbrella header of the neural-network engine (issue 3): parameters, the layers, convolutions
+/// Umbrella header of the neural-network engine: parameters, the layers, convolutions
 /// and transposed convolutions, seeded initialisation, Adam and safetensors weight files.
 #include "anisocap/ad/reverse/tape.hpp"
 #include "anisocap/nn/adam.hpp"

@@ -2,7 +2,7 @@
 /// @file
 /// Instance normalisation (per image and channel over height x width: Deschaintre's estimator) and
 /// batch normalisation (per channel over batch x height x width: the end of Gao's encoder,
-/// MODEL.md 7), both with a learned scale `weight` (gamma) and shift `bias` (beta).
+/// docs/method.md section 7), both with a learned scale `weight` (gamma) and shift `bias` (beta).
 ///
 /// Both share one kernel: statistics per group (a batch entry, or the whole batch), two passes
 /// (mean, then centred variance, for accuracy), vectorised over channels, rows in parallel.

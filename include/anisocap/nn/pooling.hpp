@@ -2,7 +2,7 @@
 /// @file
 /// Reductions over pixels and over images: the spatial mean that starts the estimator's
 /// global-feature track, and the max over the images of a set that fuses the per-image tracks of
-/// the multi-image estimator (MODEL.md 7, after Deschaintre 2019).
+/// the multi-image estimator (docs/method.md section 7, after Deschaintre 2019).
 #include <cstddef>
 #include <stdexcept>
 #include <string>

@@ -4,7 +4,7 @@
 /// photographs.
 ///
 /// Multiplying every photograph and every light intensity by the same factor describes the same
-/// physical capture, so the material maps should not change. The image loss (MODEL.md 5) is not
+/// physical capture, so the material maps should not change. The image loss (docs/method.md section 5) is not
 /// scale-free, though: its epsilon 0.01 assumes pixel values near the range [0, 1] (a white
 /// Lambertian texel facing the light renders 1 in this project's synthetic captures). A capture in
 /// other units (1e-4 of that: the loss sees only the epsilon and the gradients vanish; 1e4: the

@@ -1,12 +1,12 @@
 #pragma once
 /// @file
-/// The per-texel optimisation (the paper's "refine" stage, MODEL.md 8.4, eq. 5): Adam on the maps
+/// The per-texel optimisation (the paper's "refine" stage, docs/method.md section 8.4, eq. 5): Adam on the maps
 /// against the image loss, usable on its own.
 ///
 /// Parameters stay in their valid ranges by construction: Adam works on unconstrained variables u
 /// and the maps are a smooth function of them:
 ///   albedos, F0:   p = sigmoid(u)                                   in (0, 1)
-///   lobe widths:   sigma = exp(log(1e-4) * (1 - sigmoid(u)))        in (1e-4, 1)   (log-space)
+///   lobe widths:   sigma = exp(log(s0) * (1 - sigmoid(u)))          in (s0, 1), s0 = min_lobe_width (log-space)
 ///   normal x, y:   (nx, ny) = (ux, uy) / sqrt(1 + ux^2 + uy^2)       open unit disc, n_z > 0
 ///   rotation:      alpha = u, wrapped into [-pi/2, pi/2) on output  (alpha is pi-periodic)
 #include <chrono>
@@ -14,27 +14,23 @@
 #include <cstdint>
 #include <functional>
 #include <numbers>
+#include <stdexcept>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/system.hpp"
+#include "anisocap/nn/adam.hpp"
+#include "anisocap/nn/early_stopping.hpp"
+#include "anisocap/nn/progress.hpp"
 #include "anisocap/render/renderer.hpp"
 
 namespace anisocap {
 
-/// Progress of a long optimisation, reported once per `progress_every` steps.
-struct optimisation_progress {
-  int step = 0;            ///< steps done
-  int steps = 0;           ///< steps planned
-  double loss = 0;         ///< image loss at this step
-  double seconds = 0;      ///< time since the start
-  double steps_per_second = 0;
-  double seconds_left = 0; ///< estimate
-};
-
 /// Options of `refine`.
+/// The defaults refine a first guess from the photographs (far from the answer);
+/// `after_networks()` refines the networks' estimate.
 struct refine_options {
-  int steps = 1000;                ///< Adam steps (the paper refines a network estimate with 500)
+  int steps = 1000;                ///< Adam steps
   float learning_rate = 0.03f;     ///< in the unconstrained space u (see file comment)
   float beta1 = 0.9f, beta2 = 0.999f, epsilon = 1e-8f;
   render_options render{};         ///< culling etc. for the fused loss
@@ -50,6 +46,30 @@ struct refine_options {
   /// texels just stop moving). 0: never freeze.
   double freeze_tolerance = 0.0;
   int freeze_every = 25;
+
+  /// After the networks the maps start near the answer: 500 steps (the paper's count) at 3e-3
+  /// (bench/README.md "Run time against error").
+  static refine_options after_networks() {
+    refine_options o;
+    o.steps = 500;
+    o.learning_rate = 3e-3f;
+    return o;
+  }
+  /// The paper's refine (section 5): 500 steps at 1e-4. Its rate is for its own parameterisation;
+  /// in ours (the unconstrained u of the file comment) it moves the maps far less than 3e-3.
+  static refine_options paper() {
+    refine_options o;
+    o.steps = 500;
+    o.learning_rate = 1e-4f;
+    return o;
+  }
+  /// Throws std::invalid_argument for impossible values.
+  void validate() const {
+    if (steps < 0) throw std::invalid_argument("refine steps must not be negative");
+    if (!(learning_rate > 0)) throw std::invalid_argument("the refine learning rate must be positive");
+    if (min_relative_improvement < 0 || min_relative_improvement >= 1) throw std::invalid_argument("refine early stopping must be in [0, 1)");
+    if (freeze_tolerance < 0 || freeze_tolerance >= 1) throw std::invalid_argument("the refine freeze tolerance must be in [0, 1)");
+  }
 };
 
 /// What `refine` did.
@@ -68,7 +88,7 @@ inline float logit(float p) {
   p = std::min(std::max(p, 1e-5f), 1.0f - 1e-5f);
   return std::log(p / (1.0f - p));
 }
-inline constexpr float log_min_lobe = -9.210340371976184f;  // log(1e-4)
+inline const float log_min_lobe = float(log_min_lobe_width);
 
 /// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
 /// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
@@ -112,7 +132,7 @@ inline material_maps unconstrained_from_maps(const material_maps& maps) {
     for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0})
       u.plane(k)[i] = detail::logit(maps.plane(k)[i]);
     for (int k : {lobe_x, lobe_y}) {
-      const float sigma = std::min(std::max(maps.plane(k)[i], 1.0001e-4f), 0.9999f);
+      const float sigma = std::min(std::max(maps.plane(k)[i], 1.0001f * min_lobe_width), 0.9999f);
       u.plane(k)[i] = detail::logit(1.0f - std::log(sigma) / detail::log_min_lobe);
     }
     float nx = maps.plane(normal_x)[i], ny = maps.plane(normal_y)[i];
@@ -127,7 +147,7 @@ inline material_maps unconstrained_from_maps(const material_maps& maps) {
 }
 
 /// Refines `maps` in place so that their renderings under `cap` match the photographs behind
-/// `targets` (MODEL.md 5, eq. 5). F picks the kernel: with `anisotropic` off, sy follows sx and
+/// `targets` (docs/method.md section 5, eq. 5). F picks the kernel: with `anisotropic` off, sy follows sx and
 /// alpha stays 0; with `normal_map` off, normals stay flat; with `fresnel` off, F0 is not optimised.
 template <brdf_features F = all_features>
 refine_result refine(material_maps& maps, const capture& cap, const loss_targets& targets, const refine_options& options = {}) {
@@ -140,7 +160,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   std::vector<int> active = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, lobe_x};
   if (F.anisotropic) { active.push_back(lobe_y); active.push_back(rotation); }
   if (F.fresnel) active.push_back(fresnel_f0);
-  double best_window_loss = 1e300;
+  nn::early_stopping stopper(options.min_relative_improvement, options.patience);
   // Texel groups (freezing): which are still optimised, their loss now and at the last check.
   const bool freezing = options.freeze_tolerance > 0 && options.freeze_every > 0;
   const std::size_t group_count = texel_groups::count(maps);
@@ -165,22 +185,11 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
         }
       }
     }
-    // Adam on u (bias-corrected), SIMD over texels.
+    // Adam on u (nn/adam.hpp's kernel), SIMD over texels.
     using V = simd::batch<float>;
     constexpr std::size_t L = simd::lanes_v<V>;
-    const float c1 = 1.0f / (1.0f - std::pow(options.beta1, float(step + 1)));
-    const float c2 = 1.0f / (1.0f - std::pow(options.beta2, float(step + 1)));
-    const V b1(options.beta1), b2(options.beta2), lr_c1(options.learning_rate * c1), vc2(c2), eps(options.epsilon);
-    auto adam = [&](int k, std::size_t i, const V& g) {
-      float* a_ptr = m1.plane(k) + i;
-      float* b_ptr = m2.plane(k) + i;
-      const V a = b1 * simd::load<V>(a_ptr) + (V(1) - b1) * g;
-      const V b = b2 * simd::load<V>(b_ptr) + (V(1) - b2) * g * g;
-      simd::store<V>(a_ptr, a);
-      simd::store<V>(b_ptr, b);
-      float* u_ptr = u.plane(k) + i;
-      simd::store<V>(u_ptr, simd::load<V>(u_ptr) - lr_c1 * a / (simd::sqrt(b * vc2) + eps));
-    };
+    const nn::adam_coefficients<float> coefficients(options.beta1, options.beta2, options.epsilon, options.learning_rate, step + 1);
+    auto adam = [&](int k, std::size_t i, const V& g) { nn::adam_update(u.plane(k) + i, g, m1.plane(k) + i, m2.plane(k) + i, coefficients); };
     const std::ptrdiff_t blocks = std::ptrdiff_t((n + L - 1) / L);
 #pragma omp parallel for schedule(static)
     for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
@@ -196,17 +205,9 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
       }
     }
     result.steps = step + 1;
-    if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0) {
-      optimisation_progress p;
-      p.step = step + 1; p.steps = options.steps; p.loss = loss; p.seconds = seconds_since(start);
-      p.steps_per_second = p.step / std::max(p.seconds, 1e-9);
-      p.seconds_left = (options.steps - p.step) / std::max(p.steps_per_second, 1e-9);
-      options.progress(p);
-    }
-    if (options.min_relative_improvement > 0 && options.patience > 0 && (step + 1) % options.patience == 0) {
-      if (loss > best_window_loss * (1.0 - options.min_relative_improvement)) break;
-      best_window_loss = std::min(best_window_loss, loss);
-    }
+    if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0)
+      options.progress(optimisation_progress::at(step + 1, options.steps, loss, seconds_since(start)));
+    if (stopper.stop_after(step, loss)) break;
   }
   detail::maps_from_unconstrained(u, maps, jac);
   restrict_to_features(maps, F);
@@ -214,45 +215,6 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
   result.seconds = seconds_since(start);
   return result;
-}
-
-}  // namespace anisocap
-
-namespace anisocap {
-
-/// A first guess for a standalone refine from the photographs alone: the diffuse albedo of each
-/// texel is the smallest value of B / (cos(theta_l) I / (pi r^2)) over the images that light it
-/// (the image where the specular lobe adds least), clamped to [0.02, 0.95]; the other parameters
-/// start at mid-range values (a'_s 0.3, sigma 0.15, F0 0.5, flat normal, alpha 0).
-inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {}) {
-  if (photos.empty() || photos.size() != cap.images.size())
-    throw std::invalid_argument("initial_guess: need one photograph per configuration");
-  const int w = photos[0].width(), h = photos[0].height();
-  material_maps maps(w, h);
-  const float start[parameter_count] = {0.5f, 0.5f, 0.5f, 0.3f, 0.3f, 0.3f, 0.15f, 0.15f, 0.5f, 0.0f, 0.0f, 0.0f};
-  maps.fill(start);
-  tile_placement tp = placement;
-  if (tp.full_width == 0) tp = {w, h, 0, 0};
-#pragma omp parallel for schedule(static)
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      const auto p = texel_position(tp.x0 + x, tp.y0 + y, tp.full_width, tp.full_height);
-      float best[3] = {1e30f, 1e30f, 1e30f};
-      for (std::size_t k = 0; k < cap.images.size(); ++k) {
-        const auto& im = cap.images[k];
-        const float lx = im.light[0] - p[0], ly = im.light[1] - p[1], lz = im.light[2];
-        const float r2 = std::max(lx * lx + ly * ly + lz * lz, 1e-6f);
-        const float cos_l = lz / std::sqrt(r2);
-        if (cos_l < 0.05f || im.camera[2] <= 0) continue;
-        for (int c = 0; c < 3; ++c) {
-          const float irradiance = cos_l * im.intensity[c] / (std::numbers::pi_v<float> * r2);
-          best[c] = std::min(best[c], photos[k].at(c, x, y) / irradiance);
-        }
-      }
-      for (int c = 0; c < 3; ++c)
-        if (best[c] < 1e29f) maps.at(diffuse_r + c, x, y) = std::clamp(best[c], 0.02f, 0.95f);
-    }
-  return maps;
 }
 
 }  // namespace anisocap

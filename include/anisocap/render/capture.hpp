@@ -2,7 +2,7 @@
 /// @file
 /// A capture: for each photograph, the camera and point-light positions and the light intensity.
 /// Positions are in units of the material's longest side, origin at the material's centre, z up,
-/// the material in the plane z = 0; image rows run top to bottom along -y (MODEL.md 4).
+/// the material in the plane z = 0; image rows run top to bottom along -y (docs/method.md section 4).
 #include <array>
 #include <string>
 #include <vector>

@@ -1,9 +1,9 @@
 #pragma once
 /// @file
-/// View and light configuration samplers (the paper's section 3.6, MODEL.md 6) and the input sets
+/// View and light configuration samplers (the paper's section 3.6, docs/method.md section 6) and the input sets
 /// built from them (set alpha, set beta, the estimator's training set, the render-loss set).
 ///
-/// Scene units (MODEL.md 4): the longest side n of the material is 1, the material spans
+/// Scene units (docs/method.md section 4): the longest side n of the material is 1, the material spans
 /// [-W/2n, W/2n] x [-H/2n, H/2n] in the plane z = 0, z up. Every sampler draws from a
 /// `random_generator`, so one seed gives the same capture on every machine; positions are computed
 /// in double and rounded to float.
@@ -12,7 +12,7 @@
 /// point it aims at gives that point an irradiance I cos(theta) / d^2. We set I = pi d^2
 /// (`configuration_irradiance` = pi), so a white Lambertian texel facing the light renders with
 /// radiance 1 whatever d is: configurations at n and at 4n are equally well exposed, diffuse
-/// values stay in [0, 1] as the network's input transform (MODEL.md 5, eq. 7) expects, and only
+/// values stay in [0, 1] as the network's input transform (docs/method.md section 5, eq. 7) expects, and only
 /// specular highlights exceed 1. A constant intensity would make 4n images 16 times darker than
 /// n images and push them into the +0.01 offset of the log loss.
 #include <array>
@@ -235,7 +235,7 @@ struct fresnel_options {
   double max_height = fresnel_max_height;  ///< highest camera height, units of n
 };
 
-/// Set alpha for `image_count` inputs (paper 5, MODEL.md 6): `fresnel.count` Fresnel (2 by
+/// Set alpha for `image_count` inputs (paper 5, docs/method.md section 6): `fresnel.count` Fresnel (2 by
 /// default), then anisotropic pairs, then 2 independent. When the slots left for pairs are odd in
 /// number, the last one gets a third independent configuration (**decision**). Images are named
 /// input_00.exr, ... With the default fresnel_options the set is the paper's, image for image.
@@ -286,7 +286,7 @@ inline capture training_set(std::uint64_t seed, int width, int height) {
   return c;
 }
 
-/// The 4 configurations of the training render loss (paper 4.2, eq. 8; MODEL.md 6): 1 anisotropic pair,
+/// The 4 configurations of the training render loss (paper 4.2, eq. 8; docs/method.md section 6): 1 anisotropic pair,
 /// 1 Fresnel, 1 independent, in that order.
 inline capture render_loss_set(std::uint64_t seed, int width, int height) {
   using namespace configuration_detail;

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Register-blocked microkernels shared by convolution and transposed convolution (MODEL.md 7:
+/// Register-blocked microkernels shared by convolution and transposed convolution (docs/method.md section 7:
 /// every layer of the estimator and the auto-encoder is one of them, so they carry the run time).
 ///
 /// All passes are direct convolutions on NHWC data written as small GEMMs:

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The networks' value space (MODEL.md 1 and 5): the 12 appearance parameters mapped to [-1, 1]
+/// The networks' value space (docs/method.md section 1 and 5): the 12 appearance parameters mapped to [-1, 1]
 /// (what the estimator's and the auto-encoder's tanh outputs produce), the photographs mapped by
 /// eq. 7, and the chain rule that turns the render loss's dL/d(maps) into dL/d(network outputs).
 ///
@@ -8,13 +8,13 @@
 /// - a_d, a'_s, F0: u = 2 v - 1 (linear).
 /// - sigma_x, sigma_y: log space, u = 2 (log sigma - log s0) / (-log s0) - 1 with s0 = 1e-4
 ///   (min_lobe_width), so u = -1 is sigma = 1e-4 and u = 1 is sigma = 1; widths below s0 clamp to -1.
-///   **decision** (MODEL.md 1 leaves the map open): equal steps in u are equal ratios of sigma,
+///   **decision** (docs/method.md section 1 leaves the map open): equal steps in u are equal ratios of sigma,
 ///   which is how the lobe's appearance changes.
 /// - n_x, n_y: as they are; a decoded pair with x^2 + y^2 > 0.999^2 is scaled back onto that circle
 ///   (radius 0.999 keeps n_z > 0.04, so the tangent frame stays defined), and the chain rule
 ///   follows the scaling.
 /// - alpha: u = alpha / (pi / 2); the encoder wraps alpha into [-pi/2, pi/2] first (alpha is
-///   pi-periodic, MODEL.md 1).
+///   pi-periodic, docs/method.md section 1).
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
@@ -28,7 +28,7 @@
 namespace anisocap::network_space {
 
 /// log(min_lobe_width): the lower end of the lobe widths' log range.
-inline const double log_min_lobe = std::log(double(min_lobe_width));
+inline const double log_min_lobe = log_min_lobe_width;
 /// Largest |(n_x, n_y)| a decoded normal may have.
 inline constexpr double max_normal_xy = 0.999;
 

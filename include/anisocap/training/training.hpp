@@ -1,14 +1,14 @@
 #pragma once
 /// @file
 /// Training of the estimation network and the auto-encoder on procedural materials generated on
-/// the fly (MODEL.md 5-7): samples from seeds, the losses (L1 in network space + render loss, equal
+/// the fly (docs/method.md section 5-7): samples from seeds, the losses (L1 in network space + render loss, equal
 /// weights; the auto-encoder adds latent smoothness), Adam, checkpoints that resume exactly, and
 /// validation logged to CSV.
 ///
 /// Randomness: every random choice is a pure function of (run seed, step, batch entry), so the
 /// step number IS the random-number state: a checkpoint stores weights, Adam's moments and step
 /// counts, batch-norm running statistics and the step, and a resumed run is bit-identical to an
-/// uninterrupted one (tests/networks/resume_test.cpp).
+/// uninterrupted one (tests/training/training_test.cpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -25,11 +25,12 @@
 #include "anisocap/core/json.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
+#include "anisocap/networks/network_space.hpp"
 #include "anisocap/nn/nn.hpp"
-#include "anisocap/pipeline/evaluate.hpp"
-#include "anisocap/pipeline/network_space.hpp"
-#include "anisocap/pipeline/networks.hpp"
 #include "anisocap/render/configurations.hpp"
+#include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/renderer.hpp"
 
 namespace anisocap::training {
@@ -43,7 +44,7 @@ inline std::uint64_t training_seed(std::uint64_t seed, long step, int b) { retur
 inline std::uint64_t validation_seed(int i) { return validation_seed_base + std::uint64_t(i); }
 
 /// One training example: true maps (and in network space), the 5 input photographs of the
-/// training set (MODEL.md 6) when asked for, and the render-loss targets under the 4 render-loss
+/// training set (docs/method.md section 6) when asked for, and the render-loss targets under the 4 render-loss
 /// configurations (eq. 8).
 struct sample {
   material_maps truth;                 ///< the procedural material
@@ -93,7 +94,7 @@ struct loss_terms {
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
 
-/// L1 in network space plus the render loss, equal weights (MODEL.md 5), of network outputs u
+/// L1 in network space plus the render loss, equal weights (docs/method.md section 5), of network outputs u
 /// (one entry per sample); when grad is given, adds d(loss)/du (the loss is the batch mean).
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
                              tensor<parameter_count>* grad) {
@@ -130,7 +131,7 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
 /// Settings of a training run.
 struct train_options {
   std::filesystem::path out_dir;      ///< checkpoints, weights, validation.csv
-  long steps = 1000;                  ///< total optimiser steps (a resumed run continues to this)
+  long steps = 2000;                  ///< total optimiser steps (a resumed run continues to this)
   int size = 128;                     ///< material size (square, a multiple of 64)
   int batch = 2;                      ///< materials per step
   double learning_rate = 0;           ///< 0: the paper's (estimator 5e-5, auto-encoder 1e-3)
@@ -147,6 +148,13 @@ struct train_options {
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
+
+  /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
+  static train_options autoencoder() {
+    train_options o;
+    o.batch = 4;
+    return o;
+  }
 };
 
 /// Weights of the network alone (what is shipped), with metadata.
@@ -164,12 +172,7 @@ void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
   nn::detail::visit_weights(net, [&](auto& p) {
     contents.add<float>(p.name, std::vector<std::int64_t>(p.shape.begin(), p.shape.end()), p.value.data(), p.size());
   });
-  opt.for_each_state([&](nn::parameter& p, auto& m, auto& v, long& steps) {
-    const std::int64_t s = steps;
-    contents.add<float>("adam.m." + p.name, {std::int64_t(m.size())}, m.data(), m.size());
-    contents.add<float>("adam.v." + p.name, {std::int64_t(v.size())}, v.data(), v.size());
-    contents.add<std::int64_t>("adam.steps." + p.name, {1}, &s, 1);
-  });
+  opt.save_state(contents);
   const std::string file = "checkpoint-" + std::to_string(step) + ".safetensors";
   nn::write_safetensors(dir / file, contents);
   std::string previous;
@@ -210,18 +213,7 @@ long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
   const auto file = dir / object.at("file").as_string();
   nn::load_weights(file, net);
   const nn::safetensors_file contents = nn::read_safetensors(file);
-  opt.for_each_state([&](nn::parameter& p, auto& m, auto& v, long& steps) {
-    const auto* em = contents.find("adam.m." + p.name);
-    const auto* ev = contents.find("adam.v." + p.name);
-    const auto* es = contents.find("adam.steps." + p.name);
-    if (!em || !ev || !es || em->count() != m.size() || ev->count() != v.size())
-      throw std::runtime_error(file.string() + ": optimiser state of '" + p.name + "' is missing or has the wrong size");
-    std::memcpy(static_cast<void*>(m.data()), contents.bytes(*em).data(), m.size() * sizeof(float));
-    std::memcpy(static_cast<void*>(v.data()), contents.bytes(*ev).data(), v.size() * sizeof(float));
-    std::int64_t s;
-    std::memcpy(&s, contents.bytes(*es).data(), sizeof s);
-    steps = long(s);
-  });
+  opt.load_state(contents, file.string());
   opt.set_steps(long(object.at("optimizer_steps").as_number()));
   if (info) *info = object;
   return long(object.at("step").as_number());
@@ -399,10 +391,10 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 
 }  // namespace detail
 
-/// Trains the estimator (MODEL.md 7): per step, `batch` procedural materials with their 5 training
+/// Trains the estimator (docs/method.md section 7): per step, `batch` procedural materials with their 5 training
 /// inputs; loss = L1 (network space) + render loss; Adam (default rate 5e-5, the paper's).
 template <class Preset>
-void train_estimator(const train_options& o, EstimationNet<Preset>& net) {
+void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   if (o.size <= 0 || o.size % 64 != 0) throw std::invalid_argument("train-estimator: --size must be a positive multiple of 64");
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
@@ -427,17 +419,17 @@ void train_estimator(const train_options& o, EstimationNet<Preset>& net) {
   detail::run(o, "estimator", net, opt, step_fn, validate_fn);
 }
 
-/// Trains the auto-encoder (MODEL.md 7): per step, `batch` procedural map sets; loss = L1 + render
+/// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
 /// loss of D(E(m)) + smoothness_weight * mean |D(z) - D(z + delta)| with delta ~ N(0, latent_noise^2)
 /// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's).
 template <class Preset>
-void train_autoencoder(const train_options& o, AutoEncoder<Preset>& net) {
+void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
   if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 1e-3));
   opt.add_parameters(net);
   ad::tape t;
-  constexpr int Z = AutoEncoder<Preset>::latent_channels;
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
   auto step_fn = [&](long step) {
     std::vector<sample> samples;
     for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false, o.mix));

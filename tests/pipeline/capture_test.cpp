@@ -8,7 +8,8 @@
 
 #include "../networks/tiny_presets.hpp"
 #include "../render/render_reference.hpp"
-#include "anisocap/pipeline/capture_pipeline.hpp"
+#include "../support/capture_options.hpp"
+#include "anisocap/pipeline/capture.hpp"
 
 using namespace anisocap;
 using namespace anisocap::testing;
@@ -24,48 +25,48 @@ struct scene {
 /// Fine-tunes `s` with `o` (which names a check-point folder) for 8 steps uninterrupted, then again
 /// stopped after 5 steps and resumed with fresh networks, as a new process would be; checks that
 /// the encoder never moves and that the resumed run does the 3 remaining steps and ends with the
-/// uninterrupted run's decoder and loss. `o.finetune_observer` sees the uninterrupted run only.
-void check_fine_tune_resumes(const scene& s, pipeline_options o) {
-  REQUIRE_FALSE(o.checkpoint_dir.empty());
-  o.checkpoint_seconds = 0;  // check-point after every step
-  o.finetune_steps = 8;
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> straight(2);
+/// uninterrupted run's decoder and loss. `o.finetune.observer` sees the uninterrupted run only.
+void check_fine_tune_resumes(const scene& s, capture_options o) {
+  REQUIRE_FALSE(o.checkpoint.folder.empty());
+  o.checkpoint.seconds = 0;  // check-point after every step
+  o.finetune.steps = 8;
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> straight(2);
   const auto encoder_before = straight.enc0.weight.value;
-  const pipeline_result a = run_pipeline(s.cap, s.photos, estimator, straight, o);
+  const capture_result a = capture_material(s.cap, s.photos, estimator, straight, o);
   for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc0.weight.value[i] == encoder_before[i]);
-  o.finetune_observer = nullptr;
+  o.finetune.observer = nullptr;
 
-  std::filesystem::remove_all(o.checkpoint_dir);
-  AutoEncoder<autoencoder_tiny> first(2);
-  o.finetune_steps = 5;
-  run_pipeline(s.cap, s.photos, estimator, first, o);
-  AutoEncoder<autoencoder_tiny> second(2);
-  o.finetune_steps = 8;
-  o.resume = true;
-  const pipeline_result b = run_pipeline(s.cap, s.photos, estimator, second, o);
+  std::filesystem::remove_all(o.checkpoint.folder);
+  auto_encoder<autoencoder_tiny> first(2);
+  o.finetune.steps = 5;
+  capture_material(s.cap, s.photos, estimator, first, o);
+  auto_encoder<autoencoder_tiny> second(2);
+  o.finetune.steps = 8;
+  o.checkpoint.resume = true;
+  const capture_result b = capture_material(s.cap, s.photos, estimator, second, o);
   CHECK(b.stages[2].resumed);
   CHECK(b.stages[2].steps == 3);
   for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
     REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
   CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
-  std::filesystem::remove_all(o.checkpoint_dir);
+  std::filesystem::remove_all(o.checkpoint.folder);
 }
 }  // namespace
 
 TEST_CASE("pipeline: every stage runs on a non-square size that is not a multiple of 32, maps stay valid") {
   const scene s(45, 37);
-  EstimationNet<estimator_tiny> estimator(1);
-  AutoEncoder<autoencoder_tiny> autoencoder(2);
-  pipeline_options o;
-  o.window = 64;
-  o.stride = 16;
-  o.finetune_steps = 12;
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> autoencoder(2);
+  capture_options o = measured_capture_options();
+  o.estimate.window = 64;
+  o.estimate.stride = 16;
+  o.finetune.steps = 12;
   o.refine.steps = 10;
   int estimate_reports = 0;
-  o.progress_every = 4;
+  o.finetune.progress_every = 4;
   o.progress = [&](const std::string& stage, const optimisation_progress&) { estimate_reports += stage == "estimate"; };
-  const pipeline_result r = run_pipeline(s.cap, s.photos, estimator, autoencoder, o);
+  const capture_result r = capture_material(s.cap, s.photos, estimator, autoencoder, o);
   REQUIRE(r.stages.size() == 4);
   CHECK(r.stages[0].name == "estimate");
   CHECK(r.stages[2].name == "finetune");
@@ -86,11 +87,11 @@ TEST_CASE("pipeline: every stage runs on a non-square size that is not a multipl
 
 TEST_CASE("pipeline: the decoder fine-tune touches only the decoder and resumes from its check-point") {
   const scene s(32, 32);
-  pipeline_options o;
-  o.window = 64;
+  capture_options o = measured_capture_options();
+  o.estimate.window = 64;
   o.stages.estimate = false;  // start from the first guess: the networks' estimate is not needed here
   o.stages.refine = false;
-  o.checkpoint_dir = std::filesystem::temp_directory_path() / ("anisocap_pipeline_" + std::to_string(std::random_device{}()));
+  o.checkpoint.folder = std::filesystem::temp_directory_path() / ("anisocap_pipeline_" + std::to_string(std::random_device{}()));
   check_fine_tune_resumes(s, o);
 }
 
@@ -99,9 +100,9 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   // where the grid goes on), clipped at the borders and at the material's edge.
   const scene s(100, 70);
   const loss_targets targets = make_loss_targets(s.photos);
-  AutoEncoder<autoencoder_tiny> ae(3);
-  constexpr int M = AutoEncoder<autoencoder_tiny>::size_multiple;
-  const auto z = pipeline_detail::encode_maps(ae, s.truth);
+  auto_encoder<autoencoder_tiny> ae(3);
+  constexpr int M = auto_encoder<autoencoder_tiny>::size_multiple;
+  const auto z = encode(ae, s.truth);
   ae.freeze_encoder(true);
   REQUIRE(z.height() == 3);
   REQUIRE(z.width() == 4);
@@ -115,7 +116,7 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   };
   auto zero = [&]() { for (auto* p : params) p->zero_grad(); };
 
-  // The whole tile, as the pipeline's uncropped step computes it.
+  // The whole tile, as the fine-tune's uncropped step computes it.
   zero();
   ad::tape t;
   auto y = ae.decode(t, t.leaf(z));
@@ -132,11 +133,11 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   zero();
   double loss_sum = 0;
   int windows = 0;
-  pipeline_detail::crop_scratch scratch;
+  finetune_crops::scratch scratch;
   const int k = 2;
   for (int sy = -(k - 1); sy < 3; ++sy)
     for (int sx = -(k - 1); sx < 4; ++sx) {
-      const auto win = pipeline_detail::clipped_window(3, 4, k, k, sy, sx);
+      const auto win = finetune_crops::clipped_window(3, 4, k, k, sy, sx);
       // The window's decode equals the whole decode on its texels.
       {
         ad::tape tw;
@@ -152,7 +153,7 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
                       doctest::Approx(y.value(0, win.r0 * M + yy, win.c0 * M + xx, c)).epsilon(1e-5));
       }
       ad::tape tc;
-      const double l = pipeline_detail::decoder_crop_step<all_features>(tc, ae, z, win, k, k, 100, 70, s.cap, targets, {}, scratch);
+      const double l = finetune_crops::crop_step<all_features>(tc, ae, z, win, k, k, 100, 70, s.cap, targets, {}, scratch);
       const int h = std::min(win.r1 * M, 70) - win.r0 * M, w = std::min(win.c1 * M, 100) - win.c0 * M;
       loss_sum += l * h * w / double(k * k * M * M);
       ++windows;
@@ -176,7 +177,7 @@ TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-
   std::vector<int> count(5 * 7, 0);
   const int steps = 20000;
   for (int step = 0; step < steps; ++step) {
-    const auto w = pipeline_detail::random_window(5, 7, 3, 3, 9, step);
+    const auto w = finetune_crops::random_window(5, 7, 3, 3, 9, step);
     REQUIRE(w.r0 < w.r1);
     REQUIRE(w.c0 < w.c1);
     for (int r = w.r0; r < w.r1; ++r)
@@ -186,44 +187,44 @@ TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-
   for (int v : count) CHECK(std::abs(v - expected) < 0.06 * expected);
 
   const scene s(96, 64);
-  pipeline_options o;
+  capture_options o = measured_capture_options();
   o.stages.estimate = false;
   o.stages.refine = false;
-  o.finetune_crop = 1;
-  o.finetune_warmup = 3;
-  o.checkpoint_dir = std::filesystem::temp_directory_path() / ("anisocap_crop_" + std::to_string(std::random_device{}()));
+  o.finetune.crop.cells = 1;
+  o.finetune.warmup = 3;
+  o.checkpoint.folder = std::filesystem::temp_directory_path() / ("anisocap_crop_" + std::to_string(std::random_device{}()));
   int observed = 0;
-  o.finetune_observer = [&](int, double, const std::function<material_maps()>&) { ++observed; };
+  o.finetune.observer = [&](int, double, const std::function<material_maps()>&) { ++observed; };
   check_fine_tune_resumes(s, o);
   CHECK(observed == 8);
 }
 
 TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved back to a loss near the best, whole tiles and crops") {
   const scene s(64, 64);
-  EstimationNet<estimator_tiny> estimator(1);
+  estimation_network<estimator_tiny> estimator(1);
   for (const int crop : {0, 1}) {  // crop 1: one of the 2 x 2 latent cells a step; the guard watches 5-step means
     CAPTURE(crop);
-    pipeline_options o;
+    capture_options o = measured_capture_options();
     o.stages.estimate = false;
     o.stages.refine = false;
-    o.finetune_steps = 40;
-    o.finetune_crop = crop;
-    o.finetune_learning_rate = 0.5f;  // Adam at 0.5 throws the decoder's weights about
-    o.finetune_guard_every = 5;
+    o.finetune.steps = 40;
+    o.finetune.crop.cells = crop;
+    o.finetune.learning_rate = 0.5f;  // Adam at 0.5 throws the decoder's weights about
+    o.finetune.guard.every = 5;
     o.normalise_exposure = false;  // stage losses then are losses on these photographs
     const loss_targets targets = make_loss_targets(s.photos);
     std::vector<double> unguarded_losses;
-    o.finetune_guard = 0;
-    o.finetune_observer = [&](int, double, const std::function<material_maps()>& maps) {
+    o.finetune.guard.factor = 0;
+    o.finetune.observer = [&](int, double, const std::function<material_maps()>& maps) {
       unguarded_losses.push_back(loss_and_gradient<all_features>(maps(), s.cap, targets, nullptr));  // the whole tile's, crops or not
     };
-    AutoEncoder<autoencoder_tiny> a(2);
-    const pipeline_result wild = run_pipeline(s.cap, s.photos, estimator, a, o);
+    auto_encoder<autoencoder_tiny> a(2);
+    const capture_result wild = capture_material(s.cap, s.photos, estimator, a, o);
     CHECK(wild.stages[2].restarts == 0);
-    o.finetune_observer = nullptr;
-    o.finetune_guard = 1.5;
-    AutoEncoder<autoencoder_tiny> b(2);
-    const pipeline_result guarded = run_pipeline(s.cap, s.photos, estimator, b, o);
+    o.finetune.observer = nullptr;
+    o.finetune.guard.factor = 1.5;
+    auto_encoder<autoencoder_tiny> b(2);
+    const capture_result guarded = capture_material(s.cap, s.photos, estimator, b, o);
     CHECK(guarded.stages[2].restarts > 0);
     CHECK(guarded.stages[2].restarts < 10);  // each restart resumes from the snapshot's loss: no endless going back
     CHECK(guarded.stages[2].steps == 40);
@@ -235,9 +236,9 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
     // the guard sees 5-step means of one cell's loss, a weaker promise (only "better than unguarded").
     if (crop == 0) CHECK(guarded.stages[2].loss <= 1.5 * guarded.stages[1].loss);
     CHECK_THROWS_AS([&] {
-      o.finetune_guard = 0.9;
-      AutoEncoder<autoencoder_tiny> c(2);
-      run_pipeline(s.cap, s.photos, estimator, c, o);
+      o.finetune.guard.factor = 0.9;
+      auto_encoder<autoencoder_tiny> c(2);
+      capture_material(s.cap, s.photos, estimator, c, o);
     }(), std::invalid_argument);
   }
 }

@@ -1,4 +1,4 @@
-// Training (pipeline/training.hpp): a run stopped half-way and resumed from its checkpoint ends
+// Training (training/training.hpp): a run stopped half-way and resumed from its checkpoint ends
 // with exactly the weights of an uninterrupted run; the auto-encoder's shapes; the loss terms.
 #include <doctest/doctest.h>
 
@@ -8,8 +8,8 @@
 
 #include <unistd.h>
 
-#include "anisocap/pipeline/training.hpp"
-#include "tiny_presets.hpp"
+#include "anisocap/training/training.hpp"
+#include "../networks/tiny_presets.hpp"
 
 using namespace anisocap;
 namespace fs = std::filesystem;
@@ -47,22 +47,22 @@ training::train_options tiny_options(const fs::path& dir, int size) {
 
 TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k steps straight") {
   const fs::path a = fresh_folder("straight"), b = fresh_folder("resumed");
-  EstimationNet<testing::estimator_tiny> straight(3);
+  estimation_network<testing::estimator_tiny> straight(3);
   training::train_estimator(tiny_options(a, 64), straight);
   {
-    EstimationNet<testing::estimator_tiny> killed(3);
+    estimation_network<testing::estimator_tiny> killed(3);
     auto o = tiny_options(b, 64);
     o.stop_after = 2;
     training::train_estimator(o, killed);
   }
-  EstimationNet<testing::estimator_tiny> resumed(99);  // different initial weights: all must come from the checkpoint
+  estimation_network<testing::estimator_tiny> resumed(99);  // different initial weights: all must come from the checkpoint
   auto o = tiny_options(b, 64);
   o.resume = true;
   training::train_estimator(o, resumed);
   const auto wa = all_weights(straight), wb = all_weights(resumed);
   REQUIRE(wa.size() == wb.size());
   CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
-  EstimationNet<testing::estimator_tiny> initial(3);
+  estimation_network<testing::estimator_tiny> initial(3);
   const auto w0 = all_weights(initial);
   CHECK_FALSE(std::equal(wa.begin(), wa.end(), w0.begin()));  // training changed the weights
   // Both runs logged the same validation rows (the resumed one rewrote none twice).
@@ -81,15 +81,15 @@ TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k step
 
 TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statistics included)") {
   const fs::path a = fresh_folder("ae_straight"), b = fresh_folder("ae_resumed");
-  AutoEncoder<testing::autoencoder_tiny> straight(3);
+  auto_encoder<testing::autoencoder_tiny> straight(3);
   training::train_autoencoder(tiny_options(a, 32), straight);
   {
-    AutoEncoder<testing::autoencoder_tiny> killed(3);
+    auto_encoder<testing::autoencoder_tiny> killed(3);
     auto o = tiny_options(b, 32);
     o.stop_after = 2;
     training::train_autoencoder(o, killed);
   }
-  AutoEncoder<testing::autoencoder_tiny> resumed(42);
+  auto_encoder<testing::autoencoder_tiny> resumed(42);
   auto o = tiny_options(b, 32);
   o.resume = true;
   training::train_autoencoder(o, resumed);
@@ -144,7 +144,7 @@ TEST_CASE("training materials: the held-out families never appear among training
   const fs::path dir = fresh_folder("extended");
   auto o = tiny_options(dir, 64);
   o.mix = material_mix::extended;
-  EstimationNet<testing::estimator_tiny> net(3);
+  estimation_network<testing::estimator_tiny> net(3);
   CHECK_THROWS_AS(training::train_estimator(o, net), std::invalid_argument);
   CHECK_FALSE(fs::exists(dir));
 }
@@ -152,13 +152,13 @@ TEST_CASE("training materials: the held-out families never appear among training
 TEST_CASE("training materials: a run resumes only on the mix it started with") {
   const fs::path dir = fresh_folder("mix_resume");
   {
-    AutoEncoder<testing::autoencoder_tiny> net(3);
+    auto_encoder<testing::autoencoder_tiny> net(3);
     auto o = tiny_options(dir, 32);
     o.mix = material_mix::training;
     o.stop_after = 2;
     training::train_autoencoder(o, net);
   }
-  AutoEncoder<testing::autoencoder_tiny> net(3);
+  auto_encoder<testing::autoencoder_tiny> net(3);
   auto o = tiny_options(dir, 32);
   o.resume = true;  // mix left at original
   CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("--materials training"), std::runtime_error);

@@ -1,29 +1,15 @@
 #pragma once
 /// @file
-/// The two networks of the paper (MODEL.md 7): the multi-image estimation network (after
-/// Deschaintre 2018/2019) and the map auto-encoder (after Gao 2019). Widths are compile-time
-/// presets: `paper` (the paper's widths) and `compact` (trains on 2 CPU cores; the shipped weights
-/// in models/compact/). Both work on NHWC tensors in network space (pipeline/network_space.hpp).
-#include <algorithm>
-#include <array>
-#include <cmath>
-#include <cstdint>
-#include <stdexcept>
-#include <string>
-#include <tuple>
-#include <utility>
-#include <vector>
-
-#include "anisocap/ad/reverse/tape.hpp"
-#include "anisocap/brdf/material_maps.hpp"
-#include "anisocap/core/image.hpp"
-#include "anisocap/nn/nn.hpp"
-#include "anisocap/pipeline/network_space.hpp"
+/// The estimation network of the paper (docs/method.md section 7, after Deschaintre 2018/2019):
+/// multi-image, with compile-time width presets `estimator_paper` (the paper's widths) and
+/// `estimator_compact` (trains on 2 CPU cores; the shipped weights in models/compact/). It works on
+/// NHWC tensors in network space (networks/network_space.hpp).
+#include "anisocap/networks/network_layers.hpp"
 
 namespace anisocap {
 
 /// The paper's estimator widths: 6 encoder layers up to 1024 channels, track 1 (a_d, a'_s, sigma,
-/// F0) from 512 down to 64, track 2 (n_s, alpha) from 256 down to 32 (MODEL.md 7).
+/// F0) from 512 down to 64, track 2 (n_s, alpha) from 256 down to 32 (docs/method.md section 7).
 struct estimator_paper {
   static constexpr std::array<int, 6> encoder{64, 128, 256, 512, 1024, 1024};  ///< encoder widths
   static constexpr std::array<int, 6> track1{512, 512, 256, 128, 64, 64};      ///< track 1 decoder widths
@@ -40,47 +26,7 @@ struct estimator_compact {
   static constexpr const char* name = "compact";                         ///< preset name in files
 };
 
-/// The paper's auto-encoder widths: 5 stride-2 convolutions 64-128-256-512-1024 (MODEL.md 7).
-struct autoencoder_paper {
-  static constexpr std::array<int, 5> encoder{64, 128, 256, 512, 1024};  ///< encoder widths; latent = last
-  static constexpr const char* name = "paper";                            ///< preset name in files
-};
-
-/// The compact auto-encoder: latent (H/32) x (W/32) x 128.
-struct autoencoder_compact {
-  static constexpr std::array<int, 5> encoder{32, 64, 128, 128, 128};  ///< encoder widths; latent = last
-  static constexpr const char* name = "compact";                        ///< preset name in files
-};
-
 namespace network_detail {
-
-/// Leaky-ReLU slope of both networks (Deschaintre 2018 uses 0.2).
-inline constexpr double leaky_slope = 0.2;
-
-/// Visits every parameter of a list of layers.
-template <class F, class... L>
-void visit(F& f, L&... layers) {
-  (layers.for_each_parameter(f), ...);
-}
-
-/// y = x cropped to its top-left height x width (recorded on the tape).
-template <int C, class T>
-ad::variable<C, T> crop(ad::tape& t, const ad::variable<C, T>& x, int height, int width) {
-  if (height == x.value.height() && width == x.value.width()) return x;
-  auto y = t.make_variable<C, T>(x.value.batch(), height, width, x.requires_grad);
-  for (int b = 0; b < x.value.batch(); ++b)
-    for (int r = 0; r < height; ++r) std::copy_n(x.value.pixel(b, r, 0), std::size_t(width) * C, y.value.pixel(b, r, 0));
-  if (y.requires_grad)
-    t.record([x = x, y, height, width]() mutable {
-      for (int b = 0; b < x.value.batch(); ++b)
-        for (int r = 0; r < height; ++r) {
-          T* g = x.grad.pixel(b, r, 0);
-          const T* gy = y.grad.pixel(b, r, 0);
-          for (std::size_t i = 0; i < std::size_t(width) * C; ++i) g[i] += gy[i];
-        }
-    });
-  return y;
-}
 
 /// One decoder track of the estimator: 6 transposed convolutions from the bottleneck (H/64) to
 /// full size, each after the first fed by the matching encoder skip (concatenated), each followed
@@ -170,23 +116,16 @@ class reducing_head {
   }
 };
 
-/// He-uniform weights (leaky ReLU) and zero biases for a convolution, from the layer's name.
-template <class Conv>
-void init_conv(Conv& c, int fan_in, std::uint64_t seed) {
-  nn::he_uniform(c.weight, fan_in, seed, leaky_slope);
-  if (c.has_bias()) nn::constant_init(c.bias, decltype(c.bias.value[0] + 0)(0));
-}
-
 }  // namespace network_detail
 
-/// The estimation network (MODEL.md 7): one single-image U-Net with a global-feature track,
+/// The estimation network (docs/method.md section 7): one single-image U-Net with a global-feature track,
 /// applied with shared weights to every input image (the images are batch entries), its two
 /// decoder tracks and global vectors max-pooled over the images of each set, then three reducing
 /// convolutions per track to 9 (a_d, a'_s, sigma, F0) + 3 (n_s.xy, alpha) channels in network space.
 ///
 /// forward() takes sizes that are multiples of 64 (six stride-2 layers); estimate() pads any size.
 template <class Preset, class T = float>
-class EstimationNet {
+class estimation_network {
   static constexpr auto E = Preset::encoder;
 
  public:
@@ -224,7 +163,7 @@ class EstimationNet {
   network_detail::reducing_head<E[5], Preset::track2[5], 3, T> head2;  ///< reducing convolutions of track 2
 
   /// A network with seeded He-uniform weights (the same on every machine for the same seed).
-  explicit EstimationNet(std::uint64_t seed = 1)
+  explicit estimation_network(std::uint64_t seed = 1)
       : enc0("enc0"), enc1("enc1"), enc2("enc2"), enc3("enc3"), enc4("enc4"), enc5("enc5"), norm1("enc_norm1"),
         norm2("enc_norm2"), norm3("enc_norm3"), norm4("enc_norm4"), norm5("enc_norm5"), global0("global0", seed),
         global1("global1", seed), global2("global2", seed), global3("global3", seed), global4("global4", seed),
@@ -250,7 +189,7 @@ class EstimationNet {
   ad::variable<parameter_count, T> forward(ad::tape& t, const ad::variable<3, T>& x, int images_per_set) {
     if (x.value.height() % size_multiple != 0 || x.value.width() % size_multiple != 0 || x.value.height() == 0 ||
         x.value.width() == 0)
-      throw std::invalid_argument("EstimationNet::forward: image size " + std::to_string(x.value.height()) + "x" +
+      throw std::invalid_argument("estimation_network::forward: image size " + std::to_string(x.value.height()) + "x" +
                                   std::to_string(x.value.width()) + " is not a positive multiple of 64 (use estimate())");
     const T s = T(network_detail::leaky_slope);
     auto h0 = enc0(t, x);
@@ -278,11 +217,11 @@ class EstimationNet {
   /// The map set estimated from one set of photographs (any size >= 1 x 1, all the same size; at
   /// least one image). The images are mirrored out to a multiple of 64 and the maps cropped back.
   material_maps estimate(const std::vector<image>& photos) {
-    if (photos.empty()) throw std::invalid_argument("EstimationNet::estimate: no input images");
+    if (photos.empty()) throw std::invalid_argument("estimation_network::estimate: no input images");
     const int W = photos[0].width(), H = photos[0].height();
     for (const auto& p : photos)
       if (p.width() != W || p.height() != H)
-        throw std::invalid_argument("EstimationNet::estimate: the input images differ in size");
+        throw std::invalid_argument("estimation_network::estimate: the input images differ in size");
     const int Hp = padded_size(H), Wp = padded_size(W);
     ad::tape t;
     ad::tape::no_grad_guard guard(t);
@@ -342,103 +281,6 @@ class EstimationNet {
     // a saturated normal (|n_xy| at the disc's edge) gets almost no gradient and stays there.
     nn::uniform_init(h.c2.weight, 0.1 * std::sqrt(6.0 / (h.c2.weight.shape[2] + h.c2.weight.shape[3])), seed);
     nn::constant_init(h.c2.bias, T(0));
-  }
-};
-
-/// The map auto-encoder (MODEL.md 7, after Gao 2019): five 4x4 stride-2 convolutions with leaky
-/// ReLU between them and one batch normalisation at the end give the latent code z
-/// (H/32 x W/32 x Preset::encoder[4]); five 4x4 stride-2 transposed convolutions decode it back to
-/// 12 channels in network space (tanh). encode() and decode() are separate so that the pipeline
-/// can fine-tune the decoder with z fixed and the encoder frozen (MODEL.md 8).
-template <class Preset, class T = float>
-class AutoEncoder {
-  static constexpr auto E = Preset::encoder;
-
- public:
-  using preset = Preset;  ///< the widths
-  /// Latent channels.
-  static constexpr int latent_channels = E[4];
-  /// Side lengths encode() accepts are multiples of this.
-  static constexpr int size_multiple = 32;
-
-  nn::conv2d<parameter_count, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
-  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;  ///< encoder layer 1 (4x4, stride 2)
-  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;  ///< encoder layer 2 (4x4, stride 2)
-  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;  ///< encoder layer 3 (4x4, stride 2)
-  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;  ///< encoder layer 4 (4x4, stride 2)
-  nn::batch_norm<E[4], T> latent_norm;  ///< the batch norm that ends the encoder
-  nn::conv_transpose2d<E[4], E[3], T> dec0;  ///< decoder layer 0 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[3], E[2], T> dec1;  ///< decoder layer 1 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[2], E[1], T> dec2;  ///< decoder layer 2 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[1], E[0], T> dec3;  ///< decoder layer 3 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[0], parameter_count, T> dec4;  ///< decoder layer 4 (4x4 transposed, stride 2)
-
-  /// A network with seeded He-uniform weights.
-  explicit AutoEncoder(std::uint64_t seed = 1)
-      : enc0("enc0"), enc1("enc1"), enc2("enc2"), enc3("enc3"), enc4("enc4"), latent_norm("latent_norm"),
-        dec0("dec0"), dec1("dec1"), dec2("dec2"), dec3("dec3"), dec4("dec4") {
-    using network_detail::init_conv;
-    init_conv(enc0, 16 * parameter_count, seed);
-    init_conv(enc1, 16 * E[0], seed);
-    init_conv(enc2, 16 * E[1], seed);
-    init_conv(enc3, 16 * E[2], seed);
-    init_conv(enc4, 16 * E[3], seed);
-    init_conv(dec0, 4 * E[4], seed);
-    init_conv(dec1, 4 * E[3], seed);
-    init_conv(dec2, 4 * E[2], seed);
-    init_conv(dec3, 4 * E[1], seed);
-    nn::xavier_uniform(dec4.weight, 4 * E[0], 4 * parameter_count, seed);
-    nn::constant_init(dec4.bias, T(0));
-  }
-
-  /// z from network-space maps (batch x H x W x 12, H and W multiples of 32). Batch norm uses the
-  /// batch's statistics while `training`, the running ones otherwise.
-  ad::variable<latent_channels, T> encode(ad::tape& t, const ad::variable<parameter_count, T>& maps) {
-    if (maps.value.height() % size_multiple != 0 || maps.value.width() % size_multiple != 0 || maps.value.height() == 0 ||
-        maps.value.width() == 0)
-      throw std::invalid_argument("AutoEncoder::encode: map size " + std::to_string(maps.value.height()) + "x" +
-                                  std::to_string(maps.value.width()) + " is not a positive multiple of 32 (pad it)");
-    const T s = T(network_detail::leaky_slope);
-    auto h = nn::leaky_relu(t, enc0(t, maps), s);
-    auto h1 = nn::leaky_relu(t, enc1(t, h), s);
-    auto h2 = nn::leaky_relu(t, enc2(t, h1), s);
-    auto h3 = nn::leaky_relu(t, enc3(t, h2), s);
-    return latent_norm(t, enc4(t, h3));
-  }
-
-  /// Network-space maps (batch x 32 h x 32 w x 12, in (-1, 1)) from z (batch x h x w x latent).
-  ad::variable<parameter_count, T> decode(ad::tape& t, const ad::variable<latent_channels, T>& z) {
-    const T s = T(network_detail::leaky_slope);
-    auto h = nn::leaky_relu(t, dec0(t, z), s);
-    auto h1 = nn::leaky_relu(t, dec1(t, h), s);
-    auto h2 = nn::leaky_relu(t, dec2(t, h1), s);
-    auto h3 = nn::leaky_relu(t, dec3(t, h2), s);
-    return nn::tanh(t, dec4(t, h3));
-  }
-
-  /// Batch norm mode: batch statistics (training) or running statistics (inference).
-  void set_training(bool training) noexcept { latent_norm.training = training; }
-
-  /// Freezes (or unfreezes) the encoder and its batch norm: no gradients are computed for them.
-  void freeze_encoder(bool frozen = true) {
-    auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
-    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm);
-  }
-
-  /// Visits every trainable parameter.
-  template <class F>
-  void for_each_parameter(F&& f) {
-    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm, dec0, dec1, dec2, dec3, dec4);
-  }
-  /// Visits the saved, untrained state (the batch norm's running statistics).
-  template <class F>
-  void for_each_buffer(F&& f) {
-    latent_norm.for_each_buffer(f);
-  }
-  /// Visits the decoder's parameters only (what the pipeline fine-tunes).
-  template <class F>
-  void for_each_decoder_parameter(F&& f) {
-    network_detail::visit(f, dec0, dec1, dec2, dec3, dec4);
   }
 };
 

@@ -1,11 +1,15 @@
 #pragma once
 /// @file
-/// Sliding windows (MODEL.md 8.1): the estimator sees 256 x 256 windows of the photographs with an
+/// The estimate stage (docs/method.md section 8.1): the estimation network over sliding windows, or
+/// without networks a first guess from the photographs alone.
+///
+/// Sliding windows: the estimator sees 256 x 256 windows of the photographs with an
 /// overlap of up to 192 texels (stride 64); the window estimates are blended back to full size
 /// with weights that fall off towards each window's border. Materials smaller than a window are
 /// mirrored out to the window size and the estimate cropped back.
 #include <algorithm>
 #include <cmath>
+#include <chrono>
 #include <functional>
 #include <numbers>
 #include <stdexcept>
@@ -13,6 +17,10 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/system.hpp"
+#include "anisocap/nn/progress.hpp"
+#include "anisocap/render/capture.hpp"
+#include "anisocap/render/renderer.hpp"
 
 namespace anisocap {
 
@@ -107,6 +115,61 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
     out.plane(rotation)[i] = float(0.5 * std::atan2(rot_s[i], rot_c[i]));
   }
   return out;
+}
+
+/// Options of `estimate`.
+struct estimate_options {
+  int window = 256;  ///< estimation window (the estimator's training size)
+  int stride = 64;   ///< window step (overlap 192)
+};
+
+/// The estimate of the map set from the photographs (docs/method.md section 8.1): `estimator`
+/// (anything with `material_maps estimate(const std::vector<image>&)`) over sliding windows,
+/// blended. `progress`, when set, hears after every window (step = windows done).
+template <class Estimator>
+material_maps estimate(const std::vector<image>& photos, Estimator& estimator, const estimate_options& options = {},
+                       const std::function<void(const optimisation_progress&)>& progress = {}) {
+  const auto start = std::chrono::steady_clock::now();
+  return estimate_by_windows(photos, options.window, options.stride,
+                             [&](const std::vector<image>& crops) { return estimator.estimate(crops); },
+                             [&](int done, int total) {
+                               if (progress) progress(optimisation_progress::at(done, total, 0.0, seconds_since(start)));
+                             });
+}
+
+/// A first guess from the photographs alone, where no estimation network runs: the diffuse albedo
+/// of each texel is the smallest value of B / (cos(theta_l) I / (pi r^2)) over the images that
+/// light it (the image where the specular lobe adds least), clamped to [0.02, 0.95]; the other
+/// parameters start at mid-range values (a'_s 0.3, sigma 0.15, F0 0.5, flat normal, alpha 0).
+inline material_maps initial_guess(const capture& cap, const std::vector<image>& photos, const tile_placement& placement = {}) {
+  if (photos.empty() || photos.size() != cap.images.size())
+    throw std::invalid_argument("initial_guess: need one photograph per configuration");
+  const int w = photos[0].width(), h = photos[0].height();
+  material_maps maps(w, h);
+  const float start[parameter_count] = {0.5f, 0.5f, 0.5f, 0.3f, 0.3f, 0.3f, 0.15f, 0.15f, 0.5f, 0.0f, 0.0f, 0.0f};
+  maps.fill(start);
+  tile_placement tp = placement;
+  if (tp.full_width == 0) tp = {w, h, 0, 0};
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const auto p = texel_position(tp.x0 + x, tp.y0 + y, tp.full_width, tp.full_height);
+      float best[3] = {1e30f, 1e30f, 1e30f};
+      for (std::size_t k = 0; k < cap.images.size(); ++k) {
+        const auto& im = cap.images[k];
+        const float lx = im.light[0] - p[0], ly = im.light[1] - p[1], lz = im.light[2];
+        const float r2 = std::max(lx * lx + ly * ly + lz * lz, 1e-6f);
+        const float cos_l = lz / std::sqrt(r2);
+        if (cos_l < 0.05f || im.camera[2] <= 0) continue;
+        for (int c = 0; c < 3; ++c) {
+          const float irradiance = cos_l * im.intensity[c] / (std::numbers::pi_v<float> * r2);
+          best[c] = std::min(best[c], photos[k].at(c, x, y) / irradiance);
+        }
+      }
+      for (int c = 0; c < 3; ++c)
+        if (best[c] < 1e29f) maps.at(diffuse_r + c, x, y) = std::clamp(best[c], 0.02f, 0.95f);
+    }
+  return maps;
 }
 
 }  // namespace anisocap

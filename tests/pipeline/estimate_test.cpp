@@ -3,7 +3,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "anisocap/pipeline/windows.hpp"
+#include "anisocap/pipeline/estimate.hpp"
 
 using namespace anisocap;
 

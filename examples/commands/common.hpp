@@ -1,0 +1,182 @@
+#pragma once
+// What the `anisocap` program's commands share: progress lines, image writing, the optimiser
+// options bound onto capture_options, and the network weights of a preset.
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <initializer_list>
+#include <string>
+#include <vector>
+
+#include "anisocap/anisocap.hpp"
+
+#ifndef ANISOCAP_MODELS_DIR
+#define ANISOCAP_MODELS_DIR "models"
+#endif
+
+namespace anisocap::commands {
+
+namespace fs = std::filesystem;
+
+/// Prints optimisation progress on one refreshed line on a terminal, or one line per report in logs.
+inline void print_progress(const std::string& stage, const optimisation_progress& p) {
+  static const bool tty = isatty(fileno(stderr));
+  std::fprintf(stderr, "%s  %s step %5d/%d  loss %.5f  %6.1f steps/s  %5.1f s left%s", tty ? "\r" : "", stage.c_str(), p.step,
+               p.steps, p.loss, p.steps_per_second, p.seconds_left, tty ? "   " : "\n");
+  if (tty && p.step == p.steps) std::fputc('\n', stderr);
+  std::fflush(stderr);
+}
+
+/// The per-parameter errors as JSON (alpha over anisotropic texels is null when there are none).
+inline nlohmann::json errors_to_json(const parameter_errors& e) {
+  return {{"diffuse", e.diffuse}, {"specular", e.specular}, {"normal", e.normal}, {"lobes", e.lobes},
+          {"rotation", e.rotation},
+          {"rotation_anisotropic", std::isnan(e.rotation_anisotropic) ? nlohmann::json(nullptr) : nlohmann::json(e.rotation_anisotropic)},
+          {"fresnel", e.fresnel}};
+}
+
+/// Writes `images` (one per capture image) into `out`: one linear EXR per image under its capture
+/// file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR.
+/// All files appear together or not at all.
+inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out) {
+  fs::create_directories(out);
+  file_transaction files;
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    const fs::path target = out / cap.images[i].file;
+    if (target.has_parent_path()) fs::create_directories(target.parent_path());
+    const auto ext = target.extension().string();
+    if (ext == ".exr" || ext == ".EXR") {
+      write_exr(images[i], target, files);
+      write_png(images[i], fs::path(target).replace_extension(".png"), files);
+    } else {
+      write_png(images[i], target, files);
+    }
+  }
+  files.commit();
+}
+
+/// Renders `maps` under `cap` into `out` (write_images).
+inline void write_renders(const material_maps& maps, const capture& cap, const fs::path& out, const brdf_features& features = all_features) {
+  write_images(with_features(features, [&]<brdf_features F>() { return render<F>(maps, cap); }), cap, out);
+}
+
+/// Simulated sensor noise on rendered inputs (synthesize, eval).
+inline void add_noise_options(CLI::App* c, sensor_noise& noise) {
+  c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(CLI::NonNegativeNumber);
+  c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(CLI::NonNegativeNumber);
+}
+
+/// Binds `--materials` onto `mix`: the procedural families (data/procedural.hpp material_mix)
+/// materials are drawn from, by name, among `allowed`.
+inline CLI::Option* add_mix_option(CLI::App* c, material_mix& mix, std::initializer_list<material_mix> allowed, const std::string& help) {
+  std::string known;
+  for (material_mix m : allowed) known += std::string(known.empty() ? "" : "|") + material_mix_name(m);
+  const std::vector<material_mix> names(allowed);
+  CLI::Validator by_name(
+      [names, known](std::string& input) {
+        for (material_mix m : names)
+          if (input == material_mix_name(m)) {
+            input = std::to_string(static_cast<int>(m));
+            return std::string();
+          }
+        return "unknown mix '" + input + "' (" + known + ")";
+      },
+      "");
+  return c->add_option("--materials", mix, help)->transform(by_name)->type_name(known)->default_str(material_mix_name(mix));
+}
+
+/// Checks a comma-separated list of family names (material_kinds_from_names), naming the unknown one.
+inline CLI::Validator family_list_check() {
+  return CLI::Validator(
+      [](const std::string& list) {
+        try {
+          material_kinds_from_names(list);
+          return std::string();
+        } catch (const std::invalid_argument& e) {
+          return std::string(e.what());
+        }
+      },
+      "FAMILY,...");
+}
+
+/// Where the network weights come from.
+struct model_choice {
+  std::string preset = "compact";          ///< compact or paper
+  fs::path models = ANISOCAP_MODELS_DIR;   ///< folder holding <preset>/estimator.safetensors, autoencoder.safetensors
+  fs::path estimator() const { return models / preset / "estimator.safetensors"; }
+  fs::path autoencoder() const { return models / preset / "autoencoder.safetensors"; }
+  bool present() const { return fs::exists(estimator()) && fs::exists(autoencoder()); }
+};
+
+inline void add_model_options(CLI::App* c, model_choice& m) {
+  c->add_option("--preset", m.preset, "network preset whose weights to use")->check(CLI::IsMember({"compact", "paper"}));
+  c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");
+}
+
+/// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
+/// comes first so that options after it on the command line refine it.
+inline void add_optimiser_options(CLI::App* c, capture_options& o) {
+  c->add_option_function<std::string>(
+       "--schedule",
+       [&o](const std::string& name) {
+         if (name == "paper") {
+           o.finetune = finetune_options::paper();
+           o.refine = refine_options::paper();
+         }
+       },
+       "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "
+       "error; studies/README.md \"Run time against error\"); paper: fine-tune 5000 at 7.5e-4, refine 500 at 1e-4 (~5x longer). "
+       "Options given beside it override its values")
+      ->check(CLI::IsMember({"fast", "paper"}))
+      ->default_str("fast");
+  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(CLI::PositiveNumber);
+  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many 32-texel latent cells per side (0: the whole tile, as the paper)")->check(CLI::NonNegativeNumber);
+  c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every 50 steps, keeps large rates from losing what they gained");
+  c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(CLI::NonNegativeNumber);
+  c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(CLI::PositiveNumber);
+  c->add_option("--refine-stop", o.refine.min_relative_improvement, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option_function<std::string>(
+       "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },
+       "BRDF terms the fine-tune and refine stages fit: auto (the cheapest kernel that renders the estimate, or the first guess, within "
+       "1e-3: the full kernel on anisotropic samples with Fresnel and normals, fewer terms and less time where the sample shows "
+       "fewer), full, isotropic, no-fresnel, flat, isotropic-flat, lambert-like")
+      ->check(CLI::IsMember({"auto", "full", "isotropic", "no-fresnel", "flat", "isotropic-flat", "lambert-like"}))
+      ->default_str(o.kernel.auto_tolerance > 0 ? "auto" : "full");
+  c->add_option("--cull", o.render.cull_tolerance, "specular culling tolerance on each pixel's log loss term (0: exact)")->check(CLI::Range(0.0, 1.0));
+  c->add_option_function<std::string>(
+       "--precision", [&o](const std::string& name) { o.render.double_precision = name == "double"; },
+       "arithmetic of the image-loss kernels: float or double (maps stay float; double is ~1.9x slower)")
+      ->check(CLI::IsMember({"float", "double"}))
+      ->default_str(o.render.double_precision ? "double" : "float");
+}
+
+/// Runs capture_material with the networks of `models` (loaded here) when `o.stages` needs them,
+/// else without networks.
+inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
+                                  const capture_options& o, const material_maps* start = nullptr) {
+  if (!o.stages.networks()) return capture_material(cap, photos, o, start);
+  if (!models.present())
+    throw std::invalid_argument("the network stages need the " + models.preset + " weights: " + models.estimator().string() + " and " +
+                                models.autoencoder().string() + " (not found)");
+  auto run = [&]<class EstimatorPreset, class AutoEncoderPreset>() {
+    estimation_network<EstimatorPreset> estimator;
+    auto_encoder<AutoEncoderPreset> autoencoder;
+    nn::load_weights(models.estimator(), estimator);
+    nn::load_weights(models.autoencoder(), autoencoder);
+    return capture_material(cap, photos, estimator, autoencoder, o, start);
+  };
+  if (models.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
+  return run.template operator()<estimator_compact, autoencoder_compact>();
+}
+
+}  // namespace anisocap::commands

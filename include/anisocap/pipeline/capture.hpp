@@ -1,0 +1,236 @@
+#pragma once
+/// @file
+/// The capture pipeline (docs/method.md section 8, the paper's Figure 3) at any resolution:
+///
+///   photographs --estimate--> maps --encode--> z --finetune (decoder)--> maps --refine--> maps
+///
+/// Every stage can be skipped; without networks the first guess from the photographs stands in
+/// for the estimate and refine runs alone. Stages check-point into a folder so that a killed run
+/// resumes.
+#include <chrono>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "anisocap/pipeline/encode.hpp"
+#include "anisocap/pipeline/estimate.hpp"
+#include "anisocap/pipeline/exposure.hpp"
+#include "anisocap/pipeline/finetune.hpp"
+#include "anisocap/pipeline/refine.hpp"
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/render/analysis.hpp"
+
+namespace anisocap {
+
+/// Which stages run.
+struct pipeline_stages {
+  bool estimate = true;  ///< estimation network over sliding windows (else: first guess from the photographs)
+  bool encode = true;    ///< encode + fine-tune the decoder need the estimate (or the first guess)
+  bool finetune = true;  ///< fine-tune the decoder's weights on the photographs
+  bool refine = true;    ///< per-texel refinement
+
+  /// Whether a network runs.
+  bool networks() const noexcept { return estimate || encode; }
+
+  /// Parses "estimate,encode,finetune,refine" (any subset, comma separated; "all").
+  static pipeline_stages parse(const std::string& text) {
+    pipeline_stages s{false, false, false, false};
+    std::size_t start = 0;
+    while (start <= text.size()) {
+      const std::size_t end = std::min(text.find(',', start), text.size());
+      const std::string name = text.substr(start, end - start);
+      if (name == "estimate") s.estimate = true;
+      else if (name == "encode") s.encode = true;
+      else if (name == "finetune" || name == "fine-tune") s.finetune = true;
+      else if (name == "refine") s.refine = true;
+      else if (name == "all") s = pipeline_stages{};
+      else throw std::invalid_argument("unknown stage '" + name + "' in --stages (estimate, encode, finetune, refine, all)");
+      start = end + 1;
+    }
+    if (s.finetune && !s.encode) throw std::invalid_argument("--stages: finetune needs encode");
+    return s;
+  }
+};
+
+/// Which BRDF terms the fine-tune and refine losses evaluate.
+struct kernel_options {
+  brdf_features features = all_features;  ///< the kernel when no automatic choice is made
+  /// When > 0: after the estimate, the cheapest kernel that renders the estimate (or the first
+  /// guess) within this relative tolerance (render/analysis.hpp analyse_kernel) replaces
+  /// `features`. It picks the full kernel for anisotropic materials with Fresnel and normals, so
+  /// it costs no accuracy there, and skips the terms a sample does not show.
+  double auto_tolerance = 1e-3;
+
+  /// The kernel of a name: full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like.
+  static kernel_options parse(const std::string& name) {
+    if (name == "auto") return {all_features, 1e-3};
+    if (name == "full") return {all_features, 0};
+    if (name == "isotropic") return {{false, true, true}, 0};
+    if (name == "no-fresnel") return {{true, false, true}, 0};
+    if (name == "flat") return {{true, true, false}, 0};
+    if (name == "isotropic-flat") return {{false, true, false}, 0};
+    if (name == "lambert-like") return {{false, false, false}, 0};
+    throw std::invalid_argument("unknown --kernel '" + name + "' (full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like)");
+  }
+};
+
+/// Options of `capture_material`, one struct per stage. The defaults are the fast schedule
+/// (finetune_options); `paper()` is the paper's.
+struct capture_options {
+  pipeline_stages stages{};
+  estimate_options estimate{};
+  finetune_options finetune{};
+  refine_options refine = refine_options::after_networks();
+  render_options render{};  ///< culling, double precision etc. for every image loss
+  kernel_options kernel{};
+  /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
+  /// so that the maps do not depend on the photographs' units.
+  bool normalise_exposure = true;
+  /// Check-point folder: each stage check-points into a subfolder; with `resume` completed stages
+  /// are read back and the fine-tune continues from its last saved step.
+  checkpoint_options checkpoint{};
+  /// Progress of every stage (estimate: windows; fine-tune and refine every `progress_every` of theirs).
+  std::function<void(const std::string& stage, const optimisation_progress&)> progress;
+
+  /// The paper's schedule (section 5): fine-tune 5000 steps at 7.5e-4 without warm-up, refine 500
+  /// steps at 1e-4.
+  static capture_options paper() {
+    capture_options o;
+    o.finetune = finetune_options::paper();
+    o.refine = refine_options::paper();
+    return o;
+  }
+};
+
+/// What one stage did.
+struct stage_report {
+  std::string name;
+  bool ran = false;
+  bool resumed = false;   ///< read back from a check-point instead of computed
+  int steps = 0;
+  double loss = 0;        ///< image loss against the photographs after the stage
+  double seconds = 0;
+  double evaluated_fraction = 1.0;  ///< refine: fraction of texel-steps evaluated (freezing)
+  int restarts = 0;                 ///< fine-tune: times the divergence guard went back and halved the rate
+};
+
+/// The result: the map set and a report per stage.
+struct capture_result {
+  material_maps maps;
+  std::vector<stage_report> stages;
+  /// The maps after the fine-tune stage (before refine), when that stage ran: the paper's Table 1
+  /// reports both.
+  std::optional<material_maps> after_finetune;
+  /// The kernel the fine-tune and refine losses used (options.kernel's, or the automatic choice).
+  brdf_features features = all_features;
+  /// The factor photographs and intensities were multiplied by (1 without normalisation).
+  double exposure_scale = 1.0;
+  /// The image loss of `maps` (full kernel) against the photographs as the optimisers saw them.
+  double loss = 0;
+};
+
+/// Stands for the networks of a capture that runs without them.
+struct no_networks {};
+
+/// Captures the map set of one material from its photographs (one per configuration of `cap`).
+/// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
+/// `no_networks` for both to run the first guess and refine alone. `start`, when given, replaces
+/// the estimate (or the first guess).
+template <class Estimator = no_networks, class AutoEncoderNet = no_networks>
+capture_result capture_material(const capture& given_cap, const std::vector<image>& given_photos, Estimator& estimator,
+                                AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr) {
+  namespace fs = std::filesystem;
+  using clock = std::chrono::steady_clock;
+  if (given_photos.empty() || given_photos.size() != given_cap.images.size())
+    throw std::invalid_argument("capture_material: need one photograph per configuration");
+  constexpr bool has_networks = !std::is_same_v<Estimator, no_networks> && !std::is_same_v<AutoEncoderNet, no_networks>;
+  if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_material: the estimate and encode stages need networks");
+  if (start && o.stages.estimate) throw std::invalid_argument("capture_material: start maps replace the estimate stage");
+  o.refine.validate();
+  if (o.stages.finetune) o.finetune.validate();
+  capture_result result;
+  capture cap = given_cap;
+  std::vector<image> photos = given_photos;
+  if (o.normalise_exposure) {
+    result.exposure_scale = exposure_scale(cap);
+    apply_exposure(cap, photos, result.exposure_scale);
+  }
+  const int W = photos[0].width(), H = photos[0].height();
+  const loss_targets targets = make_loss_targets(photos);
+  auto image_loss = [&](const material_maps& m, brdf_features features) {
+    return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
+  };
+  auto reporter = [&](const char* stage) {
+    return o.progress ? std::function<void(const optimisation_progress&)>([&o, stage](const optimisation_progress& p) { o.progress(stage, p); })
+                      : nullptr;
+  };
+  const bool checkpoints = !o.checkpoint.folder.empty();
+  if (checkpoints) fs::create_directories(o.checkpoint.folder);
+  const fs::path estimate_folder = o.checkpoint.folder / "estimate";
+
+  // 1. Estimate (8.1), or the first guess.
+  const auto t0 = clock::now();
+  stage_report first{o.stages.estimate ? "estimate" : "first_guess", o.stages.estimate};
+  material_maps maps;
+  if (checkpoints && o.checkpoint.resume && fs::exists(estimate_folder / "diffuse.exr")) {
+    maps = read_maps(estimate_folder);
+    first.resumed = true;
+  } else if (o.stages.estimate) {
+    if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, reporter("estimate"));
+    if (checkpoints) write_maps(maps, estimate_folder, false);
+  } else {
+    maps = start ? *start : initial_guess(cap, photos);
+    first.ran = !start;
+  }
+  result.features = o.kernel.auto_tolerance > 0 ? analyse_kernel(maps, cap, o.kernel.auto_tolerance).features : o.kernel.features;
+  first.loss = image_loss(maps, result.features);
+  first.seconds = seconds_since(t0);
+  result.stages.push_back(first);
+
+  // 2. Encode (8.2) and 3. fine-tune the decoder (8.3).
+  if constexpr (has_networks) {
+    if (o.stages.encode) {
+      stage_report enc{"encode", true};
+      const auto t1 = clock::now();
+      const auto z = encode(autoencoder, maps);
+      enc.seconds = seconds_since(t1);
+      maps = decode(autoencoder, z, W, H);
+      enc.loss = image_loss(maps, result.features);
+      result.stages.push_back(enc);
+      if (o.stages.finetune) {
+        finetune_options fo = o.finetune;
+        if (!fo.progress) fo.progress = reporter("finetune");
+        checkpoint_options co = o.checkpoint;
+        if (checkpoints) co.folder /= "finetune";
+        finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co);
+        maps = std::move(fr.maps);
+        result.after_finetune = maps;
+        result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});
+      }
+    }
+  }
+
+  // 4. Refine per texel (8.4).
+  if (o.stages.refine) {
+    refine_options ro = o.refine;
+    ro.render = o.render;
+    if (!ro.progress) ro.progress = reporter("refine");
+    const refine_result rr = with_features(result.features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
+    result.stages.push_back({"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction});
+  }
+  result.loss = image_loss(maps, all_features);
+  result.maps = std::move(maps);
+  return result;
+}
+
+/// capture_material without networks: the first guess (or `start`) and refine.
+inline capture_result capture_material(const capture& cap, const std::vector<image>& photos, const capture_options& o,
+                                       const material_maps* start = nullptr) {
+  no_networks none;
+  return capture_material(cap, photos, none, none, o, start);
+}
+
+}  // namespace anisocap

@@ -1,0 +1,376 @@
+#pragma once
+/// @file
+/// The fine-tune stage (docs/method.md section 8.3): Adam on the decoder's weights against the image
+/// loss of the photographs, the latent code z fixed and the encoder frozen. Three additions to the
+/// paper, each with its own options: a divergence guard (large learning rates), random crops
+/// (mini-batches of latent cells) and check-points that resume exactly.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <functional>
+#include <limits>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+#include "anisocap/core/random.hpp"
+#include "anisocap/core/system.hpp"
+#include "anisocap/nn/adam.hpp"
+#include "anisocap/nn/early_stopping.hpp"
+#include "anisocap/nn/progress.hpp"
+#include "anisocap/nn/safetensors.hpp"
+#include "anisocap/pipeline/encode.hpp"
+#include "anisocap/render/renderer.hpp"
+
+namespace anisocap {
+
+/// The divergence guard: when a step's loss exceeds `factor` times the lowest loss so far (or is
+/// not finite), the decoder and Adam go back to their last snapshot (taken every `every` steps)
+/// and the learning rate halves. With crops the guard compares the mean crop loss of each `every`
+/// steps instead of single steps (one crop's loss says little about the tile), the first snapshot
+/// is the start, and the fine-tune ends with the last snapshot's decoder when the whole tile
+/// renders better with it. A snapshot costs a copy of the decoder's weights and Adam moments (3x
+/// the decoder's size). Large learning rates diverge on some materials after hundreds of good
+/// steps; this keeps what those steps gained (bench/README.md "Run time against error").
+struct finetune_guard_options {
+  double factor = 1.5;  ///< 0: off; else above 1
+  int every = 50;       ///< steps between snapshots
+};
+
+/// Random crops: each step fine-tunes on `cells` x `cells` latent cells (32 texels each) instead
+/// of the whole tile (0: the whole tile, the paper). A step decodes the crop plus a one-cell margin
+/// (so the crop's maps equal the whole decode's, exactly) and evaluates the loss on the crop only.
+/// Crop starts are uniform over [-(k-1), cells-1] and clipped to the tile, so every texel is in a
+/// crop equally often; each crop's gradient is weighted by its share of a full k x k crop.
+struct finetune_crop_options {
+  int cells = 0;
+  std::uint64_t seed = 1;  ///< seed of the crop positions (a resumed run draws the same)
+};
+
+/// Check-points of a stage: a folder (empty: none), whether to resume from it, and the time
+/// between fine-tune check-points.
+struct checkpoint_options {
+  std::filesystem::path folder;
+  bool resume = false;
+  double seconds = 60;
+};
+
+/// Options of `finetune`. The defaults are the fast schedule of bench/README.md "Run time against
+/// error": 800 steps at 8e-3 after a 200-step linear warm-up reach the error of the paper's 5000
+/// steps at 7.5e-4 (`paper()`) in about a fifth of the time.
+struct finetune_options {
+  int steps = 800;              ///< Adam steps (paper: 5000)
+  float learning_rate = 8e-3f;  ///< Adam's rate after the warm-up (paper: 7.5e-4)
+  int warmup = 200;             ///< linear learning-rate warm-up in steps (paper: none)
+  int half_life = 0;            ///< the rate halves every this many steps (0: constant)
+  /// Early stopping: stop when the loss improved by less than this fraction over the last
+  /// `patience` steps (0: run every step). With crops the compared loss is the mean over each
+  /// window of `patience` steps (one crop's loss is noisy).
+  double min_improvement = 0.0;
+  int patience = 200;
+  finetune_guard_options guard{};
+  finetune_crop_options crop{};
+  int progress_every = 50;
+  std::function<void(const optimisation_progress&)> progress;
+  /// Called at every step with the number of updates done so far, the step's image loss (with
+  /// crops, the crop's: noisy) and a function that returns the whole decoded maps at that point
+  /// (before the step's update; with crops it decodes the whole tile, so call it only when
+  /// needed). For monitoring and for studies that read many step counts off one run.
+  std::function<void(int updates, double loss, const std::function<material_maps()>& maps)> observer;
+
+  /// The paper's schedule (section 5): 5000 steps at 7.5e-4, no warm-up.
+  static finetune_options paper() {
+    finetune_options o;
+    o.steps = 5000;
+    o.learning_rate = 7.5e-4f;
+    o.warmup = 0;
+    return o;
+  }
+  /// Throws std::invalid_argument for impossible values.
+  void validate() const {
+    if (steps < 0) throw std::invalid_argument("fine-tune steps must not be negative");
+    if (!(learning_rate > 0)) throw std::invalid_argument("the fine-tune learning rate must be positive");
+    if (warmup < 0 || half_life < 0 || crop.cells < 0)
+      throw std::invalid_argument("fine-tune warm-up, half-life and crop must not be negative");
+    if (min_improvement < 0 || min_improvement >= 1) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
+    if (guard.factor < 0 || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
+      throw std::invalid_argument("the fine-tune guard must be 0 (off) or above 1, with its snapshots at least 1 step apart");
+  }
+};
+
+/// What `finetune` did.
+struct finetune_result {
+  material_maps maps;  ///< the decoder's maps after the stage (restricted to the kernel's features)
+  int steps = 0;       ///< steps run in this call
+  double loss = 0;     ///< image loss of `maps`
+  double seconds = 0;
+  bool resumed = false;  ///< continued from a check-point
+  int restarts = 0;      ///< times the divergence guard went back and halved the rate
+};
+
+namespace finetune_crops {
+
+/// A window of latent cells: rows [r0, r1) x columns [c0, c1).
+struct latent_window {
+  int r0 = 0, r1 = 0, c0 = 0, c1 = 0;
+};
+
+/// The crop of k_y x k_x cells whose start is (start_y, start_x), clipped to the cells_y x cells_x
+/// latent grid; starts range over [-(k-1), cells-1] so that every cell is in exactly k of them
+/// per axis.
+inline latent_window clipped_window(int cells_y, int cells_x, int k_y, int k_x, int start_y, int start_x) {
+  if (start_y <= -k_y || start_y >= cells_y || start_x <= -k_x || start_x >= cells_x)
+    throw std::invalid_argument("clipped_window: the crop lies outside the latent grid");
+  return {std::max(start_y, 0), std::min(start_y + k_y, cells_y), std::max(start_x, 0), std::min(start_x + k_x, cells_x)};
+}
+
+/// The crop of fine-tune step `step`: starts uniform over [-(k-1), cells-1] per axis, drawn from
+/// (seed, step) alone, so a resumed run draws the same crops.
+inline latent_window random_window(int cells_y, int cells_x, int k_y, int k_x, std::uint64_t seed, std::int64_t step) {
+  const int sy = int(hash64(seed, step, 0) % std::uint64_t(cells_y + k_y - 1)) - (k_y - 1);
+  const int sx = int(hash64(seed, step, 1) % std::uint64_t(cells_x + k_x - 1)) - (k_x - 1);
+  return clipped_window(cells_y, cells_x, k_y, k_x, sy, sx);
+}
+
+/// Scratch buffers of crop_step, reused from step to step.
+struct scratch {
+  loss_targets targets;
+  material_maps gradient;
+};
+
+/// One fine-tune pass on a crop: decodes the window's latent cells plus a one-cell margin inside
+/// the grid (with 4x4 stride-2 transposed convolutions an output texel depends on the latent cells
+/// within one cell of its own, so the window's maps equal the whole decode's), evaluates the image
+/// loss on the window's texels inside the W x H material, puts its gradient, weighted by the
+/// window's share of a whole k_y x k_x crop, on the decoder's parameters (accumulating) and returns
+/// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
+/// gradients are (W H / 32^2) times the whole tile's.
+template <brdf_features F, class P>
+double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
+                 const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
+                 const render_options& render, scratch& scratch) {
+  constexpr int M = auto_encoder<P>::size_multiple;
+  const int cells_y = z.height(), cells_x = z.width();
+  const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
+  const int lr1 = std::min(win.r1 + 1, cells_y), lc1 = std::min(win.c1 + 1, cells_x);
+  auto y = autoencoder.decode(t, t.leaf(z.tile(win.r0 - mr, win.c0 - mc, lr1 - (win.r0 - mr), lc1 - (win.c0 - mc)).clone()));
+  const int y0 = win.r0 * M, x0 = win.c0 * M;
+  const int h = std::min(win.r1 * M, height) - y0, w = std::min(win.c1 * M, width) - x0;
+  if (h <= 0 || w <= 0) throw std::invalid_argument("crop_step: the window holds no texel of the material");
+  const auto u_view = y.value.tile(mr * M, mc * M, h, w);
+  const material_maps m = network_space::network_to_maps(u_view, 0);
+  crop_loss_targets(targets, x0, y0, w, h, scratch.targets);
+  if (scratch.gradient.width() != w || scratch.gradient.height() != h) scratch.gradient = material_maps(w, h);
+  const double loss = loss_and_gradient<F>(m, cap, scratch.targets, &scratch.gradient, tile_placement{width, height, x0, y0}, render);
+  auto g_view = y.grad.tile(mr * M, mc * M, h, w);
+  network_space::add_network_gradient(u_view, 0, scratch.gradient, double(h) * w / (double(k_y) * k_x * M * M), g_view);
+  t.backward();
+  return loss;
+}
+
+}  // namespace finetune_crops
+
+/// The divergence guard's state (finetune_guard_options): the lowest loss so far, a snapshot of
+/// the decoder's weights and Adam's state with its loss, and the learning-rate factor.
+class divergence_guard {
+ public:
+  divergence_guard(const finetune_guard_options& options, const nn::learning_rate_schedule& schedule)
+      : options_(options), schedule_(schedule) {}
+  double best_loss = std::numeric_limits<double>::infinity();
+  double lr_scale = 1.0;
+  int restarts = 0;
+  nn::adam::snapshot snapshot;
+  double snapshot_loss = 0;
+
+  /// True when `loss` (NaN and infinity included) exceeds the guard: the weights and Adam's state
+  /// go back to the snapshot and the learning rate halves. Else a new snapshot is taken when
+  /// `may_snapshot` and the loss is near the best.
+  bool restarts_after(nn::adam& adam, double loss, bool may_snapshot) {
+    if (!(loss <= options_.factor * best_loss) && !snapshot.empty()) {
+      adam.restore(snapshot);  // back to weights whose loss was near the best, at half the rate
+      adam.zero_grad();
+      best_loss = snapshot_loss;  // the baseline from here (the best may have fallen since the snapshot)
+      lr_scale *= 0.5;
+      adam.schedule = schedule_.scaled(lr_scale);
+      ++restarts;
+      return true;
+    }
+    best_loss = std::min(best_loss, loss);
+    if (may_snapshot && loss <= 1.1 * best_loss) take(adam, loss);
+    return false;
+  }
+  /// Takes a snapshot at `loss`.
+  void take(nn::adam& adam, double loss) {
+    snapshot = adam.take_snapshot();
+    snapshot_loss = loss;
+  }
+
+ private:
+  finetune_guard_options options_;
+  nn::learning_rate_schedule schedule_;
+};
+
+namespace finetune_detail {
+
+inline std::string exact(double v) {
+  char text[40];
+  std::snprintf(text, sizeof text, "%.17g", v);
+  return text;
+}
+
+/// Writes the fine-tune's check-point into `folder`: the decoder's weights, Adam's state (nn/adam.hpp's
+/// key scheme) and the step, learning-rate factor and best loss of the guard.
+template <class P>
+void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
+                     const divergence_guard& guard) {
+  std::filesystem::create_directories(folder);
+  nn::save_weights(folder / "decoder.safetensors", autoencoder);
+  nn::safetensors_file state;
+  adam.save_state(state);
+  state.metadata.emplace_back("step", std::to_string(step));
+  state.metadata.emplace_back("lr_scale", exact(guard.lr_scale));
+  state.metadata.emplace_back("best_loss", exact(guard.best_loss));
+  nn::write_safetensors(folder / "adam.safetensors", state);
+}
+
+/// Reads back save_checkpoint's files; returns the step to continue from.
+template <class P>
+int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard) {
+  nn::load_weights(folder / "decoder.safetensors", autoencoder);
+  const std::filesystem::path state_file = folder / "adam.safetensors";
+  const auto state = nn::read_safetensors(state_file);
+  adam.load_state(state, state_file.string());
+  int step = 0;
+  for (const auto& [key, value] : state.metadata) {
+    if (key == "step") step = std::stoi(value);
+    if (key == "lr_scale") guard.lr_scale = std::stod(value);
+    if (key == "best_loss") guard.best_loss = std::stod(value);
+  }
+  adam.set_steps(step);
+  return step;
+}
+
+}  // namespace finetune_detail
+
+/// Fine-tunes the decoder of `autoencoder` from the latent code `z` on the photographs behind
+/// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
+/// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
+template <class P>
+finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width,
+                         int height, const capture& cap, const loss_targets& targets, brdf_features features,
+                         const render_options& render, double start_loss, const finetune_options& o,
+                         const checkpoint_options& checkpoint = {}) {
+  namespace fs = std::filesystem;
+  const auto start = std::chrono::steady_clock::now();
+  o.validate();
+  const int W = width, H = height;
+  auto image_loss = [&](const material_maps& m) {
+    return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, render); });
+  };
+  autoencoder.freeze_encoder(true);
+  const auto schedule = nn::learning_rate_schedule::warmup_half_life(o.learning_rate, o.warmup, o.half_life);
+  nn::adam adam(schedule);
+  autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
+  divergence_guard guard(o.guard, schedule);
+  finetune_result result;
+  int first = 0;
+  const bool checkpoints = !checkpoint.folder.empty();
+  if (checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "decoder.safetensors")) {
+    first = finetune_detail::load_checkpoint(checkpoint.folder, autoencoder, adam, guard);
+    adam.schedule = schedule.scaled(guard.lr_scale);
+    result.resumed = true;
+  }
+  material_maps grad(W, H);
+  auto last_checkpoint = std::chrono::steady_clock::now();
+  int step = first;
+  ad::tape t;
+  // Crops: k x k latent cells, only where the tile has more cells than that.
+  const int cells_y = z.height(), cells_x = z.width();
+  const int crop_y = o.crop.cells > 0 && o.crop.cells < cells_y ? o.crop.cells : cells_y;
+  const int crop_x = o.crop.cells > 0 && o.crop.cells < cells_x ? o.crop.cells : cells_x;
+  const bool cropping = crop_y < cells_y || crop_x < cells_x;
+  nn::early_stopping stopper(o.min_improvement, o.patience, cropping);  // crop losses are noisy: window means
+  finetune_crops::scratch scratch;
+  // The guard checks the whole tile's loss every step; with crops it checks the mean loss of every
+  // `guard.every` steps instead (a whole-tile decode would cost as much as the crops).
+  const bool guarding = o.guard.factor > 0;
+  double window_sum = 0;  // crops: the losses of the guard's current window of steps
+  int window_steps = 0;
+  if (guarding && cropping) {  // the start, at the whole tile's loss, is the first place to come back to
+    guard.take(adam, first == 0 ? start_loss : guard.best_loss);
+    guard.best_loss = std::min(guard.best_loss, guard.snapshot_loss);
+  }
+  for (; step < o.steps; ++step) {
+    t.clear();
+    double loss = 0;
+    bool restarted = false;
+    if (!cropping) {
+      auto y = autoencoder.decode(t, t.leaf(z));
+      const auto u_view = y.value.tile(0, 0, H, W);
+      const material_maps m = network_space::network_to_maps(u_view, 0);
+      loss = with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, &grad, {}, render); });
+      if (o.observer) o.observer(step, loss, [&]() { return m; });
+      if (guarding) restarted = guard.restarts_after(adam, loss, (step - first) % o.guard.every == 0);
+      if (!restarted) {
+        auto g_view = y.grad.tile(0, 0, H, W);
+        network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
+        t.backward();
+      }
+    } else {
+      const auto win = finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step);
+      loss = with_features(features, [&]<brdf_features F>() {
+        return finetune_crops::crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, render, scratch);
+      });
+      if (o.observer) {  // weights not yet updated; the tape is no longer needed
+        std::optional<material_maps> whole;
+        o.observer(step, loss, [&]() {
+          if (!whole) whole = decode(autoencoder, z, W, H);
+          return *whole;
+        });
+      }
+      if (guarding) {
+        window_sum += loss;
+        if (++window_steps == o.guard.every) {
+          restarted = guard.restarts_after(adam, window_sum / window_steps, true);
+          window_sum = 0;
+          window_steps = 0;
+        }
+      }
+    }
+    if (!restarted) adam.step();
+    if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0)
+      o.progress(optimisation_progress::at(step + 1, o.steps, loss, seconds_since(start), first));
+    if (checkpoints && seconds_since(last_checkpoint) > checkpoint.seconds) {
+      finetune_detail::save_checkpoint(checkpoint.folder, autoencoder, adam, step + 1, guard);
+      last_checkpoint = std::chrono::steady_clock::now();
+    }
+    if (stopper.stop_after(step, loss)) {
+      ++step;
+      break;
+    }
+  }
+  result.maps = decode(autoencoder, z, W, H);
+  restrict_to_features(result.maps, features);  // what a reduced kernel fitted, as every renderer sees it
+  result.loss = image_loss(result.maps);
+  if (guarding && cropping && !guard.snapshot.empty()) {
+    // The crop guard watches window means, not the tile: keep the last snapshot's decoder when the
+    // whole tile renders better with it than with the last weights.
+    const auto last = adam.take_snapshot();
+    adam.restore(guard.snapshot);
+    material_maps snapshot_maps = decode(autoencoder, z, W, H);
+    restrict_to_features(snapshot_maps, features);
+    const double snapshot_tile_loss = image_loss(snapshot_maps);
+    if (snapshot_tile_loss < result.loss) {
+      result.maps = std::move(snapshot_maps);
+      result.loss = snapshot_tile_loss;
+    } else {
+      adam.restore(last);
+    }
+  }
+  result.steps = step - first;
+  result.restarts = guard.restarts;
+  result.seconds = seconds_since(start);
+  return result;
+}
+
+}  // namespace anisocap
