@@ -6,7 +6,7 @@
 /// networks, training, pipeline, calibration, export (README.md "Architecture").
 
 #include "anisocap/core/image.hpp"
-#include "anisocap/core/json.hpp"
+#include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/simd.hpp"

@@ -91,7 +91,7 @@ TEST_CASE("capture.json: every malformed input gives one error naming the file a
   struct bad_case { std::string text, keywords[2]; };
   const bad_case cases[] = {
       {"{\"images\": [" + entry + ",]}", {"trailing comma", ":1:"}},
-      {"{\n  \"images\": [\n    {\"file\": \"a.exr\" \"camera\": [0,0,1]}\n  ]\n}", {":3:", "expected ',' or '}'"}},
+      {"{\n  \"images\": [\n    {\"file\": \"a.exr\" \"camera\": [0,0,1]}\n  ]\n}", {":3:", "expected '}'"}},
       {"", {"end of input", ":1:1"}},
       {"[]", {"expected a JSON object", "array"}},
       {"{}", {"missing field \"images\"", ""}},

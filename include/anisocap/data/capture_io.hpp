@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "anisocap/core/image.hpp"
-#include "anisocap/core/json.hpp"
+#include "anisocap/core/json_parse.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/render/capture.hpp"
 
@@ -67,67 +67,64 @@ inline void check_capture(const capture& c, const std::filesystem::path& path) {
 }
 
 /// A float as the shortest decimal that reads back to the same float, so files show 0.1, not
-/// 0.100000001490116.
-inline json::value float_to_json(float f) {
+/// 0.100000001490116, and whole numbers without a decimal point.
+inline json float_to_json(float f) {
   char buf[32];
   const auto r = std::to_chars(buf, buf + sizeof buf, f);
   double d = 0;
   std::from_chars(buf, r.ptr, d);
-  return json::value(d);
+  if (d == std::trunc(d) && std::abs(d) < 1e15 && !std::signbit(d)) return json(std::int64_t(d));  // 1, not 1.0
+  return json(d);
 }
 
 }  // namespace detail
 
-/// Parses the text of a capture description; `path` names it in errors (io_error, or
-/// json::parse_error with line and column for malformed JSON). Does not read the images.
+/// Parses the text of a capture description; `path` names it in errors (io_error, or json_error
+/// with line and column for malformed JSON). Does not read the images.
 inline capture parse_capture(std::string_view text, const std::filesystem::path& path) {
-  const json::value root = json::parse(text, path.string());
-  if (!root.is_object()) throw io_error(path, std::string("expected a JSON object at the top, got ") + json::kind_name(root.kind()));
-  for (const auto& [key, v] : root.as_object())
+  const json root = parse_json(text, path.string());
+  if (!root.is_object()) throw io_error(path, std::string("expected a JSON object at the top, got ") + json_kind_name(root));
+  for (const auto& [key, v] : root.items())
     if (key != "images") throw io_error(path, "unknown field \"" + key + "\" at the top level (expected only \"images\")");
-  const json::value* images = root.as_object().find("images");
-  if (!images) throw io_error(path, "missing field \"images\"");
-  if (!images->is_array()) throw io_error(path, std::string("\"images\" must be an array, got ") + json::kind_name(images->kind()));
+  if (!root.contains("images")) throw io_error(path, "missing field \"images\"");
+  const json& list = root.at("images");
+  if (!list.is_array()) throw io_error(path, std::string("\"images\" must be an array, got ") + json_kind_name(list));
   capture result;
-  const json::array& list = images->as_array();
   for (std::size_t i = 0; i < list.size(); ++i) {
-    const json::value& entry = list[i];
-    if (!entry.is_object()) throw io_error(path, detail::capture_entry_name(i, "") + ": expected an object, got " + json::kind_name(entry.kind()));
-    const json::object& o = entry.as_object();
+    const json& o = list[i];
+    if (!o.is_object()) throw io_error(path, detail::capture_entry_name(i, "") + ": expected an object, got " + json_kind_name(o));
     capture_image im;
-    const json::value* file = o.find("file");
-    if (file && file->is_string()) im.file = file->as_string();
+    if (o.contains("file") && o.at("file").is_string()) im.file = o.at("file").get<std::string>();
     const std::string where = detail::capture_entry_name(i, im.file);
     auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
-    for (const auto& [key, v] : o)
+    for (const auto& [key, v] : o.items())
       if (key != "file" && key != "camera" && key != "light" && key != "intensity")
         fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\")");
     for (const char* key : {"file", "camera", "light", "intensity"})
       if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
-    if (!file->is_string()) fail(std::string("\"file\" must be a string, got ") + json::kind_name(file->kind()));
+    if (!o.at("file").is_string()) fail(std::string("\"file\" must be a string, got ") + json_kind_name(o.at("file")));
     // One number as a float, refusing values that do not fit (they would become infinite).
-    auto to_float = [&](const json::value& v, const std::string& field) {
-      if (!v.is_number()) fail("\"" + field + "\" must hold numbers, got " + json::kind_name(v.kind()));
-      const float f = float(v.as_number());
+    auto to_float = [&](const json& v, const std::string& field) {
+      if (!v.is_number()) fail("\"" + field + "\" must hold numbers, got " + json_kind_name(v));
+      const float f = float(v.get<double>());
       if (!std::isfinite(f)) fail("\"" + field + "\" value " + v.dump() + " is not finite as a 32-bit float");
       return f;
     };
-    auto to_vec3 = [&](const json::value& v, const std::string& field) {
-      if (!v.is_array()) fail("\"" + field + "\" must be an array [x, y, z], got " + json::kind_name(v.kind()));
-      const json::array& a = v.as_array();
+    auto to_vec3 = [&](const json& a, const std::string& field) {
+      if (!a.is_array()) fail("\"" + field + "\" must be an array [x, y, z], got " + json_kind_name(a));
       if (a.size() != 3) fail("\"" + field + "\" must have 3 elements, got " + std::to_string(a.size()));
       return vec3f{to_float(a[0], field), to_float(a[1], field), to_float(a[2], field)};
     };
     im.camera = to_vec3(o.at("camera"), "camera");
     im.light = to_vec3(o.at("light"), "light");
-    const json::value& intensity = o.at("intensity");
+    const json& intensity = o.at("intensity");
     if (intensity.is_number()) {
       const float f = to_float(intensity, "intensity");
       im.intensity = {f, f, f};
     } else if (intensity.is_array()) {
       im.intensity = to_vec3(intensity, "intensity");
     } else {
-      fail(std::string("\"intensity\" must be a number or [r, g, b], got ") + json::kind_name(intensity.kind()));
+      fail(std::string("\"intensity\" must be a number or [r, g, b], got ") + json_kind_name(intensity));
     }
     detail::check_capture_image(im, i, path);
     result.images.push_back(std::move(im));
@@ -146,18 +143,20 @@ inline capture read_capture(const std::filesystem::path& path) {
 /// Validates first, so a written file always reads back; throws io_error naming `path`.
 inline std::string capture_to_json(const capture& c, const std::filesystem::path& path = "capture.json") {
   detail::check_capture(c, path);
-  json::array images;
+  json images = json::array();
   for (const capture_image& im : c.images) {
-    auto vec = [](const vec3f& v) {
-      return json::value(json::array{detail::float_to_json(v[0]), detail::float_to_json(v[1]), detail::float_to_json(v[2])});
-    };
+    auto vec = [](const vec3f& v) { return json::array({detail::float_to_json(v[0]), detail::float_to_json(v[1]), detail::float_to_json(v[2])}); };
     const bool grey = im.intensity[0] == im.intensity[1] && im.intensity[1] == im.intensity[2];
-    images.push_back(json::object{{"file", im.file},
-                                  {"camera", vec(im.camera)},
-                                  {"light", vec(im.light)},
-                                  {"intensity", grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity)}});
+    json entry = json::object();
+    entry["file"] = im.file;
+    entry["camera"] = vec(im.camera);
+    entry["light"] = vec(im.light);
+    entry["intensity"] = grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity);
+    images.push_back(std::move(entry));
   }
-  return json::value(json::object{{"images", std::move(images)}}).dump(2) + "\n";
+  json root = json::object();
+  root["images"] = std::move(images);
+  return root.dump(2) + "\n";
 }
 
 /// Writes `capture.json` atomically (temporary file, then rename); validates first.

@@ -26,7 +26,7 @@
 #include <utility>
 #include <vector>
 
-#include "anisocap/core/json.hpp"
+#include "anisocap/core/json_parse.hpp"
 #include "anisocap/nn/parameter.hpp"
 
 namespace anisocap::nn {
@@ -137,9 +137,14 @@ inline constexpr std::uint64_t safetensors_max_header = 100'000'000;
 }
 
 /// A non-negative integer below 2^53 from a JSON number, or a clear error.
-inline std::uint64_t safetensors_integer(const std::filesystem::path& file, const json::value& v, const std::string& what) {
-  if (!v.is_number()) safetensors_fail(file, what + " is a " + json::kind_name(v.kind()) + ", expected an integer");
-  const double d = v.as_number();
+inline std::uint64_t safetensors_integer(const std::filesystem::path& file, const json& v, const std::string& what) {
+  if (!v.is_number()) safetensors_fail(file, what + " is a " + json_kind_name(v) + ", expected an integer");
+  if (v.is_number_unsigned()) {
+    const std::uint64_t u = v.get<std::uint64_t>();
+    if (u > (std::uint64_t(1) << 53)) safetensors_fail(file, what + " is not a non-negative integer below 2^53");
+    return u;
+  }
+  const double d = v.get<double>();
   if (!(d >= 0) || d != double(std::uint64_t(d)) || d > 9007199254740992.0)
     safetensors_fail(file, what + " is not a non-negative integer");
   return std::uint64_t(d);
@@ -178,44 +183,44 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
   in.read(reinterpret_cast<char*>(data.data()), std::streamsize(data.size()));
   if (!in) safetensors_fail(file, "read error");
 
-  json::value root;
+  json root;
   try {
-    root = json::parse(header, file.string() + " (header)");
-  } catch (const json::parse_error& e) {
+    root = parse_json(header, file.string() + " (header)");
+  } catch (const json_error& e) {
     safetensors_fail(file, std::string("bad JSON header: ") + e.what());
   }
-  if (!root.is_object()) safetensors_fail(file, std::string("the header is a JSON ") + json::kind_name(root.kind()) + ", expected an object");
+  if (!root.is_object()) safetensors_fail(file, std::string("the header is a JSON ") + json_kind_name(root) + ", expected an object");
 
   std::vector<safetensors_file::entry> entries;
   std::vector<std::pair<std::string, std::string>> metadata;
-  for (const auto& [name, v] : root.as_object()) {
+  for (const auto& [name, v] : root.items()) {
     if (name == "__metadata__") {
       if (!v.is_object()) safetensors_fail(file, "__metadata__ is not an object");
-      for (const auto& [key, text] : v.as_object()) {
+      for (const auto& [key, text] : v.items()) {
         if (!text.is_string()) safetensors_fail(file, "__metadata__ value '" + key + "' is not a string");
-        metadata.emplace_back(key, text.as_string());
+        metadata.emplace_back(key, text.get<std::string>());
       }
       continue;
     }
     const std::string where = "tensor '" + name + "'";
     if (!v.is_object()) safetensors_fail(file, where + " is not a JSON object");
-    const auto& o = v.as_object();
+    const json& o = v;
     for (const char* key : {"dtype", "shape", "data_offsets"})
       if (!o.contains(key)) safetensors_fail(file, where + " has no \"" + key + "\"");
     if (o.size() != 3) safetensors_fail(file, where + " has keys other than dtype, shape and data_offsets");
     safetensors_file::entry e;
     e.name = name;
     if (!o.at("dtype").is_string()) safetensors_fail(file, where + ": dtype is not a string");
-    e.dtype = o.at("dtype").as_string();
+    e.dtype = o.at("dtype").get<std::string>();
     const std::size_t element = safetensors_dtype_size(e.dtype);
     if (!element) safetensors_fail(file, where + " has unknown dtype '" + e.dtype + "'");
     if (!o.at("shape").is_array()) safetensors_fail(file, where + ": shape is not an array");
-    for (const auto& d : o.at("shape").as_array())
+    for (const auto& d : o.at("shape"))
       e.shape.push_back(std::int64_t(detail::safetensors_integer(file, d, where + ": a dimension")));
-    if (!o.at("data_offsets").is_array() || o.at("data_offsets").as_array().size() != 2)
+    if (!o.at("data_offsets").is_array() || o.at("data_offsets").size() != 2)
       safetensors_fail(file, where + ": data_offsets is not an array of two integers");
-    e.begin = detail::safetensors_integer(file, o.at("data_offsets").as_array()[0], where + ": data_offsets[0]");
-    e.end = detail::safetensors_integer(file, o.at("data_offsets").as_array()[1], where + ": data_offsets[1]");
+    e.begin = detail::safetensors_integer(file, o.at("data_offsets")[0], where + ": data_offsets[0]");
+    e.end = detail::safetensors_integer(file, o.at("data_offsets")[1], where + ": data_offsets[1]");
     if (e.begin > e.end) safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] are reversed");
     if (e.end > data.size())
       safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
@@ -252,20 +257,20 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
 /// Writes a safetensors file (metadata first, then the tensors in their order), through a temporary
 /// file renamed into place. Throws safetensors_error naming the file when it cannot be written.
 inline void write_safetensors(const std::filesystem::path& file, const safetensors_file& contents) {
-  json::object header;
+  json header = json::object();
   if (!contents.metadata.empty()) {
-    json::object meta;
-    for (const auto& [k, v] : contents.metadata) meta.insert_or_assign(k, json::value(v));
-    header.insert_or_assign("__metadata__", json::value(std::move(meta)));
+    json meta = json::object();
+    for (const auto& [k, v] : contents.metadata) meta[k] = v;
+    header["__metadata__"] = std::move(meta);
   }
   for (const auto& e : contents.entries()) {
-    json::array shape;
-    for (auto d : e.shape) shape.emplace_back(static_cast<long long>(d));
-    header.insert_or_assign(e.name, json::value(json::object{{"dtype", json::value(e.dtype)},
-                                                             {"shape", json::value(std::move(shape))},
-                                                             {"data_offsets", json::value(json::array{json::value(e.begin), json::value(e.end)})}}));
+    json entry = json::object();
+    entry["dtype"] = e.dtype;
+    entry["shape"] = e.shape;
+    entry["data_offsets"] = json::array({std::uint64_t(e.begin), std::uint64_t(e.end)});
+    header[e.name] = std::move(entry);
   }
-  std::string text = json::value(std::move(header)).dump();
+  std::string text = header.dump();
   text.resize((text.size() + 7) / 8 * 8, ' ');  // the data region starts 8-byte aligned, as the reference writer does
   unsigned char length_bytes[8];
   for (int i = 0; i < 8; ++i) length_bytes[i] = static_cast<unsigned char>(std::uint64_t(text.size()) >> (8 * i));

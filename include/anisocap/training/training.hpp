@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-#include "anisocap/core/json.hpp"
+#include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
@@ -167,7 +167,7 @@ void save_network(const std::filesystem::path& file, Net& net, const std::string
 /// (written to a temporary name and renamed), then checkpoint.json naming it (same), then removes
 /// the previous checkpoint file. A crash at any point leaves a complete earlier checkpoint.
 template <class Net>
-void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, long step, json::object info) {
+void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, long step, json info) {
   nn::safetensors_file contents;
   nn::detail::visit_weights(net, [&](auto& p) {
     contents.add<float>(p.name, std::vector<std::int64_t>(p.shape.begin(), p.shape.end()), p.value.data(), p.size());
@@ -181,18 +181,18 @@ void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
       std::ifstream in(dir / "checkpoint.json");
       std::stringstream text;
       text << in.rdbuf();
-      previous = json::parse(text.str()).as_object().at("file").as_string();
+      previous = parse_json(text.str(), (dir / "checkpoint.json").string()).at("file").get<std::string>();
     } catch (const std::exception&) {
     }
   }
-  info.insert_or_assign("step", json::value(step));
-  info.insert_or_assign("optimizer_steps", json::value(opt.steps()));
-  info.insert_or_assign("file", json::value(file));
-  info.insert_or_assign("rng", json::value("all randomness is a function of (seed, step): the step is the RNG state"));
+  info["step"] = step;
+  info["optimizer_steps"] = opt.steps();
+  info["file"] = file;
+  info["rng"] = "all randomness is a function of (seed, step): the step is the RNG state";
   const auto temporary = dir / "checkpoint.json.tmp";
   {
     std::ofstream out(temporary);
-    out << json::value(std::move(info)).dump(2) << "\n";
+    out << info.dump(2) << "\n";
     if (!out) throw std::runtime_error((dir / "checkpoint.json").string() + ": cannot write the checkpoint description");
   }
   std::filesystem::rename(temporary, dir / "checkpoint.json");
@@ -202,21 +202,23 @@ void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
 /// Restores a checkpoint written by save_checkpoint; returns its step. Throws std::runtime_error
 /// naming the file when it is missing, malformed or does not match the network.
 template <class Net>
-long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json::object* info = nullptr) {
+long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json* info = nullptr) {
   const auto description = dir / "checkpoint.json";
   std::ifstream in(description);
   if (!in) throw std::runtime_error(description.string() + ": no checkpoint to resume from");
   std::stringstream text;
   text << in.rdbuf();
-  const json::value root = json::parse(text.str(), description.string());
-  const auto& object = root.as_object();
-  const auto file = dir / object.at("file").as_string();
+  const json object = parse_json(text.str(), description.string());
+  for (const char* key : {"file", "step", "optimizer_steps"})
+    if (!object.contains(key) || (std::string_view(key) == "file" ? !object.at(key).is_string() : !object.at(key).is_number()))
+      throw std::runtime_error(description.string() + ": missing or malformed \"" + key + "\"");
+  const auto file = dir / object.at("file").get<std::string>();
   nn::load_weights(file, net);
   const nn::safetensors_file contents = nn::read_safetensors(file);
   opt.load_state(contents, file.string());
-  opt.set_steps(long(object.at("optimizer_steps").as_number()));
+  opt.set_steps(object.at("optimizer_steps").get<long>());
   if (info) *info = object;
-  return long(object.at("step").as_number());
+  return object.at("step").get<long>();
 }
 
 /// Validation summary: mean losses and per-parameter errors (compare_maps, original ranges).
@@ -319,15 +321,22 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   training_material_options(o.mix);  // reject the extended mix before touching out_dir
   std::filesystem::create_directories(o.out_dir);
   long step = 0;
-  json::object info{{"network", json::value(kind)}, {"preset", json::value(Net::preset::name)},
-                    {"seed", json::value(double(o.seed))}, {"size", json::value(o.size)}, {"batch", json::value(o.batch)},
-                    {"learning_rate", json::value(opt.learning_rate())}, {"materials", json::value(std::string(material_mix_name(o.mix)))}};
+  json info = json::object();
+  info["network"] = kind;
+  info["preset"] = Net::preset::name;
+  info["seed"] = double(o.seed);
+  info["size"] = o.size;
+  info["batch"] = o.batch;
+  info["learning_rate"] = opt.learning_rate();
+  info["materials"] = material_mix_name(o.mix);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
-    json::object saved;
+    json saved;
     step = load_checkpoint(o.out_dir, net, opt, &saved);
     // A run continues on the materials it started with (checkpoints without the entry predate the mixes).
-    const std::string started = saved.contains("materials") ? saved.at("materials").as_string() : "original";
+    if (saved.contains("materials") && !saved.at("materials").is_string())
+      throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": malformed \"materials\"");
+    const std::string started = saved.contains("materials") ? saved.at("materials").get<std::string>() : "original";
     if (started != material_mix_name(o.mix))
       throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": the run trained on the " + started +
                                " materials; resume it with --materials " + started);
