@@ -41,14 +41,28 @@ int main(int argc, char** argv) {
   app.add_option("--count", count, "number of seeds")->check(CLI::Range(1, 200));
   app.add_option("--size", size, "tile size in pixels")->check(CLI::Range(8, 2048));
   app.add_option("-o,--output", output, "PNG file to write");
+  std::string kinds, mix = "original";
+  app.add_option("--kind", kinds, "force these kinds, comma-separated, one per row in turn (e.g. leather,foil)");
+  app.add_option("--mix", mix, "families drawn when no kind is forced: original, extended or training")
+      ->check(CLI::IsMember({"original", "extended", "training"}));
   CLI11_PARSE(app, argc, argv);
+  anisocap::procedural_options options;
+  options.mix = *anisocap::material_mix_from_name(mix);
+  std::vector<anisocap::material_kind> forced;
+  try {
+    forced = anisocap::material_kinds_from_names(kinds);
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "procedural_gallery: --kind: %s\n", e.what());
+    return 1;
+  }
 
   const int columns = 6, gap = 4;
   const int sheet_width = columns * (size + gap), sheet_height = count * (size + gap);
   std::vector<unsigned char> sheet(std::size_t(sheet_width) * sheet_height * 3, 255);
   for (int row = 0; row < count; ++row) {
     const std::uint64_t seed = first + std::uint64_t(row);
-    const auto parameters = anisocap::draw_procedural_parameters(seed);
+    if (!forced.empty()) options.kind = forced[std::size_t(row) % forced.size()];
+    const auto parameters = anisocap::draw_procedural_parameters(seed, options);
     std::printf("seed %llu: %s\n", static_cast<unsigned long long>(seed), anisocap::describe(parameters).c_str());
     const anisocap::material_maps maps = anisocap::generate_material(parameters, size, size);
     for (int column = 0; column < columns; ++column) {

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <initializer_list>
 #include <string>
 #include <vector>
 
@@ -184,6 +185,39 @@ inline CLI::Validator finite_number(bool positive) {
 inline void add_noise_options(CLI::App* c, sensor_noise& noise) {
   c->add_option("--shot-noise", noise.shot, "simulated sensor shot noise on the inputs: relative standard deviation at pixel value 1 (0: exact renders)")->check(finite_number(false));
   c->add_option("--read-noise", noise.read, "simulated sensor read noise on the inputs: standard deviation independent of the pixel value")->check(finite_number(false));
+}
+
+/// Binds `--materials` onto `mix`: the procedural families (data/procedural.hpp material_mix)
+/// materials are drawn from, by name, among `allowed`.
+inline CLI::Option* add_mix_option(CLI::App* c, material_mix& mix, std::initializer_list<material_mix> allowed, const std::string& help) {
+  std::string known;
+  for (material_mix m : allowed) known += std::string(known.empty() ? "" : "|") + material_mix_name(m);
+  const std::vector<material_mix> names(allowed);
+  CLI::Validator by_name(
+      [names, known](std::string& input) {
+        for (material_mix m : names)
+          if (input == material_mix_name(m)) {
+            input = std::to_string(static_cast<int>(m));
+            return std::string();
+          }
+        return "unknown mix '" + input + "' (" + known + ")";
+      },
+      "");
+  return c->add_option("--materials", mix, help)->transform(by_name)->type_name(known)->default_str(material_mix_name(mix));
+}
+
+/// Checks a comma-separated list of family names (material_kinds_from_names), naming the unknown one.
+inline CLI::Validator family_list_check() {
+  return CLI::Validator(
+      [](const std::string& list) {
+        try {
+          material_kinds_from_names(list);
+          return std::string();
+        } catch (const std::invalid_argument& e) {
+          return std::string(e.what());
+        }
+      },
+      "FAMILY,...");
 }
 
 /// Where the network weights come from.

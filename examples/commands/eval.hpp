@@ -17,6 +17,9 @@ struct eval_settings {
   std::vector<std::string> sets{"alpha", "beta"};
   std::uint64_t first_seed = 900000;  // validation seeds: disjoint from training (training draws below 2^32 from its own salts)
   sensor_noise noise;  // simulated sensor noise on the inputs (the novel views stay exact)
+  material_mix mix = material_mix::original;  // the mix the materials' kinds are drawn from (data/procedural.hpp)
+  std::string families;     // non-empty: these families only, material m gets the (m mod n)-th
+  fresnel_options fresnel;  // set alpha's grazing configurations (default: the paper's 2)
 };
 
 /// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and
@@ -27,16 +30,19 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
   for (const auto& set : e.sets)
     if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
   for (int n : e.image_counts)
-    if (n < 4) throw std::invalid_argument("eval: --images values must be >= 4");
+    if (n < 4 || n < e.fresnel.count + 2)
+      throw std::invalid_argument("eval: --images values must be >= 4 and >= --fresnel + 2");
   e.noise.validate();
+  const std::vector<material_kind> families = material_kinds_from_names(e.families);
   options.finetune.validate();  // reject impossible options before any work
   options.refine.validate();
   if (!models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
   std::map<std::string, row_sum> rows;
+  std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
   std::vector<std::string> order;
   std::ostringstream csv;
-  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds\n";
+  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family\n";
   auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
     if (!rows.count(key)) order.push_back(key);
     auto& r = rows[key];
@@ -57,6 +63,19 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
                     r.e.normal / k, r.e.lobes / k, r.e.rotation / k, r.e.fresnel / k, r.novel / k, r.seconds / k);
       md << line;
     }
+    md << "\nPer family (held out of training: leather, printed)\n\n| N | stage | set | family | materials | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for (const auto& key : order) {
+      const auto p1 = key.find('|'), p2 = key.rfind('|');
+      for (const family_errors& f : errors_by_family(family_rows[key])) {
+        char line[400];
+        std::snprintf(line, sizeof line, "| %s | %s | %s | %s%s | %d | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f |\n",
+                      key.substr(0, p1).c_str(), key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(),
+                      material_kind_name(f.kind), is_held_out(f.kind) ? " (held out)" : "", f.count, f.mean.diffuse,
+                      f.mean.specular, f.mean.normal, f.mean.lobes, f.mean.rotation, f.mean.fresnel, f.novel_view_loss);
+        md << line;
+      }
+    }
     fs::create_directories(e.out);
     file_transaction files_out;
     const std::string table = md.str(), rows_csv = csv.str();
@@ -70,26 +89,30 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
     random_generator rng(hash64(seed ^ 0x6576616cULL));
     const int w = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
     const int h = e.min_size + int(rng.uniform_int(std::uint64_t(e.max_size - e.min_size + 1)));
-    const material_maps truth = generate_material(seed, w, h);
+    procedural_options material_options;
+    material_options.mix = e.mix;
+    material_options.kind = evaluation_kind(m, seed, families, e.mix);
+    const material_maps truth = generate_material(seed, w, h, material_options);
     const capture novel = novel_view_set(seed, w, h);
     for (int n : e.image_counts)
       for (const auto& set : e.sets) {
-        const capture cap = set == "alpha" ? set_alpha(n, seed, w, h) : set_beta(n, seed, w, h);
+        const capture cap = set == "alpha" ? set_alpha(n, seed, w, h, e.fresnel) : set_beta(n, seed, w, h);
         auto photos = render(truth, cap);
         add_sensor_noise(photos, e.noise, seed ^ hash64(std::uint64_t(n) * 2 + (set == "beta")));
         const auto t0 = std::chrono::steady_clock::now();
         const capture_result pr = run_capture(cap, photos, models, options);
         const double sec = seconds_since(t0);
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
-                     static_cast<unsigned long long>(seed), w, h, material_kind_name(kind_for_seed(seed)), n, set.c_str(), sec);
+                     static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
         auto record = [&](const char* stage, const material_maps& maps) {
           const parameter_errors pe = compare_maps(maps, truth);
           const double nv = novel_view_error(maps, truth, novel);
           const std::string key = std::to_string(n) + "|" + stage + "|" + set;
           add(key, pe, nv, sec);
+          family_rows[key].push_back({*material_options.kind, pe, nv});
           csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
               << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
-              << pe.fresnel << ',' << nv << ',' << sec << '\n';
+              << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << '\n';
         };
         if (pr.after_finetune) record("fine-tuned", *pr.after_finetune);
         record("refined", pr.maps);
@@ -115,6 +138,12 @@ inline void add_eval_command(CLI::App& app) {
   c->add_option("--images", e->image_counts, "input counts N")->delimiter(',');
   c->add_option("--sets", e->sets, "configuration sets")->delimiter(',');
   add_noise_options(c, e->noise);
+  c->add_option("--fresnel", e->fresnel.count, "grazing (Fresnel) configurations in set alpha")->check(CLI::NonNegativeNumber);
+  add_mix_option(c, e->mix, {material_mix::original, material_mix::extended, material_mix::training},
+                 "families the materials are drawn from: original, extended or training");
+  c->add_option("--families", e->families,
+                "evaluate these families only, comma-separated (e.g. leather,printed or brushed,spun,foil); material m gets the (m mod n)-th")
+      ->check(family_list_check());
   add_model_options(c, *models);
   add_optimiser_options(c, *options);
   c->callback([e, models, options] { eval_command(*e, *models, *options); });

@@ -13,7 +13,9 @@ struct synthesize_settings {
   int width = 256, height = 256, images = 12;
   std::string set = "alpha";  ///< configuration set (docs/method.md section 6)
   std::uint64_t seed = 1;
-  std::string kind;           ///< material kind (empty: from the seed)
+  std::string kind;           ///< material kind (empty: drawn from the seed and `mix`)
+  material_mix mix = material_mix::original;  ///< families the kind is drawn from without --kind
+  fresnel_options fresnel;    ///< set alpha's grazing configurations (default: the paper's 2)
   sensor_noise noise;         ///< simulated sensor noise on the rendered inputs
 };
 
@@ -29,6 +31,7 @@ inline void synthesize(const synthesize_settings& a) {
                                 std::to_string(a.images) + " inputs needs about " + std::to_string(int(std::ceil(needed / (1 << 30)))) +
                                 " GiB of memory; this machine has " + std::to_string(int(available / (1 << 30))) + " GiB");
   procedural_options options;
+  options.mix = a.mix;
   if (!a.kind.empty()) {
     options.kind = material_kind_from_name(a.kind);
     if (!options.kind) throw std::invalid_argument("unknown --kind '" + a.kind + "'");
@@ -36,7 +39,7 @@ inline void synthesize(const synthesize_settings& a) {
   material_maps truth = generate_material(a.seed, a.width, a.height, options);
   canonicalise(truth);  // the written truth/ is canonical (export/canonical_maps.hpp); renders are unchanged
   capture cap;
-  if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height);
+  if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height, a.fresnel);
   else if (a.set == "beta") cap = set_beta(a.images, a.seed, a.width, a.height);
   else throw std::invalid_argument("--set must be alpha or beta, got '" + a.set + "'");
   fs::create_directories(a.out);
@@ -47,7 +50,7 @@ inline void synthesize(const synthesize_settings& a) {
   write_images(photos, cap, a.out);
   write_capture(cap, a.out / "capture.json");
   std::fprintf(stderr, "synthesized %s (%s, seed %llu, %dx%d) with %d inputs (set %s) in %s\n",
-               material_kind_name(kind_for_seed(a.seed)), a.kind.empty() ? "kind from seed" : a.kind.c_str(),
+               material_kind_name(draw_procedural_parameters(a.seed, options).kind), a.kind.empty() ? "kind from seed" : "forced",
                static_cast<unsigned long long>(a.seed), a.width, a.height, a.images, a.set.c_str(), a.out.c_str());
 }
 
@@ -61,7 +64,13 @@ inline void add_synthesize_command(CLI::App& app) {
   c->add_option("--images", s->images, "number of input images");
   c->add_option("--set", s->set, "configuration set: alpha (Fresnel + anisotropic pairs + independent) or beta (independent + mirror)");
   c->add_option("--seed", s->seed, "material and configuration seed");
-  c->add_option("--kind", s->kind, "force a material kind (plain_weave, twill, satin, brushed_metal, ...)");
+  c->add_option("--kind", s->kind,
+                "force a material kind: plain, basket, twill, herringbone, satin, velvet, brushed, spun, leather, coated, printed, foil");
+  c->add_option("--fresnel", s->fresnel.count,
+                "grazing (Fresnel) configurations in set alpha; 4 with N = 12 separates a'_s from F0 better on metals (studies/README.md)")
+      ->check(CLI::NonNegativeNumber);
+  add_mix_option(c, s->mix, {material_mix::original, material_mix::extended, material_mix::training},
+                 "families the kind is drawn from without --kind: original, extended or training");
   add_noise_options(c, s->noise);
   c->callback([s] { synthesize(*s); });
 }

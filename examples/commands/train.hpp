@@ -10,10 +10,12 @@
 #include <vector>
 
 #include "anisocap/training/training.hpp"
+#include "common.hpp"
 
 namespace anisocap::commands {
 
 namespace train_detail {
+
 
 /// A training run: the network preset and the library's options.
 struct train_settings {
@@ -34,6 +36,8 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");
   cmd->add_option("--validation-count", o.validation_count, "validation materials");
   cmd->add_flag("--resume", o.resume, "continue from OUT/checkpoint.json");
+  add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
+                 "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
     cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");
@@ -48,6 +52,8 @@ struct network_eval_settings {
   int count = 30;
   int size = 256;
   std::string markdown;
+  material_mix mix = material_mix::original;  ///< the mix the validation materials' kinds are drawn from
+  std::string families;  ///< non-empty: comma-separated families, material i gets the (i mod n)-th
 };
 
 inline std::string row(const char* name, const parameter_errors& e) {
@@ -59,12 +65,21 @@ inline std::string row(const char* name, const parameter_errors& e) {
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation materials.
 inline void evaluate_networks(const network_eval_settings& s) {
+  const std::vector<material_kind> families = material_kinds_from_names(s.families);
   estimation_network<estimator_compact> estimator;
   auto_encoder<autoencoder_compact> autoencoder;
   nn::load_weights(s.estimator, estimator);
   nn::load_weights(s.autoencoder, autoencoder);
   std::vector<training::sample> samples;
-  for (int i = 0; i < s.count; ++i) samples.push_back(training::make_sample(training::validation_seed(i), s.size, true));
+  std::vector<material_kind> kinds;
+  for (int i = 0; i < s.count; ++i) {
+    const std::uint64_t seed = training::validation_seed(i);
+    procedural_options options;
+    options.mix = s.mix;
+    options.kind = evaluation_kind(i, seed, families, s.mix);
+    kinds.push_back(*options.kind);
+    samples.push_back(training::make_sample(seed, s.size, true, options));
+  }
   // The baseline: the per-texel mean of the validation set's true maps.
   material_maps mean(s.size, s.size);
   for (int k = 0; k < parameter_count; ++k)
@@ -74,19 +89,38 @@ inline void evaluate_networks(const network_eval_settings& s) {
       mean.plane(k)[j] = float(sum / s.count);
     }
   parameter_errors est, base, ae;
-  for (const auto& x : samples) {
+  std::vector<material_errors> est_all, base_all, ae_all;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const auto& x = samples[i];
     const auto u = training::estimator_output(estimator, x);
-    training::accumulate(est, compare_maps(network_space::network_to_maps(u, 0), x.truth), s.count);
-    training::accumulate(base, compare_maps(mean, x.truth), s.count);
+    const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), x.truth), b = compare_maps(mean, x.truth);
     const auto r = training::autoencoder_output(autoencoder, x);
-    training::accumulate(ae, compare_maps(network_space::network_to_maps(r, 0), x.truth), s.count);
+    const parameter_errors a = compare_maps(network_space::network_to_maps(r, 0), x.truth);
+    training::accumulate(est, e, s.count);
+    training::accumulate(base, b, s.count);
+    training::accumulate(ae, a, s.count);
+    est_all.push_back({kinds[i], e});
+    base_all.push_back({kinds[i], b});
+    ae_all.push_back({kinds[i], a});
   }
-  std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ), " + std::to_string(s.size) +
-                   " x " + std::to_string(s.size) + ", 5 inputs (training set); MSE in the original ranges (compare_maps)\n\n";
+  std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
+                   (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
+                   std::to_string(s.size) + " x " + std::to_string(s.size) +
+                   ", 5 inputs (training set); MSE in the original ranges (compare_maps)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | F0 |\n|---|---|---|---|---|---|---|\n";
   md += row("estimator (compact)", est);
   md += row("mean-map baseline", base);
   md += row("auto-encoder reconstruction (compact)", ae);
+  md += "\nPer family (held out of training: leather, printed; the baseline is the mean map of all materials above)\n\n";
+  md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | F0 |\n|---|---|---|---|---|---|---|---|---|\n";
+  const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all);
+  for (std::size_t k = 0; k < est_rows.size(); ++k) {
+    const std::string prefix = std::string(material_kind_name(est_rows[k].kind)) + (is_held_out(est_rows[k].kind) ? " (held out)" : "") +
+                               " | " + std::to_string(est_rows[k].count);
+    md += row((prefix + " | estimator").c_str(), est_rows[k].mean);
+    md += row((prefix + " | baseline").c_str(), base_rows[k].mean);
+    md += row((prefix + " | auto-encoder").c_str(), ae_rows[k].mean);
+  }
   std::printf("%s", md.c_str());
   if (!s.markdown.empty()) {
     std::ofstream out(s.markdown);
@@ -134,6 +168,11 @@ inline void add_train_commands(CLI::App& app) {
   ev_cmd->add_option("--count", ev->count, "validation materials");
   ev_cmd->add_option("--size", ev->size, "material size (multiple of 64)");
   ev_cmd->add_option("--markdown", ev->markdown, "also write the table to this file");
+  add_mix_option(ev_cmd, ev->mix, {material_mix::original, material_mix::extended, material_mix::training},
+                 "families the materials are drawn from: original, extended or training");
+  ev_cmd->add_option("--families", ev->families,
+                     "evaluate these families only, comma-separated (e.g. leather,printed); material i gets the (i mod n)-th")
+      ->check(family_list_check());
   ev_cmd->callback([ev] { evaluate_networks(*ev); });
 }
 

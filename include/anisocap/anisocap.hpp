@@ -48,6 +48,7 @@
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/contact_sheet.hpp"
 #include "anisocap/data/data.hpp"
+#include "anisocap/data/family_errors.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/data/photo_io.hpp"

@@ -456,4 +456,25 @@ TEST_CASE("--version, a suggestion on a mistyped command, defaults in the traini
   CHECK(r.output.find("0.1") != std::string::npos);  // --smoothness' default
   r = run("eval-networks --help", t.path);
   CHECK(r.output.find("30") != std::string::npos);  // --count's default
+TEST_CASE("families: new kinds synthesize, the held-out families evaluate per family, bad names and mixes are refused") {
+  temp_dir t;
+  auto s = run("synthesize -o leather --width 32 --height 32 --images 8 --kind leather --fresnel 4", t.path);
+  REQUIRE(s.status == 0);
+  CHECK(s.output.find("leather") != std::string::npos);
+  CHECK(fs::exists(t.path / "leather" / "input_07.exr"));
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
+  auto e = run("eval-networks --count 3 --size 64 --families leather,printed,foil --estimator '" +
+                   (models / "estimator.safetensors").string() + "' --autoencoder '" + (models / "autoencoder.safetensors").string() + "'",
+               t.path);
+  REQUIRE(e.status == 0);
+  CHECK(e.output.find("| leather (held out) | 1 | estimator |") != std::string::npos);
+  CHECK(e.output.find("| printed (held out) | 1 | baseline |") != std::string::npos);
+  CHECK(e.output.find("| foil | 1 | auto-encoder |") != std::string::npos);
+  CHECK(run("eval -o ev --families leather,linen", t.path).output.find("linen") != std::string::npos);
+  CHECK(run("eval-networks --families linen", t.path).output.find("linen") != std::string::npos);
+  CHECK(run("train-estimator --out tr --materials extended", t.path).output.find("--materials") != std::string::npos);
+  CHECK(run("synthesize -o s3 --images 5 --fresnel 4", t.path).status != 0);
+  CHECK_FALSE(fs::exists(t.path / "ev"));
+  CHECK_FALSE(fs::exists(t.path / "tr"));
+  CHECK_FALSE(fs::exists(t.path / "s3"));
 }

@@ -252,7 +252,7 @@ TEST_CASE("variety: 40 seeds give many kinds, colours and looks") {
   CHECK(dominant.size() == 3);  // reddish, greenish and bluish materials all occur
 
   // Over many seeds every kind occurs, none dominates.
-  int counts[material_kind_count] = {};
+  int counts[original_kind_count] = {};
   for (std::uint64_t seed = 0; seed < 2000; ++seed) ++counts[int(kind_for_seed(seed))];
   for (int c : counts) {
     CHECK(c > 2000 / 25);
@@ -275,4 +275,174 @@ TEST_CASE("pinned texel: the same seed gives the same material on every build") 
                                            0.0111491531f, 0.0111491531f,  0.0666392371f, 0.2347399f,
                                            0.0217960551f, -0.313623339f,  0.188766435f,  1.24407589f};
   for (int k = 0; k < parameter_count; ++k) CHECK(m.at(k, 13, 29) == expected[k]);
+}
+
+TEST_CASE("the original mix is unchanged: kind_for_seed(seed, original) is kind_for_seed(seed), eight kinds only") {
+  for (std::uint64_t seed = 0; seed < 3000; ++seed) {
+    const material_kind kind = kind_for_seed(seed, material_mix::original);
+    CHECK(kind == kind_for_seed(seed));
+    CHECK(int(kind) < original_kind_count);
+  }
+  // Old seeds keep their materials: the default options draw from the original mix.
+  CHECK(draw_procedural_parameters(7).kind == kind_for_seed(7));
+  CHECK(describe(draw_procedural_parameters(399 * 7919 + 11)) == "spun steel, lobes 0.045 x 0.243, centre (268, 1) px");
+}
+
+TEST_CASE("extended mix: every kind occurs with about its documented weight; the training mix never draws a held-out kind") {
+  const int draws = 20000;
+  int extended[material_kind_count] = {}, training[material_kind_count] = {};
+  for (std::uint64_t seed = 0; seed < std::uint64_t(draws); ++seed) {
+    ++extended[int(kind_for_seed(seed, material_mix::extended))];
+    ++training[int(kind_for_seed(seed, material_mix::training))];
+  }
+  int held_out_weight = 0;
+  for (material_kind k : held_out_kinds) held_out_weight += extended_mix_weights[std::size_t(k)];
+  for (int k = 0; k < material_kind_count; ++k) {
+    const auto kind = static_cast<material_kind>(k);
+    const double expected = draws * extended_mix_weights[std::size_t(k)] / 100.0;
+    INFO(material_kind_name(kind));
+    CHECK(std::abs(extended[k] - expected) < 5 * std::sqrt(expected));  // 5 standard deviations of a binomial count
+    if (is_held_out(kind)) {
+      CHECK(training[k] == 0);
+    } else {
+      const double expected_training = draws * extended_mix_weights[std::size_t(k)] / double(100 - held_out_weight);
+      CHECK(std::abs(training[k] - expected_training) < 5 * std::sqrt(expected_training));
+    }
+  }
+  CHECK(held_out_kinds.size() == 2);
+  CHECK(is_held_out(material_kind::leather));
+  CHECK(is_held_out(material_kind::printed));
+  CHECK(material_mix_from_name("training") == material_mix::training);
+  CHECK_FALSE(material_mix_from_name("all").has_value());
+  CHECK(material_kinds_from_names("leather,printed") == std::vector<material_kind>{material_kind::leather, material_kind::printed});
+  CHECK(material_kinds_from_names("").empty());
+  CHECK_THROWS_WITH_AS(material_kinds_from_names("leather,linen"), doctest::Contains("linen"), std::invalid_argument);
+}
+
+namespace {
+
+/// Per-material statistics of a kind over a few seeds (extended mix).
+struct kind_statistics {
+  double f0 = 0, specular = 0, diffuse = 0, tilt = 0, anisotropy = 0;
+  int bad = 0;  ///< values outside docs/method.md section 1's ranges
+};
+
+kind_statistics statistics(material_kind kind, int seeds, int size) {
+  kind_statistics s;
+  for (int seed = 0; seed < seeds; ++seed) {
+    procedural_options options;
+    options.kind = kind;
+    options.mix = material_mix::extended;
+    const material_maps m = generate_material(std::uint64_t(seed) * 104729 + 5, size, size, options);
+    for (int y = 0; y < size; ++y) {
+      for (int x = 0; x < size; ++x) {
+        for (int k = 0; k < parameter_count; ++k) s.bad += !std::isfinite(m.at(k, x, y));
+        for (int k = diffuse_r; k <= specular_b; ++k) s.bad += !(m.at(k, x, y) >= 0.0f && m.at(k, x, y) <= 1.0f);
+        const float sx = m.at(lobe_x, x, y), sy = m.at(lobe_y, x, y), f0 = m.at(fresnel_f0, x, y);
+        s.bad += !(sx >= 0.02f && sx <= 1.0f) + !(sy >= 0.02f && sy <= 1.0f) + !(f0 > 0.0f && f0 <= 1.0f);
+        const float nx = m.at(normal_x, x, y), ny = m.at(normal_y, x, y);
+        s.bad += !(nx * nx + ny * ny < 1.0f);
+        s.bad += !(std::abs(m.at(rotation, x, y)) <= float(std::numbers::pi / 2));
+        s.f0 += f0;
+        s.specular += m.at(specular_g, x, y);
+        s.diffuse += m.at(diffuse_g, x, y);
+        s.tilt += std::sqrt(nx * nx + ny * ny);
+        s.anisotropy += std::max(sx, sy) / std::min(sx, sy);
+      }
+    }
+  }
+  const double n = double(seeds) * size * size;
+  s.f0 /= n;
+  s.specular /= n;
+  s.diffuse /= n;
+  s.tilt /= n;
+  s.anisotropy /= n;
+  return s;
+}
+
+}  // namespace
+
+TEST_CASE("new kinds: valid ranges and the statistics that set them apart") {
+  const kind_statistics leather = statistics(material_kind::leather, 6, 48);
+  const kind_statistics coated = statistics(material_kind::coated, 6, 48);
+  const kind_statistics printed = statistics(material_kind::printed, 6, 48);
+  const kind_statistics foil = statistics(material_kind::foil, 12, 64);
+  const kind_statistics brushed = statistics(material_kind::brushed_metal, 6, 48);
+  for (const kind_statistics* s : {&leather, &coated, &printed, &foil, &brushed}) CHECK(s->bad == 0);
+  // Leather: low F0, bumpy grain normals, a nearly isotropic lobe.
+  CHECK(leather.f0 < 0.07);
+  CHECK(leather.tilt > 0.06);
+  CHECK(leather.tilt > 4 * printed.tilt);
+  CHECK(leather.anisotropy < 1.5);
+  // Coated: a narrow isotropic clear-coat lobe, flat, F0 above leather's and the print's.
+  CHECK(coated.anisotropy < 1.2);
+  CHECK(coated.tilt < 0.03);
+  CHECK(coated.f0 > leather.f0);
+  // Printed: flat, nearly isotropic, dielectric.
+  CHECK(printed.tilt < 0.03);
+  CHECK(printed.f0 < 0.12);
+  // Metals keep a high F0 and a'_s; foil lies between metal and dielectric.
+  CHECK(brushed.f0 > 0.4);
+  CHECK(brushed.specular > 0.3);
+  CHECK(foil.f0 > printed.f0);
+  CHECK(foil.f0 < brushed.f0);
+}
+
+TEST_CASE("printed and foil: sharp-edged layouts, metal inside the foil and dielectric outside") {
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    procedural_options options;
+    options.kind = material_kind::printed;
+    const procedural_parameters p = draw_procedural_parameters(seed, options);
+    const material_maps m = generate_material(p, 96, 96);
+    // Sharp edges: the diffuse colour takes few distinct values (paper and inks, times the fibre
+    // shade of at most +-4 %), and both paper and ink occur.
+    int ink = 0;
+    for (int y = 0; y < 96; ++y)
+      for (int x = 0; x < 96; ++x) {
+        const double r = m.at(diffuse_r, x, y) / std::max(1e-6, p.base_colour[0]);
+        ink += std::abs(r - 1.0) > 0.05 || std::abs(m.at(diffuse_g, x, y) / std::max(1e-6, p.base_colour[1]) - 1.0) > 0.05;
+      }
+    INFO(describe(p));
+    CHECK(ink > 0);
+    CHECK(ink < 96 * 96);
+  }
+  int metal_texels = 0, dielectric_texels = 0;
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    procedural_options options;
+    options.kind = material_kind::foil;
+    const procedural_parameters p = draw_procedural_parameters(seed, options);
+    CHECK((is_weave(p.base_kind) || p.base_kind == material_kind::printed));
+    const material_maps m = generate_material(p, 128, 128);
+    int wrong = 0;  // counted, not asserted per texel
+    for (int y = 0; y < 128; ++y)
+      for (int x = 0; x < 128; ++x) {
+        // Foil texels carry the foil's F0 exactly (no jitter inside a foil shape); there a'_s is the
+        // tint and the diffuse is dark. The base (dielectric yarns, ink, paper; a lame weft jitters) never does.
+        if (m.at(fresnel_f0, x, y) == float(p.foil_f0)) {
+          ++metal_texels;
+          wrong += std::abs(m.at(specular_g, x, y) - float(p.foil_tint[1])) > 1e-6f || !(m.at(diffuse_g, x, y) < 0.03f);
+        } else {
+          ++dielectric_texels;
+        }
+      }
+    INFO(describe(p));
+    CHECK(wrong == 0);
+  }
+  CHECK(metal_texels > 10 * 128 * 128 / 20);  // foil covers a real share
+  CHECK(dielectric_texels > 10 * 128 * 128 / 5);
+}
+
+TEST_CASE("spun metal in the extended mix: the centre lies nearer the middle, the original mix keeps its centres") {
+  int inside_extended = 0, inside_original = 0;
+  for (std::uint64_t seed = 0; seed < 200; ++seed) {
+    procedural_options options;
+    options.kind = material_kind::spun_metal;
+    const procedural_parameters original = draw_procedural_parameters(seed, options);
+    options.mix = material_mix::extended;
+    const procedural_parameters extended = draw_procedural_parameters(seed, options);
+    CHECK(extended.centre[0] == doctest::Approx(0.35 * original.centre[0]));
+    inside_extended += std::abs(extended.centre[0]) < 128 && std::abs(extended.centre[1]) < 128;
+    inside_original += std::abs(original.centre[0]) < 128 && std::abs(original.centre[1]) < 128;
+  }
+  CHECK(inside_extended > 2 * inside_original);  // inside a 256-texel capture: ~65 % against ~10 %
 }

@@ -276,3 +276,43 @@ TEST_CASE("pinned configurations: the same seed gives the same capture on every 
   CHECK(c.images[11].camera == vec3f{2.34889674f, -0.742452741f, 0.867995262f});
   CHECK(c.images[11].intensity[2] == 31.4511337f);
 }
+
+TEST_CASE("set alpha with more, lower Fresnel configurations") {
+  const fresnel_options paper;
+  CHECK(paper.count == 2);
+  CHECK(paper.min_height == fresnel_min_height);
+  CHECK(paper.max_height == fresnel_max_height);
+  // Pinned: the default set is the paper's set alpha, image for image (values of the sampler
+  // before fresnel_options existed).
+  const capture a = set_alpha(12, 7, 553, 822, paper);
+  struct pinned { int image; std::array<float, 3> camera, light; };
+  const pinned values[] = {
+      {0, {0.0422995649f, 0.930561304f, 0.15175797f}, {-0.115625985f, -0.783191741f, 0.15175797f}},
+      {1, {-0.0305837449f, 0.552632391f, 0.37179336f}, {0.155261308f, -0.554359436f, 0.37179336f}},
+      {5, {-0.148891851f, -0.220128059f, 3.72949338f}, {-0.351753205f, -0.181712493f, 3.22108507f}},
+      {11, {0.137737215f, 1.39569008f, 1.09274554f}, {-1.64260864f, 0.961853921f, 1.02298641f}},
+  };
+  for (const pinned& p : values)
+    for (int k = 0; k < 3; ++k) {
+      CHECK(a.images[std::size_t(p.image)].camera[k] == doctest::Approx(p.camera[k]).epsilon(1e-6));
+      CHECK(a.images[std::size_t(p.image)].light[k] == doctest::Approx(p.light[k]).epsilon(1e-6));
+    }
+  CHECK(same(a, set_alpha(12, 7, 553, 822)));
+  for (int count : {0, 4, 6}) {
+    const fresnel_options low{count, 0.1, 0.15};
+    const capture c = set_alpha(12, 7, 553, 822, low);
+    REQUIRE(c.images.size() == 12);
+    int fresnel = 0;
+    for (int i = 0; i < count; ++i) {
+      const auto& im = c.images[std::size_t(i)];
+      fresnel += im.camera[2] >= 0.1f - 1e-6f && im.camera[2] <= 0.15f + 1e-6f && im.light[2] == im.camera[2];
+    }
+    CHECK(fresnel == count);
+    // The rest: anisotropic pairs then independent configurations, all above the Fresnel band.
+    for (int i = count; i < 12; ++i) CHECK(c.images[std::size_t(i)].camera[2] > 0.2f);
+    CHECK(c.images.back().file == "input_11.exr");
+  }
+  CHECK_THROWS_AS(set_alpha(5, 1, 64, 64, fresnel_options{4, 0.1, 0.2}), std::invalid_argument);
+  CHECK_THROWS_AS(set_alpha(8, 1, 64, 64, fresnel_options{-1, 0.1, 0.2}), std::invalid_argument);
+  CHECK_THROWS_AS(set_alpha(8, 1, 64, 64, fresnel_options{2, 0.3, 0.2}), std::invalid_argument);
+}

@@ -116,3 +116,54 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   CHECK(l.total == doctest::Approx(l.l1 + l.render));
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
+
+TEST_CASE("training materials: the held-out families never appear among training or validation samples") {
+  for (material_mix mix : {material_mix::original, material_mix::training}) {
+    const procedural_options options = training::training_material_options(mix);
+    int seen[material_kind_count] = {};
+    for (std::uint64_t run : {1ULL, 5ULL, 12345ULL})
+      for (long step = 0; step < 2000; ++step)
+        for (int b = 0; b < 4; ++b) ++seen[int(draw_procedural_parameters(training::training_seed(run, step, b), options).kind)];
+    for (int i = 0; i < 500; ++i) ++seen[int(draw_procedural_parameters(training::validation_seed(i), options).kind)];
+    for (material_kind k : held_out_kinds) CHECK(seen[int(k)] == 0);
+    // The training mix does draw every other kind, the new ones included.
+    if (mix == material_mix::training)
+      for (int k = 0; k < material_kind_count; ++k)
+        if (!is_held_out(static_cast<material_kind>(k))) CHECK(seen[k] > 100);
+  }
+  // make_sample itself draws from the same options: its truth is the forced-kind material of that seed.
+  const std::uint64_t seed = training::training_seed(7, 3, 1);
+  const training::sample s = training::make_sample(seed, 32, false, material_mix::training);
+  procedural_options forced;
+  forced.mix = material_mix::training;
+  const material_maps expected = generate_material(seed, 32, 32, forced);
+  CHECK(std::equal(s.truth.plane(0), s.truth.plane(0) + 32 * 32, expected.plane(0)));
+  CHECK_FALSE(is_held_out(draw_procedural_parameters(seed, forced).kind));
+  // The extended mix (held-out families included) is refused before anything is written.
+  CHECK_THROWS_AS(training::training_material_options(material_mix::extended), std::invalid_argument);
+  const fs::path dir = fresh_folder("extended");
+  auto o = tiny_options(dir, 64);
+  o.mix = material_mix::extended;
+  estimation_network<testing::estimator_tiny> net(3);
+  CHECK_THROWS_AS(training::train_estimator(o, net), std::invalid_argument);
+  CHECK_FALSE(fs::exists(dir));
+}
+
+TEST_CASE("training materials: a run resumes only on the mix it started with") {
+  const fs::path dir = fresh_folder("mix_resume");
+  {
+    auto_encoder<testing::autoencoder_tiny> net(3);
+    auto o = tiny_options(dir, 32);
+    o.mix = material_mix::training;
+    o.stop_after = 2;
+    training::train_autoencoder(o, net);
+  }
+  auto_encoder<testing::autoencoder_tiny> net(3);
+  auto o = tiny_options(dir, 32);
+  o.resume = true;  // mix left at original
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("--materials training"), std::runtime_error);
+  o.mix = material_mix::training;
+  training::train_autoencoder(o, net);
+  CHECK(fs::exists(dir / "autoencoder.safetensors"));
+  fs::remove_all(dir);
+}

@@ -1,7 +1,8 @@
 #pragma once
 /// @file
-/// Seeded procedural anisotropic materials: woven fabrics (plain, basket, twill, herringbone,
-/// satin), crushed velvet, and linearly or circularly brushed metal. They stand in for the Bonn
+/// Seeded procedural materials: woven fabrics (plain, basket, twill, herringbone, satin), crushed
+/// velvet, linearly or circularly brushed metal, leather, coated (lacquered), printed surfaces and
+/// metal foil on a fabric or print (docs/procedural.md). They stand in for the Bonn
 /// SVBRDF dataset the paper trains and evaluates on (docs/method.md section 9), which is not available here:
 /// each seed gives one material_maps (docs/method.md section 1) whose anisotropy follows its structure.
 ///
@@ -26,13 +27,15 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/random.hpp"
 
 namespace anisocap {
 
-/// The families of procedural material.
+/// The families of procedural material. New kinds are added at the end, so a kind's number (and
+/// the materials of the original mix) never change.
 enum class material_kind : int {
   plain_weave,     ///< over one, under one: warp and weft alternate at every crossing
   basket_weave,    ///< plain weave of doubled threads (2 x 2 blocks)
@@ -42,15 +45,23 @@ enum class material_kind : int {
   crushed_velvet,  ///< pile whose direction wanders smoothly: rotation and shade vary in patches
   brushed_metal,   ///< metal brushed along one direction: fine parallel scratches, high F0
   spun_metal,      ///< metal turned on a lathe: circular brushing around a centre
+  leather,         ///< grained hide: cells and creases tilt the normals, low F0, broad nearly isotropic lobe
+  coated,          ///< lacquered surface: narrow isotropic clear-coat lobe over a plain or printed colour
+  printed,         ///< sharp-edged ink pattern (stripes, dots, checks, glyph blocks, blots) on glossy paper or film
+  foil,            ///< metal foil shapes on a weave or a print: metal and dielectric side by side
 };
 
 /// Number of material_kind values.
-inline constexpr int material_kind_count = 8;
+inline constexpr int material_kind_count = 12;
+
+/// Number of kinds in the original mix (kind_for_seed): the first eight.
+inline constexpr int original_kind_count = 8;
 
 /// Short lower-case name of a kind, for logs and command lines.
 inline const char* material_kind_name(material_kind kind) {
-  static constexpr const char* names[material_kind_count] = {"plain",  "basket", "twill",   "herringbone",
-                                                             "satin",  "velvet", "brushed", "spun"};
+  static constexpr const char* names[material_kind_count] = {"plain",   "basket", "twill",  "herringbone",
+                                                             "satin",   "velvet", "brushed", "spun",
+                                                             "leather", "coated", "printed", "foil"};
   const int k = static_cast<int>(kind);
   return k >= 0 && k < material_kind_count ? names[k] : "unknown";
 }
@@ -62,25 +73,121 @@ inline std::optional<material_kind> material_kind_from_name(std::string_view nam
   return std::nullopt;
 }
 
+/// The kinds of a comma-separated list of names ("leather,printed"). Throws
+/// std::invalid_argument naming an unknown name and listing the known ones.
+inline std::vector<material_kind> material_kinds_from_names(std::string_view list) {
+  std::vector<material_kind> kinds;
+  while (!list.empty()) {
+    const auto comma = list.find(',');
+    const std::string_view name = list.substr(0, comma);
+    if (!name.empty()) {
+      const auto kind = material_kind_from_name(name);
+      if (!kind) {
+        std::string known;
+        for (int k = 0; k < material_kind_count; ++k)
+          known += std::string(k ? ", " : "") + material_kind_name(static_cast<material_kind>(k));
+        throw std::invalid_argument("unknown material family '" + std::string(name) + "' (known: " + known + ")");
+      }
+      kinds.push_back(*kind);
+    }
+    list = comma == std::string_view::npos ? std::string_view{} : list.substr(comma + 1);
+  }
+  return kinds;
+}
+
 /// True for the woven kinds (threads along two directions).
 inline constexpr bool is_weave(material_kind kind) { return static_cast<int>(kind) <= static_cast<int>(material_kind::satin); }
 
-/// The kind a seed gives when none is forced: weaves about 2/3 of the time (the Bonn dataset is
+/// True for the all-metal kinds (foil is metal in places only).
+inline constexpr bool is_metal(material_kind kind) {
+  return kind == material_kind::brushed_metal || kind == material_kind::spun_metal;
+}
+
+/// The families that training never draws (material_mix::training), kept apart as a check of how
+/// the networks generalise to surfaces they have not seen: leather (grain normals, low F0) and
+/// printed (sharp-edged diffuse patterns).
+inline constexpr std::array<material_kind, 2> held_out_kinds = {material_kind::leather, material_kind::printed};
+
+/// True when `kind` is one of held_out_kinds.
+inline constexpr bool is_held_out(material_kind kind) {
+  for (material_kind k : held_out_kinds)
+    if (k == kind) return true;
+  return false;
+}
+
+/// Which families a seed's kind is drawn from when no kind is forced.
+enum class material_mix : int {
+  original,  ///< kind_for_seed: the eight original kinds (every result before the extended mix used it)
+  extended,  ///< kind_for_seed_v2: all twelve kinds, metals more often, spun centres nearer the middle
+  training,  ///< kind_for_seed_v2 without held_out_kinds: what the networks train on
+};
+
+/// Short name of a mix ("original", "extended", "training"), for command lines.
+inline const char* material_mix_name(material_mix mix) {
+  switch (mix) {
+    case material_mix::original: return "original";
+    case material_mix::extended: return "extended";
+    case material_mix::training: return "training";
+  }
+  return "unknown";
+}
+
+/// The mix with the given short name (material_mix_name), or nothing.
+inline std::optional<material_mix> material_mix_from_name(std::string_view name) {
+  for (material_mix m : {material_mix::original, material_mix::extended, material_mix::training})
+    if (name == material_mix_name(m)) return m;
+  return std::nullopt;
+}
+
+/// The kind a seed gives in the original mix: weaves about 2/3 of the time (the Bonn dataset is
 /// mostly fabric), velvet and the two metals the rest. Uses its own hash of the seed, so forcing a
 /// kind leaves the other drawn properties of that seed unchanged.
 inline material_kind kind_for_seed(std::uint64_t seed) {
   // Cumulative weights in percent: plain 15, basket 8, twill 17, herringbone 10, satin 14,
   // velvet 10, brushed 15, spun 11.
-  static constexpr int cumulative[material_kind_count] = {15, 23, 40, 50, 64, 74, 89, 100};
+  static constexpr int cumulative[original_kind_count] = {15, 23, 40, 50, 64, 74, 89, 100};
   const auto draw = static_cast<int>(hash64(seed ^ 0x6b696e64ULL) % 100);
   int k = 0;
   while (draw >= cumulative[k]) ++k;
   return static_cast<material_kind>(k);
 }
 
+/// Weight in percent of each kind in the extended mix (kind_for_seed_v2), in material_kind order:
+/// fabrics 41 (plain 9, basket 4, twill 9, herringbone 5, satin 8, velvet 6), metals 28
+/// (brushed 15, spun 13: the weak case gets more samples), leather 8, coated 8, printed 7, foil 8.
+inline constexpr std::array<int, material_kind_count> extended_mix_weights = {9, 4, 9, 5, 8, 6, 15, 13, 8, 8, 7, 8};
+
+/// The kind a seed gives in the extended mix: draw = hash(seed) mod W over the summed weights W of
+/// extended_mix_weights, counting only the kinds that are not held out when `without_held_out`
+/// (material_mix::training; the remaining kinds keep their relative weights). Like kind_for_seed,
+/// it uses its own hash of the seed.
+inline material_kind kind_for_seed_v2(std::uint64_t seed, bool without_held_out = false) {
+  int total = 0;
+  for (int k = 0; k < material_kind_count; ++k)
+    if (!without_held_out || !is_held_out(static_cast<material_kind>(k))) total += extended_mix_weights[std::size_t(k)];
+  int draw = static_cast<int>(hash64(seed ^ 0x6b696e6432ULL) % std::uint64_t(total));
+  for (int k = 0; k < material_kind_count; ++k) {
+    const auto kind = static_cast<material_kind>(k);
+    if (without_held_out && is_held_out(kind)) continue;
+    draw -= extended_mix_weights[std::size_t(k)];
+    if (draw < 0) return kind;
+  }
+  return material_kind::plain_weave;  // not reached: the weights sum to total
+}
+
+/// The kind a seed gives in `mix`.
+inline material_kind kind_for_seed(std::uint64_t seed, material_mix mix) {
+  switch (mix) {
+    case material_mix::extended: return kind_for_seed_v2(seed, false);
+    case material_mix::training: return kind_for_seed_v2(seed, true);
+    default: return kind_for_seed(seed);
+  }
+}
+
 /// What a caller may fix instead of drawing it from the seed.
 struct procedural_options {
-  std::optional<material_kind> kind;  ///< force a kind (default: kind_for_seed)
+  std::optional<material_kind> kind;  ///< force a kind (default: kind_for_seed(seed, mix))
+  material_mix mix = material_mix::original;  ///< the families drawn when no kind is forced
   double min_thread_pitch = 5.0;      ///< smallest distance between thread centres, texels (>= 2)
   double max_thread_pitch = 20.0;     ///< largest distance between thread centres, texels
   bool random_rotation = true;        ///< false: warp along +x, weft along +y, brushing along +x
@@ -127,6 +234,30 @@ struct procedural_parameters {
   double scratch_strength = 0.05;  ///< metals: normal tilt of the fine scratches
   double scratch_density = 0.1;    ///< metals: fraction of scratch lanes holding a deep scratch
   std::array<double, 2> centre{0, 0};  ///< spun metal: centre of the circles, texels from the image centre
+
+  /// A sharp-edged layout of the plane: where ink (printed, coated) or foil lies.
+  struct pattern_layout {
+    int shape = 0;           ///< 0 stripes, 1 dots, 2 check, 3 blocks (glyph-like rectangles), 4 blots (thresholded noise)
+    double period = 32;      ///< repeat of the pattern (blots: feature size), texels
+    double duty = 0.5;       ///< inked fraction: of a period (stripes, check), of a cell (dot diameter), of the area (blots)
+    double rotation = 0;     ///< direction of the pattern's u axis, radians from +x towards +y
+    std::uint64_t seed = 0;  ///< hash of the per-cell choices (blocks, ink of each feature) and of the blots
+  };
+
+  // Printed and coated surfaces (also the printed base of foil): inks over a base colour.
+  pattern_layout print;           ///< where the inks lie
+  std::array<rgb, 3> ink_colours{};  ///< ink colours (linear RGB)
+  int ink_count = 1;              ///< inks in use (1-3)
+  double ink_gloss = 1;           ///< printed: lobe width of inked texels relative to the base's (matte > 1)
+  double orange_peel = 0;         ///< coated: normal tilt of the coat's gentle waviness
+  bool plain_base = false;        ///< coated: a plain colour under the coat instead of a print
+
+  // Foil: metal shapes over a woven or printed base (base_kind's parameters above).
+  material_kind base_kind = material_kind::plain_weave;  ///< what lies around the foil
+  pattern_layout foil_layout;     ///< where the foil lies
+  rgb foil_tint{1, 1, 1};         ///< a'_s of the foil (a metal palette colour)
+  double foil_f0 = 0.8;           ///< F0 of the foil
+  std::array<double, 2> foil_lobes{0.04, 0.08};  ///< sigma_x, sigma_y of the foil (x along foil_layout.rotation)
 
   /// Names of the colours drawn, for describe().
   std::array<std::uint8_t, 3> colour_names{};
@@ -209,6 +340,7 @@ enum salt : std::uint64_t {
   salt_warp = 0x77617270, salt_weft = 0x77656674, salt_slub = 0x736c7562, salt_fibre = 0x66696272,
   salt_wave_u = 0x77617675, salt_wave_v = 0x77617676, salt_shade = 0x73686164, salt_angle = 0x616e676c,
   salt_scratch = 0x73637261, salt_lane = 0x6c616e65, salt_texel = 0x74657863, salt_stain = 0x7374616e,
+  salt_print = 0x7072696e, salt_foil = 0x666f696c, salt_grain = 0x67726169, salt_peel = 0x7065656c,
 };
 
 inline std::uint64_t salted(std::uint64_t seed, salt s) { return hash64(seed ^ (std::uint64_t(s) * 0x9e3779b97f4a7c15ULL)); }
@@ -223,6 +355,178 @@ inline int draw_sequence(random_generator& rng, std::array<std::uint8_t, 16>& se
   return length;
 }
 
+/// Draws a weave's pattern, threads, colours and reflectance into `p` (p.kind a weave).
+inline void draw_weave(random_generator& rng, procedural_parameters& p, const procedural_options& options) {
+  p.warp_pitch = log_uniform(rng, options.min_thread_pitch, options.max_thread_pitch);
+  p.weft_pitch = std::max(2.0, p.warp_pitch * rng.uniform(0.8, 1.25));
+  switch (p.kind) {
+    case material_kind::twill:
+    case material_kind::herringbone: {
+      static constexpr int over[] = {2, 2, 3, 1}, period[] = {3, 4, 4, 3};  // 2/1, 2/2, 3/1, 1/2
+      const int k = int(rng.uniform_int(4));
+      p.pattern_over = over[k];
+      p.pattern_period = period[k];
+      p.pattern_step = rng.bernoulli(0.5) ? 1 : -1;
+      p.herringbone_band = 3 + int(rng.uniform_int(6));
+      break;
+    }
+    case material_kind::satin: {
+      const bool eight = rng.bernoulli(0.4);  // 5-end satin (move 2) or 8-end satin (move 3)
+      p.pattern_period = eight ? 8 : 5;
+      p.pattern_step = eight ? 3 : 2;
+      p.weft_faced = rng.bernoulli(0.3);  // sateen
+      break;
+    }
+    default:
+      p.pattern_period = 2;
+      break;
+  }
+  p.coverage = rng.uniform(0.78, 0.97);
+  p.bump = rng.uniform(0.25, 0.6);
+  p.dip = rng.uniform(0.15, 0.45);
+  p.twist = rng.uniform(-0.35, 0.35);
+  p.waviness = rng.uniform(0.05, 0.3);
+
+  // Colours: solid, striped warp, or a check (both striped); weft same hue, a shade, or a contrast.
+  const int style = int(rng.uniform_int(10));  // 0-5 solid, 6-7 stripes, 8-9 check
+  const int c0 = int(rng.uniform_int(fabric_palette_size));
+  int c1 = c0, c2 = int(rng.uniform_int(fabric_palette_size));
+  const int weft_choice = int(rng.uniform_int(3));  // same, shade of it, contrast (denim, chambray)
+  if (weft_choice == 2) c1 = int(rng.uniform_int(fabric_palette_size));
+  p.warp_colours = {varied_colour(rng, c0), varied_colour(rng, c2)};
+  p.weft_colours = {varied_colour(rng, c1), p.warp_colours[1]};
+  if (weft_choice == 1)
+    for (double& v : p.weft_colours[0]) v = std::clamp(v * rng.uniform(0.6, 1.5), 0.003, 0.95);
+  p.colour_names = {std::uint8_t(c0), std::uint8_t(c1), std::uint8_t(c2)};
+  p.warp_sequence_length = draw_sequence(rng, p.warp_sequence, style >= 6);
+  p.weft_sequence_length = style >= 8 ? p.warp_sequence_length : 1;
+  if (style >= 8) p.weft_sequence = p.warp_sequence;  // a check: same sett both ways
+  p.colour_jitter = rng.uniform(0.03, 0.2);
+  p.slub = rng.uniform(0.02, 0.2);
+
+  // Reflectance: dielectric yarns (F0 ~ 0.02-0.25, white specular, a'_s <= F0), satins glossier;
+  // one material in ten has a metallic weft (lame).
+  const bool glossy = p.kind == material_kind::satin;
+  for (int f = 0; f < 2; ++f) {
+    p.f0[f] = log_uniform(rng, 0.02, glossy ? 0.35 : 0.25);
+    p.specular_fraction[f] = rng.uniform(glossy ? 0.6 : 0.3, 1.0);
+    p.sigma_along[f] = log_uniform(rng, glossy ? 0.03 : 0.05, glossy ? 0.12 : 0.25);
+    p.sigma_across[f] = std::min(1.0, p.sigma_along[f] * rng.uniform(1.8, 5.0));
+  }
+  if (rng.bernoulli(0.5)) {  // same yarn both ways
+    p.f0[1] = p.f0[0];
+    p.specular_fraction[1] = p.specular_fraction[0];
+    p.sigma_along[1] = p.sigma_along[0];
+    p.sigma_across[1] = p.sigma_across[0];
+  }
+  if (rng.bernoulli(0.1)) {
+    const auto& m = metal_palette[rng.uniform_int(metal_palette_size)];
+    p.specular_tint[1] = {m.r, m.g, m.b};
+    p.f0[1] = rng.uniform(0.5, 0.9);
+    p.specular_fraction[1] = rng.uniform(0.7, 1.0);
+    for (double& v : p.weft_colours[0]) v *= 0.2;
+  }
+  p.property_jitter = rng.uniform(0.05, 0.25);
+}
+
+/// Name of a pattern_layout shape.
+inline const char* pattern_name(int shape) {
+  static constexpr const char* names[] = {"stripes", "dots", "check", "blocks", "blots"};
+  return shape >= 0 && shape < 5 ? names[shape] : "pattern";
+}
+
+/// Draws a sharp-edged pattern layout: shape, period in [min_period, max_period] texels, duty, and
+/// a direction (along the image axes 60 % of the time, as prints and stamps usually are).
+inline procedural_parameters::pattern_layout draw_layout(random_generator& rng, std::uint64_t seed, double min_period,
+                                                        double max_period) {
+  procedural_parameters::pattern_layout l;
+  l.shape = int(rng.uniform_int(5));
+  l.period = log_uniform(rng, min_period, max_period);
+  l.duty = rng.uniform(0.2, 0.6);
+  l.rotation = rng.bernoulli(0.6) ? 0.0 : rng.uniform(-std::numbers::pi / 2, std::numbers::pi / 2);
+  l.seed = seed;
+  return l;
+}
+
+/// Draws a print: its layout, 1-3 inks from the fabric palette and the paper (white, cream or
+/// beige 60 % of the time, else a palette colour), with a glossy nearly isotropic base lobe
+/// (F0 0.03-0.1, sigma 0.06-0.2) and matte or glossy inks.
+inline void draw_print(random_generator& rng, procedural_parameters& p) {
+  p.print = draw_layout(rng, salted(p.seed, salt_print), 8.0, 96.0);
+  static constexpr int papers[] = {25, 18, 19};  // white, cream, beige
+  const int paper = rng.bernoulli(0.6) ? papers[rng.uniform_int(3)] : int(rng.uniform_int(fabric_palette_size));
+  p.base_colour = varied_colour(rng, paper);
+  p.ink_count = 1 + int(rng.uniform_int(3));
+  int inks[3];
+  for (int k = 0; k < 3; ++k) {
+    inks[k] = int(rng.uniform_int(fabric_palette_size));
+    p.ink_colours[std::size_t(k)] = varied_colour(rng, inks[k]);
+  }
+  p.colour_names = {std::uint8_t(paper), std::uint8_t(inks[0]), std::uint8_t(inks[1])};
+  p.f0[0] = p.f0[1] = log_uniform(rng, 0.03, 0.1);
+  p.specular_fraction[0] = p.specular_fraction[1] = rng.uniform(0.5, 1.0);
+  p.sigma_along[0] = p.sigma_along[1] = rng.uniform(0.06, 0.2);
+  p.sigma_across[0] = p.sigma_across[1] = p.sigma_along[0] * rng.uniform(1.0, 1.3);
+  p.ink_gloss = rng.uniform(0.7, 2.0);
+  p.bump = rng.uniform(0.0, 0.03);  // paper fibres
+}
+
+/// Draws leather: a brown, black or dyed hide, grain cells of 3-14 texels whose creases tilt the
+/// normal by up to ~0.5, a low F0 (0.02-0.06) and a broad, nearly isotropic lobe.
+inline void draw_leather(random_generator& rng, procedural_parameters& p) {
+  static constexpr int hides[] = {21, 20, 24, 14, 12, 19, 22, 0, 8, 18};  // chocolate, camel, black, burgundy, ...
+  const int c = hides[rng.uniform_int(sizeof hides / sizeof hides[0])];
+  p.base_colour = varied_colour(rng, c);
+  p.colour_names = {std::uint8_t(c), std::uint8_t(c), std::uint8_t(c)};
+  p.feature_scale = log_uniform(rng, 3.0, 14.0);
+  p.bump = rng.uniform(0.15, 0.5);
+  p.colour_jitter = rng.uniform(0.2, 0.5);  // how much darker the creases are
+  p.f0[0] = p.f0[1] = log_uniform(rng, 0.02, 0.06);
+  p.specular_fraction[0] = p.specular_fraction[1] = rng.uniform(0.2, 0.8);
+  p.sigma_along[0] = p.sigma_along[1] = rng.uniform(0.12, 0.4);
+  p.sigma_across[0] = p.sigma_across[1] = std::min(1.0, p.sigma_along[0] * rng.uniform(1.0, 1.35));
+  p.property_jitter = rng.uniform(0.05, 0.2);
+}
+
+/// Draws a lacquered surface: a print (or, 40 % of the time, a plain colour) under a clear coat
+/// with a narrow isotropic lobe (sigma 0.02-0.06), a high F0 for a dielectric (0.04-0.3) with
+/// a'_s close to it, and a gentle orange-peel waviness.
+inline void draw_coated(random_generator& rng, procedural_parameters& p) {
+  draw_print(rng, p);
+  p.plain_base = rng.bernoulli(0.4);
+  p.f0[0] = p.f0[1] = log_uniform(rng, 0.04, 0.3);
+  p.specular_fraction[0] = p.specular_fraction[1] = rng.uniform(0.7, 1.0);
+  p.sigma_along[0] = p.sigma_along[1] = log_uniform(rng, 0.02, 0.06);
+  p.sigma_across[0] = p.sigma_across[1] = p.sigma_along[0] * rng.uniform(1.0, 1.15);
+  p.orange_peel = rng.uniform(0.003, 0.03);
+}
+
+/// Draws foil: a weave (plain, basket, twill or satin; 60 %) or a print around metal shapes of
+/// 16-128 texels covering 20-60 % of a period, with a metal palette tint, a'_s 0.7-1 of it, F0
+/// near the tint's luminance, lobes 0.03-0.1 along the stamping direction and up to 3x across.
+inline void draw_foil(random_generator& rng, procedural_parameters& p, const procedural_options& options) {
+  static constexpr material_kind weaves[] = {material_kind::plain_weave, material_kind::basket_weave,
+                                             material_kind::twill, material_kind::satin};
+  const bool woven = rng.bernoulli(0.6);
+  p.base_kind = woven ? weaves[rng.uniform_int(4)] : material_kind::printed;
+  p.kind = p.base_kind;  // the base is drawn as that kind would be
+  if (woven)
+    draw_weave(rng, p, options);
+  else
+    draw_print(rng, p);
+  p.kind = material_kind::foil;
+  const int m = int(rng.uniform_int(metal_palette_size));
+  const auto& metal = metal_palette[m];
+  const double fraction = rng.uniform(0.7, 1.0);
+  p.foil_tint = {fraction * metal.r, fraction * metal.g, fraction * metal.b};
+  p.foil_f0 = std::clamp(0.2126 * metal.r + 0.7152 * metal.g + 0.0722 * metal.b, 0.0, 1.0) * rng.uniform(0.85, 1.0);
+  p.foil_lobes[0] = rng.uniform(0.03, 0.1);
+  p.foil_lobes[1] = std::min(1.0, p.foil_lobes[0] * rng.uniform(1.0, 3.0));
+  p.foil_layout = draw_layout(rng, salted(p.seed, salt_foil), 16.0, 128.0);
+  p.scratch_strength = rng.uniform(0.01, 0.05);  // crinkles of the foil
+  p.colour_names[2] = std::uint8_t(m);
+}
+
 }  // namespace procedural_detail
 
 /// Draws every property of material `seed` (see procedural_parameters); generate_material turns
@@ -233,82 +537,13 @@ inline procedural_parameters draw_procedural_parameters(std::uint64_t seed, cons
     throw std::invalid_argument("generate_material: thread pitch range must satisfy 2 <= min <= max");
   random_generator rng(hash64(seed ^ 0x6d6174657269616cULL));  // salted: unrelated to a capture of the same seed
   procedural_parameters p;
-  p.kind = options.kind ? *options.kind : kind_for_seed(seed);
+  p.kind = options.kind ? *options.kind : kind_for_seed(seed, options.mix);
   p.seed = hash64(seed);
   // A quarter of the materials lie along the image axes, as photographed cloth often does.
   p.rotation = options.random_rotation && rng.bernoulli(0.75) ? rng.uniform(-std::numbers::pi / 2, std::numbers::pi / 2) : 0.0;
 
   if (is_weave(p.kind)) {
-    p.warp_pitch = log_uniform(rng, options.min_thread_pitch, options.max_thread_pitch);
-    p.weft_pitch = std::max(2.0, p.warp_pitch * rng.uniform(0.8, 1.25));
-    switch (p.kind) {
-      case material_kind::twill:
-      case material_kind::herringbone: {
-        static constexpr int over[] = {2, 2, 3, 1}, period[] = {3, 4, 4, 3};  // 2/1, 2/2, 3/1, 1/2
-        const int k = int(rng.uniform_int(4));
-        p.pattern_over = over[k];
-        p.pattern_period = period[k];
-        p.pattern_step = rng.bernoulli(0.5) ? 1 : -1;
-        p.herringbone_band = 3 + int(rng.uniform_int(6));
-        break;
-      }
-      case material_kind::satin: {
-        const bool eight = rng.bernoulli(0.4);  // 5-end satin (move 2) or 8-end satin (move 3)
-        p.pattern_period = eight ? 8 : 5;
-        p.pattern_step = eight ? 3 : 2;
-        p.weft_faced = rng.bernoulli(0.3);  // sateen
-        break;
-      }
-      default:
-        p.pattern_period = 2;
-        break;
-    }
-    p.coverage = rng.uniform(0.78, 0.97);
-    p.bump = rng.uniform(0.25, 0.6);
-    p.dip = rng.uniform(0.15, 0.45);
-    p.twist = rng.uniform(-0.35, 0.35);
-    p.waviness = rng.uniform(0.05, 0.3);
-
-    // Colours: solid, striped warp, or a check (both striped); weft same hue, a shade, or a contrast.
-    const int style = int(rng.uniform_int(10));  // 0-5 solid, 6-7 stripes, 8-9 check
-    const int c0 = int(rng.uniform_int(fabric_palette_size));
-    int c1 = c0, c2 = int(rng.uniform_int(fabric_palette_size));
-    const int weft_choice = int(rng.uniform_int(3));  // same, shade of it, contrast (denim, chambray)
-    if (weft_choice == 2) c1 = int(rng.uniform_int(fabric_palette_size));
-    p.warp_colours = {varied_colour(rng, c0), varied_colour(rng, c2)};
-    p.weft_colours = {varied_colour(rng, c1), p.warp_colours[1]};
-    if (weft_choice == 1)
-      for (double& v : p.weft_colours[0]) v = std::clamp(v * rng.uniform(0.6, 1.5), 0.003, 0.95);
-    p.colour_names = {std::uint8_t(c0), std::uint8_t(c1), std::uint8_t(c2)};
-    p.warp_sequence_length = draw_sequence(rng, p.warp_sequence, style >= 6);
-    p.weft_sequence_length = style >= 8 ? p.warp_sequence_length : 1;
-    if (style >= 8) p.weft_sequence = p.warp_sequence;  // a check: same sett both ways
-    p.colour_jitter = rng.uniform(0.03, 0.2);
-    p.slub = rng.uniform(0.02, 0.2);
-
-    // Reflectance: dielectric yarns (F0 ~ 0.02-0.25, white specular, a'_s <= F0), satins glossier;
-    // one material in ten has a metallic weft (lame).
-    const bool glossy = p.kind == material_kind::satin;
-    for (int f = 0; f < 2; ++f) {
-      p.f0[f] = log_uniform(rng, 0.02, glossy ? 0.35 : 0.25);
-      p.specular_fraction[f] = rng.uniform(glossy ? 0.6 : 0.3, 1.0);
-      p.sigma_along[f] = log_uniform(rng, glossy ? 0.03 : 0.05, glossy ? 0.12 : 0.25);
-      p.sigma_across[f] = std::min(1.0, p.sigma_along[f] * rng.uniform(1.8, 5.0));
-    }
-    if (rng.bernoulli(0.5)) {  // same yarn both ways
-      p.f0[1] = p.f0[0];
-      p.specular_fraction[1] = p.specular_fraction[0];
-      p.sigma_along[1] = p.sigma_along[0];
-      p.sigma_across[1] = p.sigma_across[0];
-    }
-    if (rng.bernoulli(0.1)) {
-      const auto& m = metal_palette[rng.uniform_int(metal_palette_size)];
-      p.specular_tint[1] = {m.r, m.g, m.b};
-      p.f0[1] = rng.uniform(0.5, 0.9);
-      p.specular_fraction[1] = rng.uniform(0.7, 1.0);
-      for (double& v : p.weft_colours[0]) v *= 0.2;
-    }
-    p.property_jitter = rng.uniform(0.05, 0.25);
+    draw_weave(rng, p, options);
   } else if (p.kind == material_kind::crushed_velvet) {
     static constexpr int velvet_colours[] = {3, 6, 7, 10, 13, 14, 15, 16, 21, 24, 1, 5};  // deep dyes
     const int c = velvet_colours[rng.uniform_int(sizeof velvet_colours / sizeof velvet_colours[0])];
@@ -323,7 +558,7 @@ inline procedural_parameters draw_procedural_parameters(std::uint64_t seed, cons
     p.sigma_across[0] = p.sigma_across[1] = std::min(1.0, p.sigma_along[0] * rng.uniform(2.0, 3.0));
     p.bump = rng.uniform(0.05, 0.25);
     p.property_jitter = rng.uniform(0.05, 0.15);
-  } else {  // metals
+  } else if (is_metal(p.kind)) {
     const int m = int(rng.uniform_int(metal_palette_size));
     const auto& metal = metal_palette[m];
     p.colour_names = {std::uint8_t(m), std::uint8_t(m), std::uint8_t(m)};
@@ -338,7 +573,19 @@ inline procedural_parameters draw_procedural_parameters(std::uint64_t seed, cons
     p.scratch_density = rng.uniform(0.03, 0.2);
     p.feature_scale = log_uniform(rng, 20.0, 200.0);
     p.property_jitter = rng.uniform(0.03, 0.1);
-    p.centre = {rng.uniform(-400.0, 400.0), rng.uniform(-400.0, 400.0)};
+    // The extended mix brings spun centres 2.9x nearer the middle, so that circles are seen curving
+    // on a 256-texel capture (within +-400 texels they mostly look straight).
+    const double shrink = options.mix == material_mix::original ? 1.0 : 0.35;
+    const double cx = rng.uniform(-400.0, 400.0), cy = rng.uniform(-400.0, 400.0);
+    p.centre = {cx * shrink, cy * shrink};
+  } else if (p.kind == material_kind::leather) {
+    draw_leather(rng, p);
+  } else if (p.kind == material_kind::coated) {
+    draw_coated(rng, p);
+  } else if (p.kind == material_kind::printed) {
+    draw_print(rng, p);
+  } else {
+    draw_foil(rng, p, options);
   }
   return p;
 }
@@ -366,9 +613,27 @@ inline std::string describe(const procedural_parameters& p) {
   } else if (p.kind == material_kind::spun_metal) {
     std::snprintf(buffer, sizeof buffer, "spun %s, lobes %.3f x %.3f, centre (%.0f, %.0f) px",
                   metal_palette[p.colour_names[0]].name, p.sigma_along[0], p.sigma_across[0], p.centre[0], p.centre[1]);
-  } else {
+  } else if (p.kind == material_kind::brushed_metal) {
     std::snprintf(buffer, sizeof buffer, "brushed %s, lobes %.3f x %.3f, rotation %.0f deg",
                   metal_palette[p.colour_names[0]].name, p.sigma_along[0], p.sigma_across[0], degrees);
+  } else if (p.kind == material_kind::leather) {
+    std::snprintf(buffer, sizeof buffer, "leather, %s, grain %.1f px, bump %.2f, F0 %.3f, lobes %.3f x %.3f",
+                  fabric_palette[p.colour_names[0]].name, p.feature_scale, p.bump, p.f0[0], p.sigma_along[0],
+                  p.sigma_across[0]);
+  } else if (p.kind == material_kind::coated || p.kind == material_kind::printed) {
+    char base[96];
+    if (p.kind == material_kind::coated && p.plain_base)
+      std::snprintf(base, sizeof base, "plain %s", fabric_palette[p.colour_names[0]].name);
+    else
+      std::snprintf(base, sizeof base, "%s %.0f px, %d ink%s (%s, ...) on %s", pattern_name(p.print.shape), p.print.period,
+                    p.ink_count, p.ink_count > 1 ? "s" : "", fabric_palette[p.colour_names[1]].name,
+                    fabric_palette[p.colour_names[0]].name);
+    std::snprintf(buffer, sizeof buffer, "%s, %s, F0 %.3f, lobes %.3f x %.3f", material_kind_name(p.kind), base, p.f0[0],
+                  p.sigma_along[0], p.sigma_across[0]);
+  } else {
+    std::snprintf(buffer, sizeof buffer, "foil, %s %s %.0f px on %s, F0 %.2f, lobes %.3f x %.3f",
+                  metal_palette[p.colour_names[2]].name, pattern_name(p.foil_layout.shape), p.foil_layout.period,
+                  material_kind_name(p.base_kind), p.foil_f0, p.foil_lobes[0], p.foil_lobes[1]);
   }
   return buffer;
 }
@@ -385,7 +650,7 @@ struct texel_values {
 /// warp direction), j warp threads.
 inline bool warp_on_top(const procedural_parameters& p, std::int64_t i, std::int64_t j) {
   bool warp = true;
-  switch (p.kind) {
+  switch (p.kind == material_kind::foil ? p.base_kind : p.kind) {
     case material_kind::plain_weave: warp = floor_mod(i + j, 2) == 0; break;
     case material_kind::basket_weave: warp = floor_mod(floor_div(i, 2) + floor_div(j, 2), 2) == 0; break;
     case material_kind::twill: warp = floor_mod(i + p.pattern_step * j, p.pattern_period) < p.pattern_over; break;
@@ -410,8 +675,12 @@ inline double jitter(std::uint64_t seed, std::int64_t thread, std::int64_t which
 
 /// What every texel of one material shares, computed once per map rather than per texel.
 struct texel_context {
-  double c, s;  ///< cos and sin of the rotation
-  explicit texel_context(const procedural_parameters& p) : c(std::cos(p.rotation)), s(std::sin(p.rotation)) {}
+  double c, s;              ///< cos and sin of the rotation
+  double print_c, print_s;  ///< cos and sin of the print's direction
+  double foil_c, foil_s;    ///< cos and sin of the foil's direction
+  explicit texel_context(const procedural_parameters& p)
+      : c(std::cos(p.rotation)), s(std::sin(p.rotation)), print_c(std::cos(p.print.rotation)),
+        print_s(std::sin(p.print.rotation)), foil_c(std::cos(p.foil_layout.rotation)), foil_s(std::sin(p.foil_layout.rotation)) {}
 };
 
 /// A woven texel at (X, Y) texels from the image centre, Y up.
@@ -559,6 +828,147 @@ inline texel_values metal_texel(const procedural_parameters& p, const texel_cont
   return t;
 }
 
+/// Which ink (1-3) a pattern puts at (X, Y), or 0 for none; (c, s) is the layout's direction.
+/// Edges are sharp: a texel is inked or not, as a print or a stamped foil is.
+inline int pattern_slot(const procedural_parameters::pattern_layout& l, double c, double s, double X, double Y) {
+  const double u = (c * X + s * Y) / l.period, v = (-s * X + c * Y) / l.period;
+  switch (l.shape) {
+    case 0: {  // stripes along v, one ink per stripe in turn
+      const std::int64_t k = floor_to_int(u);
+      return u - double(k) < l.duty ? 1 + int(floor_mod(k, 3)) : 0;
+    }
+    case 1: {  // dots on staggered rows, diameter (0.3 + duty) of a cell, an ink per dot
+      const std::int64_t j = floor_to_int(v);
+      const double shifted = u + 0.5 * double(floor_mod(j, 2));
+      const std::int64_t i = floor_to_int(shifted);
+      const double du = shifted - double(i) - 0.5, dv = v - double(j) - 0.5;
+      const double radius = 0.5 * std::min(0.95, 0.3 + l.duty);
+      return du * du + dv * dv < radius * radius ? 1 + int(3.0 * hash_uniform(l.seed, i, j)) : 0;
+    }
+    case 2: {  // check: bands both ways, the crossings in a third ink
+      const bool a = u - std::floor(u) < l.duty, b = v - std::floor(v) < l.duty;
+      return a && b ? 3 : a ? 1 : b ? 2 : 0;
+    }
+    case 3: {  // blocks: one glyph per cell (a stem and a bar at drawn places), lines of one ink, word gaps
+      const std::int64_t i = floor_to_int(u), j = floor_to_int(v);
+      if (hash_uniform(l.seed, i, j) < 0.15) return 0;
+      const double fu = u - double(i), fv = v - double(j);
+      const int ink = 1 + int(3.0 * hash_uniform(hash64(l.seed + 1), j, 0));
+      for (std::uint64_t r = 0; r < 2; ++r) {
+        const std::uint64_t h = hash64(l.seed + 2 + r);
+        const double x0 = 0.1 + 0.5 * hash_uniform(h, i, j), y0 = 0.1 + 0.5 * hash_uniform(h + 1, i, j);
+        const double w = r == 0 ? 0.12 + 0.2 * l.duty : 0.3 + 0.5 * l.duty, t = r == 0 ? 0.5 + 0.3 * l.duty : 0.12 + 0.2 * l.duty;
+        if (fu >= x0 && fu < std::min(0.9, x0 + w) && fv >= y0 && fv < std::min(0.9, y0 + t)) return ink;
+      }
+      return 0;
+    }
+    default: {  // blots: thresholded fractal noise, the ink chosen by a slower noise
+      const double n = fractal_noise(l.seed, u, v, 3);
+      if (n < 0.3 + 0.4 * (1.0 - l.duty)) return 0;
+      return 1 + std::min(2, int(3.0 * value_noise(hash64(l.seed + 1), u / 3.0, v / 3.0)));
+    }
+  }
+}
+
+/// A printed texel (also a coated one and the printed base of foil): paper or ink colour with
+/// paper fibres; the printed kind's inks change the lobe width (ink_gloss), a coat covers all.
+inline texel_values print_texel(const procedural_parameters& p, const texel_context& context, double X, double Y) {
+  const bool coat = p.kind == material_kind::coated;
+  const int slot = coat && p.plain_base ? 0 : pattern_slot(p.print, context.print_c, context.print_s, X, Y);
+  const double fibre = value_noise(salted(p.seed, salt_fibre), X * 0.5, Y * 0.5);
+  const rgb& colour = slot ? p.ink_colours[std::size_t((slot - 1) % p.ink_count)] : p.base_colour;
+  const double shade = coat && p.plain_base ? 0.9 + 0.2 * fractal_noise(salted(p.seed, salt_shade), X / 60.0, Y / 60.0, 2)
+                                            : 0.96 + 0.08 * fibre;
+  texel_values t;
+  for (int k = 0; k < 3; ++k) t.diffuse[k] = colour[k] * shade;
+  const double gloss = slot && !coat ? p.ink_gloss : 1.0;
+  t.f0 = p.f0[0];
+  for (int k = 0; k < 3; ++k) t.specular[k] = std::min(1.0, p.specular_fraction[0] / gloss) * t.f0;
+  t.sigma_x = p.sigma_along[0] * gloss;
+  t.sigma_y = p.sigma_across[0] * gloss;
+  if (coat) {  // orange peel: a slow waviness of the coat
+    const double f = 1.0 / 24.0;
+    t.normal_x = p.orange_peel * 2.0 * (value_noise(salted(p.seed, salt_peel), X * f, Y * f) - 0.5);
+    t.normal_y = p.orange_peel * 2.0 * (value_noise(hash64(salted(p.seed, salt_peel)), X * f, Y * f) - 0.5);
+  } else {
+    t.normal_x = p.bump * 2.0 * (fibre - 0.5);
+    t.normal_y = p.bump * 2.0 * (value_noise(hash64(salted(p.seed, salt_fibre)), X * 0.5, Y * 0.5) - 0.5);
+  }
+  t.alpha = wrap_half_turn(p.rotation);
+  return t;
+}
+
+/// Distances from (x, y) to the nearest and the second-nearest point of a jittered grid with one
+/// point per unit cell (cellular noise): their difference is 0 on the borders between cells.
+inline std::array<double, 2> cellular(std::uint64_t seed, double x, double y) {
+  const std::int64_t ix = floor_to_int(x), iy = floor_to_int(y);
+  double first = 9.0, second = 9.0;
+  for (std::int64_t j = iy - 1; j <= iy + 1; ++j) {
+    for (std::int64_t i = ix - 1; i <= ix + 1; ++i) {
+      const double dx = double(i) + hash_uniform(seed, i, j) - x, dy = double(j) + hash_uniform(hash64(seed), i, j) - y;
+      const double d = std::sqrt(dx * dx + dy * dy);
+      if (d < first) {
+        second = first;
+        first = d;
+      } else if (d < second) {
+        second = d;
+      }
+    }
+  }
+  return {first, second};
+}
+
+/// Height of leather's grain at (X, Y), texels: 1 on the cell tops, 0 in the creases between
+/// cells, plus a slow unevenness of the hide.
+inline double leather_height(const procedural_parameters& p, double X, double Y) {
+  const double f = 1.0 / p.feature_scale;
+  const auto [first, second] = cellular(salted(p.seed, salt_grain), X * f, Y * f);
+  return smoothstep(0.0, 0.3, second - first) + 0.3 * fractal_noise(salted(p.seed, salt_shade), X * f * 0.3, Y * f * 0.3, 2);
+}
+
+/// A leather texel: the normal follows the grain's slope (central differences of leather_height),
+/// creases are darker, duller and rougher.
+inline texel_values leather_texel(const procedural_parameters& p, double X, double Y) {
+  const double h = 0.5;
+  const double top = leather_height(p, X, Y);
+  const double slope_x = (leather_height(p, X + h, Y) - leather_height(p, X - h, Y)) / (2 * h);
+  const double slope_y = (leather_height(p, X, Y + h) - leather_height(p, X, Y - h)) / (2 * h);
+  const double crease = std::clamp(top, 0.0, 1.0);  // 0 in a crease
+  const double mottle = fractal_noise(salted(p.seed, salt_stain), X / 40.0, Y / 40.0, 2);
+  texel_values t;
+  for (int k = 0; k < 3; ++k) t.diffuse[k] = p.base_colour[k] * (1.0 - p.colour_jitter * (1.0 - crease)) * (0.85 + 0.3 * mottle);
+  const double j = 1.0 + p.property_jitter * (2.0 * mottle - 1.0);
+  t.f0 = p.f0[0] * j;
+  for (int k = 0; k < 3; ++k) t.specular[k] = std::min(1.0, p.specular_fraction[0] * j * (0.6 + 0.4 * crease)) * t.f0;
+  t.sigma_x = p.sigma_along[0] * (1.3 - 0.3 * crease);
+  t.sigma_y = p.sigma_across[0] * (1.3 - 0.3 * crease);
+  // A crease about a fifth of a cell wide falls by ~1: scale the slope so its tilt is ~bump.
+  const double scale = p.bump * p.feature_scale * 0.15;
+  t.normal_x = -scale * slope_x;
+  t.normal_y = -scale * slope_y;
+  t.alpha = wrap_half_turn(p.rotation);
+  return t;
+}
+
+/// A foil texel: metal inside the foil layout's shapes (dark diffuse, a'_s the tint, high F0,
+/// lobes along the stamping direction, fine crinkles), the woven or printed base elsewhere.
+inline texel_values foil_texel(const procedural_parameters& p, const texel_context& context, double X, double Y) {
+  if (!pattern_slot(p.foil_layout, context.foil_c, context.foil_s, X, Y))
+    return is_weave(p.base_kind) ? weave_texel(p, context, X, Y) : print_texel(p, context, X, Y);
+  texel_values t;
+  for (int k = 0; k < 3; ++k) t.diffuse[k] = 0.02 * p.foil_tint[k];
+  const double crinkle_x = value_noise(salted(p.seed, salt_scratch), X / 6.0, Y / 6.0) - 0.5;
+  const double crinkle_y = value_noise(hash64(salted(p.seed, salt_scratch)), X / 6.0, Y / 6.0) - 0.5;
+  t.specular = p.foil_tint;
+  t.f0 = p.foil_f0;
+  t.sigma_x = p.foil_lobes[0];
+  t.sigma_y = p.foil_lobes[1];
+  t.normal_x = 2.0 * p.scratch_strength * crinkle_x;
+  t.normal_y = 2.0 * p.scratch_strength * crinkle_y;
+  t.alpha = wrap_half_turn(p.foil_layout.rotation);
+  return t;
+}
+
 /// A texel's 12 parameters (parameter_index order) with every value forced into its valid range
 /// (docs/method.md section 1), so no map the generator writes can be rejected by a renderer or an optimiser.
 inline std::array<float, parameter_count> finish(const texel_values& t) {
@@ -586,8 +996,14 @@ inline std::array<float, parameter_count> finish(const texel_values& t) {
 inline std::array<float, parameter_count> sample(const procedural_parameters& p, const texel_context& context, double X,
                                                  double Y) {
   if (is_weave(p.kind)) return finish(weave_texel(p, context, X, Y));
-  if (p.kind == material_kind::crushed_velvet) return finish(velvet_texel(p, X, Y));
-  return finish(metal_texel(p, context, X, Y));
+  switch (p.kind) {
+    case material_kind::crushed_velvet: return finish(velvet_texel(p, X, Y));
+    case material_kind::leather: return finish(leather_texel(p, X, Y));
+    case material_kind::coated:
+    case material_kind::printed: return finish(print_texel(p, context, X, Y));
+    case material_kind::foil: return finish(foil_texel(p, context, X, Y));
+    default: return finish(metal_texel(p, context, X, Y));
+  }
 }
 
 }  // namespace procedural_detail

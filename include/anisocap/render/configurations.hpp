@@ -117,12 +117,15 @@ inline capture_image make_image(const vec3d& camera, const vec3d& light, const v
 
 /// Fresnel configuration (paper 3.6): the camera low beside the material near one of its centre
 /// axes (side chosen at random among four), at most fresnel_max_distance beyond the edge and at a
-/// height in [fresnel_min_height, fresnel_max_height]; the light mirrors it about the vertical
+/// height in [min_height, max_height] (units of n; the paper's are fresnel_min_height and
+/// fresnel_max_height, lower is more grazing); the light mirrors it about the vertical
 /// through a point near the material's centre, on the opposite side, so the view and light
 /// directions at that point are both grazing (elevation at most fresnel_max_elevation, down to
 /// ~5.7 degrees) and the Schlick term rises towards 1 there.
-inline capture_image fresnel_configuration(random_generator& rng, int width, int height) {
+inline capture_image fresnel_configuration(random_generator& rng, int width, int height, double min_height, double max_height) {
   using namespace configuration_detail;
+  if (!(min_height > 0) || !(max_height >= min_height))
+    throw std::invalid_argument("fresnel_configuration: camera heights must satisfy 0 < min <= max");
   const auto half = material_half_extent(width, height);
   const int axis = int(rng.uniform_int(2));            // 0: camera beside a side along x, 1: along y
   const double side = rng.uniform_int(2) ? 1.0 : -1.0;  // which of the two sides
@@ -133,11 +136,16 @@ inline capture_image fresnel_configuration(random_generator& rng, int width, int
   vec3d camera{0, 0, 0};
   camera[axis] = side * (half[axis] + rng.uniform(0.0, fresnel_max_distance));
   camera[other] = rng.uniform(-fresnel_axis_jitter, fresnel_axis_jitter) * half[other];
-  camera[2] = rng.uniform(fresnel_min_height, fresnel_max_height);
+  camera[2] = rng.uniform(min_height, max_height);
   const double min_reach = camera[2] / std::tan(fresnel_max_elevation);
   if (std::abs(camera[axis] - centre[axis]) < min_reach) camera[axis] = centre[axis] + side * min_reach;
   const vec3d light{2 * centre[0] - camera[0], 2 * centre[1] - camera[1], camera[2]};
   return make_image(camera, light, centre);
+}
+
+/// The paper's Fresnel configuration: camera height in [fresnel_min_height, fresnel_max_height].
+inline capture_image fresnel_configuration(random_generator& rng, int width, int height) {
+  return fresnel_configuration(rng, width, height, fresnel_min_height, fresnel_max_height);
 }
 
 /// Mirror configuration about a given point: camera at distance d_view along `direction`, light at
@@ -218,21 +226,34 @@ inline void push_pair(capture& c, random_generator& rng, int width, int height) 
 
 }  // namespace configuration_detail
 
-/// Set alpha for `image_count` inputs (paper 5, docs/method.md section 6): 2 Fresnel, then anisotropic pairs,
-/// then 2 independent. When image_count - 4 is odd the last slot cannot hold a pair and gets a
-/// third independent configuration (**decision**). Images are named input_00.exr, ...
-/// Throws std::invalid_argument for fewer than 4 images.
-inline capture set_alpha(int image_count, std::uint64_t seed, int width, int height) {
+/// How many Fresnel configurations set alpha holds and how grazing they are. The defaults are the
+/// paper's set alpha; more, lower Fresnel configurations separate a'_s from F0 on metals better
+/// (studies/README.md, "Grazing configurations on metals").
+struct fresnel_options {
+  int count = 2;                           ///< Fresnel configurations (>= 0)
+  double min_height = fresnel_min_height;  ///< lowest camera height, units of n
+  double max_height = fresnel_max_height;  ///< highest camera height, units of n
+};
+
+/// Set alpha for `image_count` inputs (paper 5, docs/method.md section 6): `fresnel.count` Fresnel (2 by
+/// default), then anisotropic pairs, then 2 independent. When the slots left for pairs are odd in
+/// number, the last one gets a third independent configuration (**decision**). Images are named
+/// input_00.exr, ... With the default fresnel_options the set is the paper's, image for image.
+/// Throws std::invalid_argument for fewer than fresnel.count + 2 images or bad heights.
+inline capture set_alpha(int image_count, std::uint64_t seed, int width, int height, const fresnel_options& fresnel = {}) {
   using namespace configuration_detail;
-  if (image_count < 4)
-    throw std::invalid_argument("set_alpha: needs at least 4 images (2 Fresnel + 2 independent), got " +
-                                std::to_string(image_count));
+  if (fresnel.count < 0) throw std::invalid_argument("set_alpha: the number of Fresnel configurations must be >= 0");
+  if (image_count < fresnel.count + 2)
+    throw std::invalid_argument("set_alpha: needs at least " + std::to_string(fresnel.count + 2) + " images (" +
+                                std::to_string(fresnel.count) + " Fresnel + 2 independent), got " + std::to_string(image_count));
   random_generator rng = set_generator(seed, 0x616c706861ULL);
   capture c;
   c.images.reserve(std::size_t(image_count));
-  for (int i = 0; i < 2; ++i) push(c, fresnel_configuration(rng, width, height));
-  for (int i = 0; i < (image_count - 4) / 2; ++i) push_pair(c, rng, width, height);
-  const int independent = 2 + (image_count - 4) % 2;
+  for (int i = 0; i < fresnel.count; ++i)
+    push(c, fresnel_configuration(rng, width, height, fresnel.min_height, fresnel.max_height));
+  const int rest = image_count - fresnel.count - 2;
+  for (int i = 0; i < rest / 2; ++i) push_pair(c, rng, width, height);
+  const int independent = 2 + rest % 2;
   for (int i = 0; i < independent; ++i) push(c, independent_configuration(rng, width, height));
   return c;
 }

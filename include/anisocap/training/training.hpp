@@ -54,16 +54,36 @@ struct sample {
   loss_targets targets;                ///< log renders of the truth under loss_configurations
 };
 
-/// The sample of material seed `seed` at size x size (configurations seeded from it too).
-inline sample make_sample(std::uint64_t seed, int size, bool with_photos) {
+/// The procedural options of training and validation materials drawn from `mix`: original (the
+/// eight original kinds, what every earlier run used) or training (the extended mix without
+/// held_out_kinds). Throws std::invalid_argument for the extended mix, which would train on the
+/// held-out families.
+inline procedural_options training_material_options(material_mix mix) {
+  if (mix == material_mix::extended)
+    throw std::invalid_argument(
+        "training: the extended mix includes the held-out families (leather, printed); train on the training mix");
+  procedural_options options;
+  options.mix = mix;
+  return options;
+}
+
+/// The sample of material seed `seed` at size x size drawn with `options` (configurations seeded
+/// from the seed too). Evaluations use it to force a family, held-out ones included.
+inline sample make_sample(std::uint64_t seed, int size, bool with_photos, const procedural_options& options) {
   sample s;
-  s.truth = generate_material(seed, size, size);
+  s.truth = generate_material(seed, size, size, options);
   s.truth_net = tensor<parameter_count>(1, size, size);
   network_space::maps_to_network(s.truth, s.truth_net, 0);
   if (with_photos) s.photos = render(s.truth, training_set(hash64(seed ^ 0x696e70757473ULL), size, size));
   s.loss_configurations = render_loss_set(hash64(seed ^ 0x6c6f7373ULL), size, size);
   s.targets = make_loss_targets(render(s.truth, s.loss_configurations));
   return s;
+}
+
+/// The training or validation sample of material seed `seed`, its kind drawn from `mix`
+/// (training_material_options: never a held-out family).
+inline sample make_sample(std::uint64_t seed, int size, bool with_photos, material_mix mix = material_mix::original) {
+  return make_sample(seed, size, with_photos, training_material_options(mix));
 }
 
 /// The parts of a loss, each averaged over the batch.
@@ -126,6 +146,7 @@ struct train_options {
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
+  material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
@@ -258,11 +279,12 @@ tensor<parameter_count> autoencoder_output(Net& net, const sample& s) {
 
 /// Validation of either network on `count` validation materials of size x size.
 template <class Net, class Output>
-validation_result validate(Net& net, int count, int size, bool with_photos, Output output) {
+validation_result validate(Net& net, int count, int size, bool with_photos, Output output,
+                           material_mix mix = material_mix::original) {
   validation_result r;
   for (int i = 0; i < count; ++i) {
     std::vector<sample> one;
-    one.push_back(make_sample(validation_seed(i), size, with_photos));
+    one.push_back(make_sample(validation_seed(i), size, with_photos, mix));
     const auto u = output(net, one[0]);
     const loss_terms l = map_losses(u, one, nullptr);
     r.loss.total += l.total / count;
@@ -309,6 +331,7 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
 template <class Net, class StepFn, class ValidateFn>
 void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, StepFn step_fn, ValidateFn validate_fn) {
   o.validate();
+  training_material_options(o.mix);  // reject the extended mix before touching out_dir
   std::filesystem::create_directories(o.out_dir);
   long step = 0;
   json info = json::object();
@@ -318,9 +341,18 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["size"] = o.size;
   info["batch"] = o.batch;
   info["learning_rate"] = opt.learning_rate();
+  info["materials"] = material_mix_name(o.mix);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
-    step = load_checkpoint(o.out_dir, net, opt);
+    json saved;
+    step = load_checkpoint(o.out_dir, net, opt, &saved);
+    // A run continues on the materials it started with (checkpoints without the entry predate the mixes).
+    if (saved.contains("materials") && !saved.at("materials").is_string())
+      throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": malformed \"materials\"");
+    const std::string started = saved.contains("materials") ? saved.at("materials").get<std::string>() : "original";
+    if (started != material_mix_name(o.mix))
+      throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": the run trained on the " + started +
+                               " materials; resume it with --materials " + started);
     truncate_csv(csv, step);
     o.log(kind + ": resumed at step " + std::to_string(step));
   } else {
@@ -391,7 +423,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   ad::tape t;
   auto step_fn = [&](long step) {
     std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, true));
+    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, true, o.mix));
     const int N = int(samples[0].photos.size());
     t.clear();
     auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
@@ -404,7 +436,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
     return l.total;
   };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); });
+    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
   detail::run(o, "estimator", net, opt, step_fn, validate_fn);
 }
@@ -422,7 +454,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   constexpr int Z = auto_encoder<Preset>::latent_channels;
   auto step_fn = [&](long step) {
     std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false));
+    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false, o.mix));
     t.clear();
     auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
     for (int b = 0; b < o.batch; ++b)
@@ -454,7 +486,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
     return l.total;
   };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); });
+    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
   };
   detail::run(o, "autoencoder", net, opt, step_fn, validate_fn);
 }
