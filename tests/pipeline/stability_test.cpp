@@ -1,7 +1,7 @@
 // Numerical stability of the capture: the per-texel refine and the pipeline on
 // procedural materials under saturated highlights, near-grazing configurations, corrupted inputs
 // and intensities scaled by 1e-4 and 1e4. Measured values are in the comments beside each bound;
-// bench/stability.cpp prints the same scenarios at 256 x 256 (bench/README.md, "Numerical
+// studies/stability.cpp prints the same scenarios at 256 x 256 (studies/README.md, "Numerical
 // stability").
 //
 // Not here, because covered elsewhere: extreme parameters and configurations through the fused

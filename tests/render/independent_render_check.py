@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
-"""`anisocap render` against an independent implementation of MODEL.md 3-4.
+"""`anisocap render` against an independent implementation of docs/method.md sections 3-4.
 
 Usage: independent_render_check.py PATH/TO/anisocap [--tolerance T] [--keep DIR]
 
 For a few seeds, sizes (square, non-square, odd) and both configuration sets, synthesizes a
 procedural material with the program, renders its truth map set with `anisocap render`, and
 compares every pixel of every image (and the inputs that synthesize wrote) with the float64 render
-of bench/reference/ward_reference.py, which was written from MODEL.md alone; then the same under
-hand-made extreme configurations, and the image loss (MODEL.md 5) that `anisocap capture --steps 0`
-reports (relative difference), and a hand-written map set at the clamps (MODEL.md 3 numerics). The error of a pixel channel is |cpp - ref| / max(ref, 1e-3); the
+of studies/reference/ward_reference.py, which was written from docs/method.md alone; then the same under
+hand-made extreme configurations, and the image loss (docs/method.md section 5) that `anisocap capture --steps 0`
+reports (relative difference), and a hand-written map set at the clamps (docs/method.md section 3 numerics). The error of a pixel channel is |cpp - ref| / max(ref, 1e-3); the
 program prints the maximum per case and exits 1 if any exceeds the tolerance (float32 against
 float64; about 4e-5 is what the program shows, the default tolerance is 5e-4). Exits 77 (CTest SKIP_RETURN_CODE) if numpy is
 missing.
@@ -26,7 +26,7 @@ except ImportError:
     sys.exit(77)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "..", "bench", "reference"))
+sys.path.insert(0, os.path.join(HERE, "..", "..", "studies", "reference"))
 import exr  # noqa: E402
 import ward_reference as ward  # noqa: E402
 
@@ -45,7 +45,7 @@ CASES = [
 FLOOR = 1e-3
 
 # Hand-made configurations beyond what the samplers produce: grazing camera and light, a light
-# below the plane (zero for these maps' moderate normals; MODEL.md 4 weights by n_s.l only, so a
+# below the plane (zero for these maps' moderate normals; docs/method.md section 4 weights by n_s.l only, so a
 # shading normal tilted towards such a light is lit, in both implementations; a camera below the
 # plane is rejected by the capture reader), a camera so low
 # that tilted normals turn away from it (n.v <= 0 at some texels), a light just above the material
@@ -165,7 +165,7 @@ def main():
         print(f"11x9 map set at the clamps (sigma 1e-6, F0 0, normals on the horizon, alpha +-pi/2) under the "
               f"hand-made configurations: max relative error {err:.3g}")
         worst = max(worst, err)
-        # the image loss (MODEL.md 5): `capture --steps 0 --init OTHER` reports the loss of OTHER's
+        # the image loss (docs/method.md section 5): `capture --steps 0 --init OTHER` reports the loss of OTHER's
         # maps (another material of the same size) against the first case's inputs.
         other = os.path.join(root, "other")
         run([program, "--threads", "2", "synthesize", "-o", other, "--width", str(w), "--height", str(h),

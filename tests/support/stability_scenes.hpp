@@ -1,6 +1,6 @@
 #pragma once
 // Scenes and measurements shared by the stability tests (tests/pipeline/stability_test.cpp) and
-// the stability report (bench/stability.cpp), so that the report measures what the tests assert.
+// the stability report (studies/stability.cpp), so that the report measures what the tests assert.
 #include <algorithm>
 #include <array>
 #include <cmath>
