@@ -118,7 +118,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", photos.size(), photos[0].width(),
                photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
 
-  const capture_result result = run_capture(cap, photos, s.models, o, start_maps ? &*start_maps : nullptr, masks);
+  capture_result result = run_capture(cap, photos, s.models, o, start_maps ? &*start_maps : nullptr, masks);
   const std::string kernel_used = kernel_analysis{result.features, 0, 0, 0}.describe();
   if (o.kernel.auto_tolerance > 0) std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_used.c_str());
 
