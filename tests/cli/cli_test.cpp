@@ -456,6 +456,8 @@ TEST_CASE("--version, a suggestion on a mistyped command, defaults in the traini
   CHECK(r.output.find("0.1") != std::string::npos);  // --smoothness' default
   r = run("eval-networks --help", t.path);
   CHECK(r.output.find("30") != std::string::npos);  // --count's default
+}
+
 TEST_CASE("families: new kinds synthesize, the held-out families evaluate per family, bad names and mixes are refused") {
   temp_dir t;
   auto s = run("synthesize -o leather --width 32 --height 32 --images 8 --kind leather --fresnel 4", t.path);
