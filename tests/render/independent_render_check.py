@@ -45,14 +45,13 @@ CASES = [
 FLOOR = 1e-3
 
 # Hand-made configurations beyond what the samplers produce: grazing camera and light, a light
-# below the plane (zero for these maps' moderate normals; docs/method.md section 4 weights by n_s.l only, so a
-# shading normal tilted towards such a light is lit, in both implementations; a camera below the
-# plane is rejected by the capture reader), a camera so low
+# skimming the plane (2e-3 above it: most texels see it from below their shading normal's horizon;
+# a light or camera at or below the plane is rejected by the capture reader), a camera so low
 # that tilted normals turn away from it (n.v <= 0 at some texels), a light just above the material
 # (large 1/r^2), a camera straight above, RGB intensities.
 EXTREME_CAPTURE = {"images": [
     {"file": "grazing.exr", "camera": [3.0, 0.2, 0.02], "light": [-2.5, -0.1, 0.03], "intensity": [1.0, 2.0, 0.5]},
-    {"file": "light_below.exr", "camera": [0.1, 0.2, 1.0], "light": [0.3, -0.2, -0.5], "intensity": 5.0},
+    {"file": "light_skimming.exr", "camera": [0.1, 0.2, 1.0], "light": [0.3, -0.2, 0.002], "intensity": 5.0},
     {"file": "camera_low.exr", "camera": [0.0, 4.0, 0.01], "light": [0.3, -0.2, 0.5], "intensity": 5.0},
     {"file": "light_close.exr", "camera": [0.0, 0.0, 2.0], "light": [0.05, -0.03, 0.02], "intensity": [0.01, 0.02, 0.03]},
     {"file": "overhead_mirror.exr", "camera": [0.2, 0.1, 1.5], "light": [-0.2, -0.1, 1.5], "intensity": [6.0, 4.0, 2.0]},
@@ -149,11 +148,9 @@ def main():
         capture = ward.read_capture(os.path.join(d, "capture.json"))
         ref = ward.render(np, ward.read_map_set(maps_dir), capture)
         err = compare(os.path.join(d, "render"), ref, capture, tolerance, "extreme")
-        zero = all(float(np.abs(exr.read_rgb(os.path.join(d, "render", f))).max()) == 0.0
-                   for f in ("light_below.exr",))
         print(f"{w}x{h} truth of seed {seed} under {len(capture)} hand-made extreme configurations: "
-              f"max relative error {err:.3g}; light below the plane gives zero: {zero}")
-        worst = max(worst, err if zero else float("inf"))
+              f"max relative error {err:.3g}")
+        worst = max(worst, err)
         # a hand-written map set at the clamps: sigma down to 1e-6, F0 = 0 and 1e-5, normals on the
         # horizon (n_z clamped), alpha = +-pi/2 (written uncompressed by exr.py: the reader path too)
         edge_maps = os.path.join(root, "edge_maps")
