@@ -7,11 +7,11 @@ validation.csv a `train-*` run wrote, BATCH its batch size, SAMPLES_BEFORE and H
 the weights it started from (`--init`) had already seen, and HOURS_OF_RUN the run's wall time (its
 steps are spread evenly over it). Example (the command behind models/learning_curves.png):
 
-    python3 models/learning_curves.py -o models/learning_curves.png \
+    /usr/bin/python3 models/learning_curves.py -o models/learning_curves.png \
         estimator:models/compact/history/estimator_run1.csv:2:0:0:0.77 \
-        estimator:models/compact/estimator_validation.csv:2:11200:0.77:2.6 \
+        estimator:models/compact/history/estimator_run2.csv:2:11200:0.77:1.34 \
         autoencoder:models/compact/history/autoencoder_run1.csv:4:0:0:1.05 \
-        autoencoder:models/compact/autoencoder_validation.csv:4:51344:1.05:2.6
+        autoencoder:models/compact/history/autoencoder_run2.csv:4:51344:1.05:1.34
 """
 import argparse
 import csv
