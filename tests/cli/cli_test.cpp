@@ -12,6 +12,7 @@
 #include <sstream>
 #include <string>
 
+#include <nlohmann/json.hpp>
 #include <stb/stb_image_write.h>
 
 #include "anisocap/data/capture_io.hpp"
@@ -479,4 +480,32 @@ TEST_CASE("families: new kinds synthesize, the held-out families evaluate per fa
   CHECK_FALSE(fs::exists(t.path / "ev"));
   CHECK_FALSE(fs::exists(t.path / "tr"));
   CHECK_FALSE(fs::exists(t.path / "s3"));
+}
+
+TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph, rectify, capture") {
+  temp_dir t;
+  auto r = run("photograph -o shoot --size 48 --images 8 --photo-width 320 --photo-height 240", t.path);
+  REQUIRE(r.status == 0);
+  REQUIRE(fs::exists(t.path / "shoot/photos/photos.json"));
+  r = run("rectify shoot/photos/photos.json -o rect --resolution 48", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("8/8") != std::string::npos);
+  for (int i = 0; i < 8; ++i) {
+    CHECK(fs::exists(t.path / ("rect/rectified_0" + std::to_string(i) + ".exr")));
+    CHECK(fs::exists(t.path / ("rect/mask_0" + std::to_string(i) + ".png")));
+  }
+  const std::string description = read_text(t.path / "rect/capture.json");
+  CHECK(description.find("\"mask\"") != std::string::npos);
+  r = run("capture rect/capture.json -o maps --stages refine --steps 20 --no-view", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(fs::exists(t.path / "maps/diffuse.exr"));
+  CHECK(fs::exists(t.path / "maps/report.json"));
+  // A photo whose corners leave the texture order is one error naming the photo, and nothing is written.
+  nlohmann::json photos = nlohmann::json::parse(read_text(t.path / "shoot/photos/photos.json"));
+  photos["photos"][0]["corners"] = nlohmann::json::parse("[[0, 0], [0, 10], [10, 10], [10, 0]]");
+  write(t.path / "shoot/photos/bad.json", photos.dump(2));
+  r = run("rectify shoot/photos/bad.json -o bad", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("photo_00") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "bad"));
 }
