@@ -11,20 +11,12 @@
 #include "../networks/tiny_presets.hpp"
 #include "../render/render_reference.hpp"
 #include "anisocap/pipeline/capture.hpp"
+#include "support/two_threads.hpp"
 
 using namespace anisocap;
 using namespace anisocap::testing;
 
 namespace {
-
-/// Runs a scope on at most two OpenMP threads: the loss's reduction over threads adds two partial
-/// sums in either order (the same bits), while three or more may be added in a different order from
-/// run to run, which would blur a bit-for-bit comparison that has nothing to do with masks.
-struct two_threads {
-  int saved = omp_get_max_threads();
-  two_threads() { omp_set_num_threads(std::min(saved, 2)); }
-  ~two_threads() { omp_set_num_threads(saved); }
-};
 
 capture_result run(const capture& cap, const std::vector<image>& photos, const std::vector<image>& masks, int crop_cells) {
   estimation_network<estimator_tiny> estimator(1);

@@ -13,20 +13,12 @@
 #include "anisocap/render/renderer.hpp"
 #include "render_reference.hpp"
 #include "support/gradient_check.hpp"
+#include "support/two_threads.hpp"
 
 using namespace anisocap;
 using namespace anisocap::testing;
 
 namespace {
-
-/// Runs a scope on at most two OpenMP threads: the loss's reduction over threads adds two partial
-/// sums in either order (the same bits), while three or more may be added in a different order from
-/// run to run, which would blur a bit-for-bit comparison that has nothing to do with masks.
-struct two_threads {
-  int saved = omp_get_max_threads();
-  two_threads() { omp_set_num_threads(std::min(saved, 2)); }
-  ~two_threads() { omp_set_num_threads(saved); }
-};
 
 /// One mask per image, about `share` of the pixels left out (0), from `seed`.
 std::vector<image> random_masks(int w, int h, std::size_t n, double share, std::uint64_t seed) {
