@@ -15,12 +15,15 @@
 #include "anisocap/data/image_io.hpp"
 #include "data/png16_writer.hpp"
 #include "data/test_folder.hpp"
+#include "support/error_of.hpp"
 
 using anisocap::image;
 using anisocap::io_error;
 using anisocap::testing::png16;
 using anisocap::testing::test_folder;
 namespace fs = std::filesystem;
+
+using anisocap::testing::error_of;
 
 namespace {
 
@@ -37,18 +40,6 @@ image random_image(int w, int h, int channels, std::uint32_t seed, float lo, flo
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) img.at(c, x, y) = u(rng);
   return img;
-}
-
-/// Message of the io_error that `f` throws (fails the test if it throws nothing).
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const std::runtime_error& e) {
-    return e.what();
-  }
-  FAIL("expected an error");
-  return {};
 }
 
 bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }

@@ -10,11 +10,14 @@
 
 #include "anisocap/data/map_io.hpp"
 #include "data/test_folder.hpp"
+#include "support/error_of.hpp"
 
 using anisocap::image;
 using anisocap::material_maps;
 using anisocap::testing::test_folder;
 namespace fs = std::filesystem;
+
+using anisocap::testing::error_of;
 
 namespace {
 
@@ -48,17 +51,6 @@ std::map<std::string, std::vector<unsigned char>> snapshot(const test_folder& di
   std::map<std::string, std::vector<unsigned char>> files;
   for (const auto& name : dir.entries()) files[name] = anisocap::read_file_bytes(dir / name);
   return files;
-}
-
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const std::runtime_error& e) {
-    return e.what();
-  }
-  FAIL("expected an error");
-  return {};
 }
 
 /// Rewrites one file of the set in `dir` after `edit` changes its image.

@@ -16,6 +16,7 @@
 #include "anisocap/data/photo_io.hpp"
 #include "data/png16_writer.hpp"
 #include "data/test_folder.hpp"
+#include "support/error_of.hpp"
 
 using anisocap::capture;
 using anisocap::image;
@@ -25,6 +26,8 @@ using anisocap::testing::png16;
 using anisocap::testing::test_folder;
 namespace fs = std::filesystem;
 
+using anisocap::testing::error_of;
+
 namespace {
 
 bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
@@ -32,17 +35,6 @@ bool contains(const std::string& s, const std::string& part) { return s.find(par
 void write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
   std::ofstream f(path, std::ios::binary);
   f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
-}
-
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const std::runtime_error& e) {
-    return e.what();
-  }
-  FAIL("expected an error");
-  return {};
 }
 
 float srgb(int code, int levels = 256) { return float(anisocap::srgb_to_linear(double(code) / double(levels - 1))); }
