@@ -117,6 +117,57 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
+TEST_CASE("training: the lobe L1 respects the lobe's symmetries and its gradient matches finite differences") {
+  float q[parameter_count] = {}, p[parameter_count] = {};
+  q[lobe_x] = 0.2f, q[lobe_y] = -0.4f, q[rotation] = 0.9f;  // anisotropic: full rotation weight
+  // The truth and its equivalent form (sigma_x, sigma_y swapped, alpha + pi/2) are both at distance 0.
+  std::copy_n(q, parameter_count, p);
+  CHECK(training::lobe_l1(p, q, nullptr, 1) == 0);
+  p[lobe_x] = q[lobe_y], p[lobe_y] = q[lobe_x], p[rotation] = q[rotation] - 1;  // 0.9 + 1 wraps to -0.1
+  CHECK(training::lobe_l1(p, q, nullptr, 1) < 1e-6);
+  // Rotation differences are taken modulo pi: 0.95 and -0.95 are 0.1 apart, not 1.9.
+  std::copy_n(q, parameter_count, p);
+  q[rotation] = 0.95f, p[rotation] = -0.95f;
+  CHECK(training::lobe_l1(p, q, nullptr, 1) == doctest::Approx(0.1).epsilon(1e-5));
+  // Gradient against central differences at a point away from the kinks.
+  p[lobe_x] = 0.05f, p[lobe_y] = -0.3f, p[rotation] = 0.6f;
+  float g[parameter_count] = {};
+  training::lobe_l1(p, q, g, 1);
+  for (int k : {int(lobe_x), int(lobe_y), int(rotation)}) {
+    const float h = 1e-3f;
+    float plus[parameter_count], minus[parameter_count];
+    std::copy_n(p, parameter_count, plus);
+    std::copy_n(p, parameter_count, minus);
+    plus[k] += h, minus[k] -= h;
+    const double fd = (training::lobe_l1(plus, q, nullptr, 1) - training::lobe_l1(minus, q, nullptr, 1)) / (2 * h);
+    CHECK(g[k] == doctest::Approx(fd).epsilon(1e-3));
+  }
+  // An isotropic truth has no rotation to learn: no rotation term and no rotation gradient.
+  q[lobe_y] = q[lobe_x];
+  std::fill_n(g, parameter_count, 0.0f);
+  const double a = training::lobe_l1(p, q, g, 1);
+  p[rotation] = -0.2f;
+  CHECK(training::lobe_l1(p, q, nullptr, 1) == doctest::Approx(a));
+  CHECK(g[rotation] == 0);
+  CHECK(g[lobe_x] != 0);
+}
+
+TEST_CASE("training: a network output in the truth's equivalent lobe form has no L1 loss") {
+  std::vector<training::sample> s;
+  s.push_back(training::make_sample(training::validation_seed(3), 32, false));
+  tensor<parameter_count> swapped = s[0].truth_net;
+  for (int y = 0; y < 32; ++y)
+    for (int x = 0; x < 32; ++x) {
+      float* p = swapped.pixel(0, y, x);
+      std::swap(p[lobe_x], p[lobe_y]);
+      p[rotation] = p[rotation] > 0 ? p[rotation] - 1 : p[rotation] + 1;  // alpha + pi/2, kept in [-1, 1]
+    }
+  const auto exact = training::map_losses(s[0].truth_net, s, nullptr);
+  const auto other = training::map_losses(swapped, s, nullptr);
+  CHECK(other.l1 < 1e-6);
+  CHECK(std::abs(other.render - exact.render) < 1e-3);  // the same lobes render the same
+}
+
 TEST_CASE("training materials: the held-out families never appear among training or validation samples") {
   for (material_mix mix : {material_mix::original, material_mix::training}) {
     const procedural_options options = training::training_material_options(mix);

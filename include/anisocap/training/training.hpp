@@ -94,8 +94,41 @@ struct loss_terms {
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
 
-/// L1 in network space plus the render loss, equal weights (docs/method.md section 5), of network outputs u
-/// (one entry per sample); when grad is given, adds d(loss)/du (the loss is the batch mean).
+/// Network-space width of the rotation weight's ramp: |u_x - u_y| (log lobe widths in network
+/// space) at which the truth's lobe ratio sigma_x / sigma_y reaches 1.25, the threshold at which
+/// compare_maps counts a texel as anisotropic.
+inline const double rotation_ramp = 2 * std::log(1.25) / (-network_space::log_min_lobe);
+
+/// The L1 distance of one texel's lobe parameters (network space: p predicted, q true, each indexed
+/// by parameter_index) that respects the lobe's symmetries (docs/method.md section 1): the
+/// rotation difference is taken modulo pi (2 in network space), (sigma_x, sigma_y, alpha) is
+/// compared with both of the truth's equivalent forms and the nearer one counts, and the rotation
+/// term is weighted by the truth's anisotropy, min(1, |q_x - q_y| / rotation_ramp): an isotropic
+/// lobe has no rotation to learn. When g is given, adds `step` times the gradient with respect to
+/// p[lobe_x], p[lobe_y] and p[rotation] into g (indexed the same way).
+inline double lobe_l1(const float* p, const float* q, float* g, float step) {
+  auto wrap = [](double d) { return d - 2 * std::nearbyint(d / 2); };  // into [-1, 1]: alpha modulo pi
+  auto sign = [](double d) { return d > 0 ? 1.0 : (d < 0 ? -1.0 : 0.0); };
+  const double w = std::min(1.0, std::abs(double(q[lobe_x]) - q[lobe_y]) / rotation_ramp);
+  // Form 0: (q_x, q_y, q_a); form 1: (q_y, q_x, q_a + 1), the same lobe.
+  const double dx[2] = {double(p[lobe_x]) - q[lobe_x], double(p[lobe_x]) - q[lobe_y]};
+  const double dy[2] = {double(p[lobe_y]) - q[lobe_y], double(p[lobe_y]) - q[lobe_x]};
+  const double da[2] = {wrap(double(p[rotation]) - q[rotation]), wrap(double(p[rotation]) - q[rotation] - 1)};
+  double cost[2];
+  for (int f = 0; f < 2; ++f) cost[f] = std::abs(dx[f]) + std::abs(dy[f]) + w * std::abs(da[f]);
+  const int f = cost[1] < cost[0] ? 1 : 0;
+  if (g) {
+    g[lobe_x] += float(step * sign(dx[f]));
+    g[lobe_y] += float(step * sign(dy[f]));
+    g[rotation] += float(step * w * sign(da[f]));
+  }
+  return cost[f];
+}
+
+/// L1 in network space plus the render loss, equal weights (docs/method.md section 5), of network
+/// outputs u (one entry per sample); when grad is given, adds d(loss)/du (the loss is the batch
+/// mean). The L1 of the lobe widths and the rotation is lobe_l1's, which respects the lobe's
+/// symmetries; the other channels take |u - u_true|.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
                              tensor<parameter_count>* grad) {
   loss_terms terms;
@@ -106,16 +139,19 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     const sample& s = samples[b];
     double l1 = 0;
     const float step = float(1.0 / (double(n) * B));
-    for (int y = 0; y < u.height(); ++y) {
-      const float* p = u.pixel(b, y, 0);
-      const float* q = s.truth_net.pixel(0, y, 0);
-      float* g = grad ? grad->pixel(b, y, 0) : nullptr;
-      for (int i = 0; i < u.width() * parameter_count; ++i) {
-        const float d = p[i] - q[i];
-        l1 += std::abs(d);
-        if (g) g[i] += d > 0 ? step : (d < 0 ? -step : 0.0f);
+    for (int y = 0; y < u.height(); ++y)
+      for (int x = 0; x < u.width(); ++x) {
+        const float* p = u.pixel(b, y, x);
+        const float* q = s.truth_net.pixel(0, y, x);
+        float* g = grad ? grad->pixel(b, y, x) : nullptr;
+        for (int k = 0; k < parameter_count; ++k) {
+          if (k == lobe_x || k == lobe_y || k == rotation) continue;
+          const float d = p[k] - q[k];
+          l1 += std::abs(d);
+          if (g) g[k] += d > 0 ? step : (d < 0 ? -step : 0.0f);
+        }
+        l1 += lobe_l1(p, q, g, step);
       }
-    }
     terms.l1 += l1 / double(n) / B;
     const material_maps maps = network_space::network_to_maps(u, b);
     material_maps grad_maps;
@@ -233,7 +269,8 @@ long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
   return object.at("step").get<long>();
 }
 
-/// Validation summary: mean losses and per-parameter errors (compare_maps, original ranges).
+/// Validation summary: mean losses and per-parameter errors (compare_maps, original ranges;
+/// rotation_anisotropic is the mean over the materials that have anisotropic texels).
 struct validation_result {
   loss_terms loss;          ///< mean over the validation materials
   parameter_errors errors;  ///< mean over the validation materials
@@ -282,6 +319,8 @@ template <class Net, class Output>
 validation_result validate(Net& net, int count, int size, bool with_photos, Output output,
                            material_mix mix = material_mix::original) {
   validation_result r;
+  double anisotropic_sum = 0;
+  int anisotropic = 0;
   for (int i = 0; i < count; ++i) {
     std::vector<sample> one;
     one.push_back(make_sample(validation_seed(i), size, with_photos, mix));
@@ -290,8 +329,14 @@ validation_result validate(Net& net, int count, int size, bool with_photos, Outp
     r.loss.total += l.total / count;
     r.loss.l1 += l.l1 / count;
     r.loss.render += l.render / count;
-    accumulate(r.errors, compare_maps(network_space::network_to_maps(u, 0), one[0].truth), count);
+    const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), one[0].truth);
+    accumulate(r.errors, e, count);
+    if (!std::isnan(e.rotation_anisotropic)) {
+      anisotropic_sum += e.rotation_anisotropic;
+      ++anisotropic;
+    }
   }
+  r.errors.rotation_anisotropic = anisotropic ? anisotropic_sum / anisotropic : std::nan("");
   return r;
 }
 
@@ -318,11 +363,11 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
   std::ofstream out(file, std::ios::app);
   if (fresh)
     out << "step,train_loss,val_loss,val_l1,val_render,mse_diffuse,mse_specular,mse_normal,mse_lobes,mse_rotation,"
-           "mse_fresnel\n";
+           "mse_fresnel,mse_rotation_anisotropic\n";
   char row[512];
-  std::snprintf(row, sizeof row, "%ld,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", step, train_loss, v.loss.total,
+  std::snprintf(row, sizeof row, "%ld,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", step, train_loss, v.loss.total,
                 v.loss.l1, v.loss.render, v.errors.diffuse, v.errors.specular, v.errors.normal, v.errors.lobes,
-                v.errors.rotation, v.errors.fresnel);
+                v.errors.rotation, v.errors.fresnel, v.errors.rotation_anisotropic);
   out << row;
 }
 
