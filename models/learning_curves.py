@@ -19,6 +19,8 @@ import sys
 
 PARAMETERS = ["mse_diffuse", "mse_specular", "mse_normal", "mse_lobes", "mse_rotation", "mse_fresnel"]
 LABELS = ["a_d", "a'_s", "n_s", "sigma", "alpha", "F0"]
+# Written by runs from run 4 on: alpha over the anisotropic texels only (plotted where present).
+OPTIONAL = [("mse_rotation_anisotropic", "alpha, anisotropic texels")]
 
 
 def read_run(spec):
@@ -41,7 +43,8 @@ def read_run(spec):
         step = float(r["step"])
         points.append({"samples": samples_before + step * batch,
                        "hours": hours_before + hours * step / last_step,
-                       **{p: float(r[p]) for p in PARAMETERS + ["val_loss"]}})
+                       **{p: float(r[p]) for p in PARAMETERS + ["val_loss"]},
+                       **{p: float(r[p]) for p, _ in OPTIONAL if r.get(p) not in (None, "", "nan")}})
     return kind, points
 
 
@@ -66,6 +69,10 @@ def main():
             ax = axes[row][col]
             for p, label in zip(PARAMETERS, LABELS):
                 ax.plot([q[x] for q in points], [q[p] for q in points], label=label, lw=1.2)
+            for p, label in OPTIONAL:
+                have = [q for q in points if p in q]
+                if have:
+                    ax.plot([q[x] for q in have], [q[p] for q in have], "--", label=label, lw=1.2)
             ax.set_yscale("log")
             ax.set_xlabel("materials seen" if x == "samples" else "training wall time (hours, 1 loaded core)")
             ax.set_ylabel("validation MSE (original ranges)")

@@ -58,8 +58,8 @@ struct network_eval_settings {
 
 inline std::string row(const char* name, const parameter_errors& e) {
   char line[256];
-  std::snprintf(line, sizeof line, "| %s | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g |\n", name, e.diffuse, e.specular,
-                e.normal, e.lobes, e.rotation, e.fresnel);
+  std::snprintf(line, sizeof line, "| %s | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g |\n", name, e.diffuse, e.specular,
+                e.normal, e.lobes, e.rotation, e.rotation_anisotropic, e.fresnel);
   return line;
 }
 
@@ -88,7 +88,6 @@ inline void evaluate_networks(const network_eval_settings& s) {
       for (const auto& x : samples) sum += x.truth.plane(k)[j];
       mean.plane(k)[j] = float(sum / s.count);
     }
-  parameter_errors est, base, ae;
   std::vector<material_errors> est_all, base_all, ae_all;
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const auto& x = samples[i];
@@ -96,23 +95,23 @@ inline void evaluate_networks(const network_eval_settings& s) {
     const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), x.truth), b = compare_maps(mean, x.truth);
     const auto r = training::autoencoder_output(autoencoder, x);
     const parameter_errors a = compare_maps(network_space::network_to_maps(r, 0), x.truth);
-    training::accumulate(est, e, s.count);
-    training::accumulate(base, b, s.count);
-    training::accumulate(ae, a, s.count);
     est_all.push_back({kinds[i], e});
     base_all.push_back({kinds[i], b});
     ae_all.push_back({kinds[i], a});
   }
+  const parameter_errors est = average_errors(est_all).mean, base = average_errors(base_all).mean,
+                         ae = average_errors(ae_all).mean;
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
                    (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
-                   ", 5 inputs (training set); MSE in the original ranges (compare_maps)\n\n";
-  md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | F0 |\n|---|---|---|---|---|---|---|\n";
+                   ", 5 inputs (training set); MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
+                   "and over the anisotropic texels of the materials that have them)\n\n";
+  md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
   md += row("estimator (compact)", est);
   md += row("mean-map baseline", base);
   md += row("auto-encoder reconstruction (compact)", ae);
   md += "\nPer family (held out of training: leather, printed; the baseline is the mean map of all materials above)\n\n";
-  md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | F0 |\n|---|---|---|---|---|---|---|---|---|\n";
+  md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|---|---|\n";
   const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all);
   for (std::size_t k = 0; k < est_rows.size(); ++k) {
     const std::string prefix = std::string(material_kind_name(est_rows[k].kind)) + (is_held_out(est_rows[k].kind) ? " (held out)" : "") +

@@ -31,6 +31,13 @@ TEST_CASE("errors_by_family: means per family in kind order, NaN-aware, absent f
   CHECK(rows[1].mean.rotation_anisotropic == doctest::Approx(1.0));  // over the material that has it
   CHECK(rows[1].novel_view_loss == doctest::Approx(0.5));
   CHECK(errors_by_family({}).empty());
+  // The overall mean: every material, NaN-aware in the same way.
+  const family_errors overall = average_errors(all);
+  CHECK(overall.count == 4);
+  CHECK(overall.mean.lobes == doctest::Approx(2.5));
+  CHECK(overall.mean.rotation_anisotropic == doctest::Approx(7.0 / 3));  // materials 0, 1 and 3
+  CHECK(overall.novel_view_loss == doctest::Approx(1.5));                 // materials 0, 1 and 3
+  CHECK(std::isnan(average_errors({}).mean.rotation_anisotropic));
   // evaluation_kind: a family list is used in turn, otherwise the mix decides.
   const std::vector<material_kind> listed = {material_kind::leather, material_kind::printed};
   CHECK(evaluation_kind(0, 99, listed, material_mix::original) == material_kind::leather);

@@ -27,34 +27,50 @@ struct family_errors {
   double novel_view_loss = std::nan("");  ///< mean over the materials that measured it; NaN if none
 };
 
+/// Mean errors over the materials that `keep(material)` accepts (`count` says how many; `kind` is
+/// left at its default): rotation_anisotropic and the novel-view loss are averaged over the
+/// materials that have them, NaN when none does.
+template <class Keep>
+family_errors average_errors(const std::vector<material_errors>& materials, Keep keep) {
+  family_errors row;
+  int anisotropic = 0, novel = 0;
+  double rotation_anisotropic = 0, novel_sum = 0;
+  for (const material_errors& m : materials) {
+    if (!keep(m)) continue;
+    ++row.count;
+    row.mean.diffuse += m.errors.diffuse;
+    row.mean.specular += m.errors.specular;
+    row.mean.normal += m.errors.normal;
+    row.mean.lobes += m.errors.lobes;
+    row.mean.rotation += m.errors.rotation;
+    row.mean.fresnel += m.errors.fresnel;
+    if (!std::isnan(m.errors.rotation_anisotropic)) { rotation_anisotropic += m.errors.rotation_anisotropic; ++anisotropic; }
+    if (!std::isnan(m.novel_view_loss)) { novel_sum += m.novel_view_loss; ++novel; }
+  }
+  if (row.count > 0) {
+    const double n = row.count;
+    row.mean.diffuse /= n; row.mean.specular /= n; row.mean.normal /= n; row.mean.lobes /= n;
+    row.mean.rotation /= n; row.mean.fresnel /= n;
+  }
+  row.mean.rotation_anisotropic = anisotropic ? rotation_anisotropic / anisotropic : std::nan("");
+  row.novel_view_loss = novel ? novel_sum / novel : std::nan("");
+  return row;
+}
+
+/// Mean errors over all the materials (average_errors of every one).
+inline family_errors average_errors(const std::vector<material_errors>& materials) {
+  return average_errors(materials, [](const material_errors&) { return true; });
+}
+
 /// Groups per-material errors by family and averages each group: one row per family present, in
 /// material_kind order.
 inline std::vector<family_errors> errors_by_family(const std::vector<material_errors>& materials) {
   std::vector<family_errors> rows;
   for (int k = 0; k < material_kind_count; ++k) {
-    family_errors row;
-    row.kind = static_cast<material_kind>(k);
-    int anisotropic = 0, novel = 0;
-    double rotation_anisotropic = 0, novel_sum = 0;
-    for (const material_errors& m : materials) {
-      if (m.kind != row.kind) continue;
-      ++row.count;
-      row.mean.diffuse += m.errors.diffuse;
-      row.mean.specular += m.errors.specular;
-      row.mean.normal += m.errors.normal;
-      row.mean.lobes += m.errors.lobes;
-      row.mean.rotation += m.errors.rotation;
-      row.mean.fresnel += m.errors.fresnel;
-      if (!std::isnan(m.errors.rotation_anisotropic)) { rotation_anisotropic += m.errors.rotation_anisotropic; ++anisotropic; }
-      if (!std::isnan(m.novel_view_loss)) { novel_sum += m.novel_view_loss; ++novel; }
-    }
-    if (row.count == 0) continue;
-    const double n = row.count;
-    row.mean.diffuse /= n; row.mean.specular /= n; row.mean.normal /= n; row.mean.lobes /= n;
-    row.mean.rotation /= n; row.mean.fresnel /= n;
-    row.mean.rotation_anisotropic = anisotropic ? rotation_anisotropic / anisotropic : std::nan("");
-    row.novel_view_loss = novel ? novel_sum / novel : std::nan("");
-    rows.push_back(row);
+    const auto kind = static_cast<material_kind>(k);
+    family_errors row = average_errors(materials, [kind](const material_errors& m) { return m.kind == kind; });
+    row.kind = kind;
+    if (row.count > 0) rows.push_back(row);
   }
   return rows;
 }

@@ -24,6 +24,7 @@
 
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/random.hpp"
+#include "anisocap/data/family_errors.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
@@ -276,16 +277,6 @@ struct validation_result {
   parameter_errors errors;  ///< mean over the validation materials
 };
 
-/// Adds e / count into sum.
-inline void accumulate(parameter_errors& sum, const parameter_errors& e, double count) {
-  sum.diffuse += e.diffuse / count;
-  sum.specular += e.specular / count;
-  sum.normal += e.normal / count;
-  sum.lobes += e.lobes / count;
-  sum.rotation += e.rotation / count;
-  sum.fresnel += e.fresnel / count;
-}
-
 /// The estimator's network-space maps for one sample (no gradients).
 template <class Net>
 tensor<parameter_count> estimator_output(Net& net, const sample& s) {
@@ -319,8 +310,7 @@ template <class Net, class Output>
 validation_result validate(Net& net, int count, int size, bool with_photos, Output output,
                            material_mix mix = material_mix::original) {
   validation_result r;
-  double anisotropic_sum = 0;
-  int anisotropic = 0;
+  std::vector<material_errors> errors;
   for (int i = 0; i < count; ++i) {
     std::vector<sample> one;
     one.push_back(make_sample(validation_seed(i), size, with_photos, mix));
@@ -329,14 +319,11 @@ validation_result validate(Net& net, int count, int size, bool with_photos, Outp
     r.loss.total += l.total / count;
     r.loss.l1 += l.l1 / count;
     r.loss.render += l.render / count;
-    const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), one[0].truth);
-    accumulate(r.errors, e, count);
-    if (!std::isnan(e.rotation_anisotropic)) {
-      anisotropic_sum += e.rotation_anisotropic;
-      ++anisotropic;
-    }
+    material_errors m;
+    m.errors = compare_maps(network_space::network_to_maps(u, 0), one[0].truth);
+    errors.push_back(m);
   }
-  r.errors.rotation_anisotropic = anisotropic ? anisotropic_sum / anisotropic : std::nan("");
+  r.errors = average_errors(errors).mean;
   return r;
 }
 
