@@ -14,6 +14,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -32,6 +34,7 @@
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/renderer.hpp"
+#include "anisocap/training/prefetch.hpp"
 
 namespace anisocap::training {
 
@@ -183,6 +186,7 @@ struct train_options {
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
+  bool prefetch = true;               ///< build the next step's samples on a second thread during each step
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
@@ -204,6 +208,26 @@ struct train_options {
     return o;
   }
 };
+
+/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b).
+/// With `parallel`, OpenMP threads build the entries side by side (the renderer's loops inside
+/// each then run on one thread); the samples are the same either way. An exception thrown while
+/// building an entry is rethrown here (the first entry's first).
+inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos, bool parallel) {
+  std::vector<sample> samples(o.batch);
+  std::vector<std::exception_ptr> errors(o.batch);
+#pragma omp parallel for schedule(dynamic, 1) if (parallel && o.batch > 1)
+  for (int b = 0; b < o.batch; ++b) {
+    try {
+      samples[b] = make_sample(training_seed(o.seed, step, b), o.size, with_photos, o.mix);
+    } catch (...) {
+      errors[b] = std::current_exception();  // an exception must not leave an OpenMP region
+    }
+  }
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+  return samples;
+}
 
 /// Weights of the network alone (what is shipped), with metadata.
 template <class Net>
@@ -371,10 +395,12 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
   out << row;
 }
 
-/// The loop shared by both trainers: `step_fn(step)` runs one optimiser step and returns its loss;
+/// The loop shared by both trainers: `step_fn(step, samples)` runs one optimiser step on the step's
+/// batch (make_batch; prefetched on a second thread with o.prefetch) and returns its loss;
 /// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
 template <class Net, class StepFn, class ValidateFn>
-void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, StepFn step_fn, ValidateFn validate_fn) {
+void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, bool with_photos, StepFn step_fn,
+         ValidateFn validate_fn) {
   o.validate();
   training_material_options(o.mix);  // reject the extended mix before touching out_dir
   std::filesystem::create_directories(o.out_dir);
@@ -417,8 +443,15 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     save_checkpoint(o.out_dir, net, opt, step, info);
     save_network(o.out_dir / (kind + ".safetensors"), net, kind);
   };
+  // The last step this call runs (stop_after returns after the step that reaches it).
+  const long end = o.stop_after >= 0 ? std::min(o.steps, std::max(o.stop_after, first + 1)) : o.steps;
+  const char* pf_threads = std::getenv("ANISOCAP_PF_THREADS");
+  const char* pf_parallel = std::getenv("ANISOCAP_PF_PARALLEL");
+  const bool parallel = pf_parallel && pf_parallel[0] == '1';
+  prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos, parallel); }, end, o.prefetch,
+                                          pf_threads ? std::atoi(pf_threads) : 1);
   while (step < o.steps) {
-    const double loss = step_fn(step);
+    const double loss = step_fn(step, batches.take(step));
     ++step;
     window += loss;
     ++window_count;
@@ -466,9 +499,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long step) {
-    std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, true, o.mix));
+  auto step_fn = [&](long, const std::vector<sample>& samples) {
     const int N = int(samples[0].photos.size());
     t.clear();
     auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
@@ -483,7 +514,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
-  detail::run(o, "estimator", net, opt, step_fn, validate_fn);
+  detail::run(o, "estimator", net, opt, true, step_fn, validate_fn);
 }
 
 /// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
@@ -497,9 +528,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   opt.add_parameters(net);
   ad::tape t;
   constexpr int Z = auto_encoder<Preset>::latent_channels;
-  auto step_fn = [&](long step) {
-    std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false, o.mix));
+  auto step_fn = [&](long step, const std::vector<sample>& samples) {
     t.clear();
     auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
     for (int b = 0; b < o.batch; ++b)
@@ -533,7 +562,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
   };
-  detail::run(o, "autoencoder", net, opt, step_fn, validate_fn);
+  detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
 }
 
 }  // namespace anisocap::training
