@@ -98,13 +98,13 @@ TEST_CASE("prefetcher: each step's batch is built once, ahead, on another thread
         serial.threads.push_back(std::this_thread::get_id());
         return step;
       },
-      100, false);
+      100, false, 1);
   for (long step = 0; step < 3; ++step) CHECK(in_turn.take(step) == step);
   CHECK(serial.steps == std::vector<long>{0, 1, 2});
   for (const auto& id : serial.threads) CHECK(id == std::this_thread::get_id());
 
   // A step other than the prefetched one is built when asked for (the prefetched one is dropped).
-  training::prefetcher<long> jumping([](long step) { return step; }, 100, true);
+  training::prefetcher<long> jumping([](long step) { return step; }, 100, true, 1);
   CHECK(jumping.take(0) == 0);
   CHECK(jumping.take(7) == 7);
   CHECK(jumping.take(8) == 8);
@@ -116,42 +116,35 @@ TEST_CASE("prefetcher: an exception in the building thread surfaces as itself fr
     return int(step);
   };
   {
-    training::prefetcher<int> batches(build, 10, true);
+    training::prefetcher<int> batches(build, 10, true, 1);
     for (long step = 0; step < 3; ++step) CHECK(batches.take(step) == step);  // step 3 is being built ahead now
     CHECK_THROWS_WITH_AS(batches.take(3), "material of step 3 failed", std::runtime_error);
     CHECK(batches.take(4) == 4);  // the prefetcher is still usable
   }
   {
     // The exception of a batch that is never asked for is dropped with the prefetcher.
-    training::prefetcher<int> batches(build, 10, true);
+    training::prefetcher<int> batches(build, 10, true, 1);
     CHECK(batches.take(2) == 2);
   }
-  // make_batch rethrows an entry's exception out of its OpenMP loop.
-  training::train_options o;
-  o.size = 32;
-  o.mix = material_mix::extended;  // refused by training_material_options in every entry
-  CHECK_THROWS_AS(training::make_batch(o, 0, false, true), std::invalid_argument);
 }
 
-TEST_CASE("make_batch: entries built side by side equal those built in turn") {
+TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, step, b)") {
   training::train_options o;
   o.size = 32;
   o.batch = 3;
   o.seed = 11;
-  const auto parallel = training::make_batch(o, 4, true, true), serial = training::make_batch(o, 4, true, false);
-  REQUIRE(parallel.size() == 3);
+  const auto batch = training::make_batch(o, 4, true);
+  REQUIRE(batch.size() == 3);
   for (int b = 0; b < 3; ++b) {
     const auto expected = training::make_sample(training::training_seed(11, 4, b), 32, true);
-    for (const auto* s : {&parallel[b], &serial[b]}) {
-      CHECK(std::equal(s->truth_net.data(), s->truth_net.data() + s->truth_net.size(), expected.truth_net.data()));
-      REQUIRE(s->photos.size() == expected.photos.size());
-      for (std::size_t i = 0; i < expected.photos.size(); ++i)
-        CHECK(std::equal(s->photos[i].plane(0), s->photos[i].plane(0) + 32 * 32, expected.photos[i].plane(0)));
-      for (std::size_t i = 0; i < expected.targets.log_images.size(); ++i)
-        CHECK(std::equal(s->targets.log_images[i].plane(2), s->targets.log_images[i].plane(2) + 32 * 32,
-                         expected.targets.log_images[i].plane(2)));
-    }
+    const auto& s = batch[b];
+    CHECK(std::equal(s.truth_net.data(), s.truth_net.data() + s.truth_net.size(), expected.truth_net.data()));
+    REQUIRE(s.photos.size() == expected.photos.size());
+    for (std::size_t i = 0; i < expected.photos.size(); ++i)
+      CHECK(std::equal(s.photos[i].plane(0), s.photos[i].plane(0) + 32 * 32, expected.photos[i].plane(0)));
   }
+  // Different steps and entries draw different materials.
+  CHECK_FALSE(std::equal(batch[0].truth_net.data(), batch[0].truth_net.data() + batch[0].truth_net.size(), batch[1].truth_net.data()));
 }
 
 TEST_CASE("training with prefetching: the same weights as without, straight and resumed") {

@@ -21,8 +21,10 @@ namespace anisocap::training {
 template <class Batch>
 class prefetcher {
  public:
-  /// `build(step)` makes the batch of a step; batches after `end` are never prefetched.
-  prefetcher(std::function<Batch(long)> build, long end, bool prefetch, int threads = 1)
+  /// `build(step)` makes the batch of a step; no step at or after `end` is prefetched; `threads`:
+  /// OpenMP threads of the building thread (a new thread does not inherit the caller's
+  /// omp_set_num_threads, so pass omp_get_max_threads() to build with the caller's count).
+  prefetcher(std::function<Batch(long)> build, long end, bool prefetch, int threads)
       : build_(std::move(build)), end_(end), prefetch_(prefetch), threads_(threads) {}
   prefetcher(const prefetcher&) = delete;
   prefetcher& operator=(const prefetcher&) = delete;

@@ -8,14 +8,13 @@
 /// Randomness: every random choice is a pure function of (run seed, step, batch entry), so the
 /// step number IS the random-number state: a checkpoint stores weights, Adam's moments and step
 /// counts, batch-norm running statistics and the step, and a resumed run is bit-identical to an
-/// uninterrupted one (tests/training/training_test.cpp).
+/// uninterrupted one (tests/training/training_test.cpp). For the same reason the next step's
+/// samples can be built on a second thread while the current step trains (prefetch.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
-#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -23,6 +22,8 @@
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include <omp.h>
 
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/random.hpp"
@@ -186,7 +187,7 @@ struct train_options {
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
-  bool prefetch = true;               ///< build the next step's samples on a second thread during each step
+  bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
@@ -210,22 +211,11 @@ struct train_options {
 };
 
 /// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b).
-/// With `parallel`, OpenMP threads build the entries side by side (the renderer's loops inside
-/// each then run on one thread); the samples are the same either way. An exception thrown while
-/// building an entry is rethrown here (the first entry's first).
-inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos, bool parallel) {
-  std::vector<sample> samples(o.batch);
-  std::vector<std::exception_ptr> errors(o.batch);
-#pragma omp parallel for schedule(dynamic, 1) if (parallel && o.batch > 1)
-  for (int b = 0; b < o.batch; ++b) {
-    try {
-      samples[b] = make_sample(training_seed(o.seed, step, b), o.size, with_photos, o.mix);
-    } catch (...) {
-      errors[b] = std::current_exception();  // an exception must not leave an OpenMP region
-    }
-  }
-  for (const auto& e : errors)
-    if (e) std::rethrow_exception(e);
+/// The entries are built in turn; each one's renders run on every OpenMP thread (building the
+/// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
+inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos) {
+  std::vector<sample> samples;
+  for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, with_photos, o.mix));
   return samples;
 }
 
@@ -445,11 +435,10 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   };
   // The last step this call runs (stop_after returns after the step that reaches it).
   const long end = o.stop_after >= 0 ? std::min(o.steps, std::max(o.stop_after, first + 1)) : o.steps;
-  const char* pf_threads = std::getenv("ANISOCAP_PF_THREADS");
-  const char* pf_parallel = std::getenv("ANISOCAP_PF_PARALLEL");
-  const bool parallel = pf_parallel && pf_parallel[0] == '1';
-  prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos, parallel); }, end, o.prefetch,
-                                          pf_threads ? std::atoi(pf_threads) : 1);
+  // The next step's batch is built with as many OpenMP threads as the step uses (faster on 2 cores
+  // than one thread, bench/README.md "Training throughput").
+  prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos); }, end, o.prefetch,
+                                          omp_get_max_threads());
   while (step < o.steps) {
     const double loss = step_fn(step, batches.take(step));
     ++step;
