@@ -128,6 +128,20 @@ TEST_CASE("prefetcher: an exception in the building thread surfaces as itself fr
   }
 }
 
+TEST_CASE("training with prefetching: an exception in the step's thread leaves through the trainer while a batch is being built") {
+  const fs::path dir = fresh_folder("throwing");
+  auto o = tiny_options(dir, 64, true);
+  o.progress_seconds = 0;  // a progress line after every step
+  o.log = [](const std::string& line) {
+    if (line.find("step 1/") != std::string::npos) throw std::runtime_error("progress log failed");
+  };
+  estimation_network<testing::estimator_tiny> net(3);
+  // The second step's batch was started with the first step; the log throws after the first step,
+  // the trainer waits for that batch and the log's exception arrives as itself.
+  CHECK_THROWS_WITH_AS(training::train_estimator(o, net), "progress log failed", std::runtime_error);
+  fs::remove_all(dir);
+}
+
 TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, step, b)") {
   training::train_options o;
   o.size = 32;
