@@ -36,6 +36,7 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");
   cmd->add_option("--validation-count", o.validation_count, "validation materials");
   cmd->add_flag("--resume", o.resume, "continue from OUT/checkpoint.json");
+  cmd->add_option("--prefetch", o.prefetch, "build the next step's samples on a second thread during each step (true or false)");
   add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);

@@ -59,6 +59,7 @@
 #include "anisocap/networks/network_layers.hpp"
 #include "anisocap/networks/network_space.hpp"
 
+#include "anisocap/training/prefetch.hpp"
 #include "anisocap/training/training.hpp"
 
 #include "anisocap/pipeline/capture.hpp"

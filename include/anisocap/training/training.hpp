@@ -8,7 +8,8 @@
 /// Randomness: every random choice is a pure function of (run seed, step, batch entry), so the
 /// step number IS the random-number state: a checkpoint stores weights, Adam's moments and step
 /// counts, batch-norm running statistics and the step, and a resumed run is bit-identical to an
-/// uninterrupted one (tests/training/training_test.cpp).
+/// uninterrupted one (tests/training/training_test.cpp). For the same reason the next step's
+/// samples can be built on a second thread while the current step trains (prefetch.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -22,6 +23,8 @@
 #include <string>
 #include <vector>
 
+#include <omp.h>
+
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/family_errors.hpp"
@@ -33,6 +36,7 @@
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/renderer.hpp"
+#include "anisocap/training/prefetch.hpp"
 
 namespace anisocap::training {
 
@@ -184,6 +188,7 @@ struct train_options {
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
+  bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
@@ -205,6 +210,15 @@ struct train_options {
     return o;
   }
 };
+
+/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b).
+/// The entries are built in turn; each one's renders run on every OpenMP thread (building the
+/// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
+inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos) {
+  std::vector<sample> samples;
+  for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, with_photos, o.mix));
+  return samples;
+}
 
 /// Weights of the network alone (what is shipped), with metadata.
 template <class Net>
@@ -358,10 +372,12 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
   out << row;
 }
 
-/// The loop shared by both trainers: `step_fn(step)` runs one optimiser step and returns its loss;
+/// The loop shared by both trainers: `step_fn(step, samples)` runs one optimiser step on the step's
+/// batch (make_batch; prefetched on a second thread with o.prefetch) and returns its loss;
 /// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
 template <class Net, class StepFn, class ValidateFn>
-void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, StepFn step_fn, ValidateFn validate_fn) {
+void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, bool with_photos, StepFn step_fn,
+         ValidateFn validate_fn) {
   o.validate();
   training_material_options(o.mix);  // reject the extended mix before touching out_dir
   std::filesystem::create_directories(o.out_dir);
@@ -404,8 +420,14 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     save_checkpoint(o.out_dir, net, opt, step, info);
     save_network(o.out_dir / (kind + ".safetensors"), net, kind);
   };
+  // The last step this call runs (stop_after returns after the step that reaches it).
+  const long end = o.stop_after >= 0 ? std::min(o.steps, std::max(o.stop_after, first + 1)) : o.steps;
+  // The next step's batch is built with as many OpenMP threads as the step uses (faster on 2 cores
+  // than one thread, bench/README.md "Training throughput").
+  prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos); }, end, o.prefetch,
+                                          omp_get_max_threads());
   while (step < o.steps) {
-    const double loss = step_fn(step);
+    const double loss = step_fn(step, batches.take(step));
     ++step;
     window += loss;
     ++window_count;
@@ -453,9 +475,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long step) {
-    std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, true, o.mix));
+  auto step_fn = [&](long, const std::vector<sample>& samples) {
     const int N = int(samples[0].photos.size());
     t.clear();
     auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
@@ -470,7 +490,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
-  detail::run(o, "estimator", net, opt, step_fn, validate_fn);
+  detail::run(o, "estimator", net, opt, true, step_fn, validate_fn);
 }
 
 /// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
@@ -484,9 +504,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   opt.add_parameters(net);
   ad::tape t;
   constexpr int Z = auto_encoder<Preset>::latent_channels;
-  auto step_fn = [&](long step) {
-    std::vector<sample> samples;
-    for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, false, o.mix));
+  auto step_fn = [&](long step, const std::vector<sample>& samples) {
     t.clear();
     auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
     for (int b = 0; b < o.batch; ++b)
@@ -520,7 +538,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
   };
-  detail::run(o, "autoencoder", net, opt, step_fn, validate_fn);
+  detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
 }
 
 }  // namespace anisocap::training
