@@ -39,7 +39,7 @@ struct photo_options {
 /// One photograph ready for the loss.
 struct photo {
   image pixels;              ///< 3-channel linear radiance, exposure applied
-  image mask;                ///< 1 channel, same size: 1 = in the loss, 0 = left out
+  image mask;                ///< 1 channel, same size: the pixel's weight in the loss (1 = full, 0 = left out)
   std::size_t clipped = 0;   ///< pixels found clipped (counted whether or not they are excluded)
   std::size_t masked = 0;    ///< pixels with mask 0 (clipped, given mask, or both)
 
