@@ -12,9 +12,11 @@
 #include <optional>
 #include <string>
 
+#include "anisocap/calibration/markers.hpp"
 #include "anisocap/calibration/photo_synthesis.hpp"
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/render/configurations.hpp"
 
@@ -29,6 +31,8 @@ inline void add_photograph_command(CLI::App& app) {
     std::uint64_t seed = 1;
     std::string kind, set = "alpha", lookup = "bilinear";
     photo_synthesis_options options;
+    bool marker_frame = false;
+    marker_frame_options frame;
   };
   auto s = std::make_shared<settings>();
   auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, photos.json) of a material, with truth/ and the texture-space capture direct/");
@@ -49,9 +53,16 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->add_option("--lookup", s->lookup, "texture lookup between texel centres: bilinear, or nearest (each texel a patch of constant material)")
       ->capture_default_str()->check(CLI::IsMember({"bilinear", "nearest"}));
   cmd->add_option("--quality", s->options.jpeg_quality, "JPEG quality")->capture_default_str()->check(CLI::Range(1, 100));
+  auto* fill = cmd->add_option("--fill", s->options.fill, "the sample's image spans at most this share of the frame (sets each photo's focal length)")
+                   ->capture_default_str()->check(CLI::Range(0.05, 1.0));
+  cmd->add_flag("--marker-frame", s->marker_frame,
+                "the sample lies in the printed frame of `anisocap markers` (same --tag-mm, --gap-mm), --fill 0.6 unless given; photos.json "
+                "leaves out the corners of photos whose tags are found: rectify finds them from the tags");
+  cmd->add_option("--tag-mm", s->frame.tag_mm, "with --marker-frame: the frame's tag size, as given to `markers`")->capture_default_str();
+  cmd->add_option("--gap-mm", s->frame.gap_mm, "with --marker-frame: the frame's gap, as given to `markers`")->capture_default_str();
   cmd->add_option("--shot-noise", s->options.noise.shot, "sensor shot noise at white (relative standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--read-noise", s->options.noise.read, "sensor read noise (standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  cmd->callback([s] {
+  cmd->callback([s, fill] {
     try {
       photo_synthesis_options o = s->options;
       o.seed = s->seed;
@@ -71,24 +82,52 @@ inline void add_photograph_command(CLI::App& app) {
                                                        : set_beta(s->images, s->seed, truth.width(), truth.height());
       std::fprintf(stderr, "photograph: %d photos of %dx%d px of a %dx%d-texel material (%s light)\n", s->images, o.width, o.height,
                    truth.width(), truth.height(), o.flash ? "flash" : "separate");
-      const synthetic_photographs photos = photograph_capture(truth, configurations, o);
-      // The same configurations rendered in texture space, with the same sensor noise at the same
-      // exposure, as `synthesize` would make them: the reference a perfect rectification reaches.
+      if (s->marker_frame) {
+        // The sheet as printed at 4 dots per mm, lying flat around the sample.
+        const double n = std::max(truth.width(), truth.height());
+        const marker_frame frame = make_marker_frame(truth.width() / n * o.longest_mm, truth.height() / n * o.longest_mm, s->frame);
+        auto sheet = std::make_shared<printed_surround>();
+        sheet->albedo = draw_marker_frame(frame, 4.0);
+        sheet->width_mm = sheet->albedo.width() / 4.0;
+        sheet->height_mm = sheet->albedo.height() / 4.0;
+        o.surround = sheet;
+        if (fill->count() == 0) o.fill = 0.6;
+      }
+      synthetic_photographs photos = photograph_capture(truth, configurations, o);
+      // The same configurations rendered in texture space, exposed as each photograph was and with
+      // the same sensor noise, in the photographs' units (intensity times exposure, as photos.json
+      // gives it): the capture a perfect rectification would give. (The image loss is not
+      // invariant to one image's units alone, through its epsilon; studies/README.md.)
       std::vector<image> direct = render(truth, photos.texture_capture);
+      capture direct_capture = photos.texture_capture;
       for (std::size_t i = 0; i < direct.size(); ++i) {
         const float e = float(photos.exposures[i]);
         for (int c = 0; c < 3; ++c)
           for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] *= e;
         add_sensor_noise(direct[i], o.noise, hash64(s->seed ^ (0x646972656374ULL + i)));
-        for (int c = 0; c < 3; ++c)
-          for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] /= e;
+        for (float& intensity : direct_capture.images[i].intensity) intensity *= e;
       }
       write_maps(truth, s->out / "truth");
       write_synthetic_photographs(photos, s->out / "photos");
+      if (s->marker_frame) {
+        // As a user would: "corners" left out where the tags are found in the photograph, given
+        // (here: exact) where they are not, e.g. in grazing views.
+        const double n = std::max(truth.width(), truth.height());
+        const marker_frame frame = make_marker_frame(truth.width() / n * o.longest_mm, truth.height() / n * o.longest_mm, s->frame);
+        for (auto& entry : photos.description.photos) {
+          try {
+            find_corners_from_markers(read_photo(s->out / "photos" / entry.file), frame, entry.file);
+            entry.corners.reset();
+          } catch (const calibration_error&) {
+            std::fprintf(stderr, "photograph: %s: too few of the frame's tags found, its corners stay in photos.json\n", entry.file.c_str());
+          }
+        }
+        write_file_atomically(s->out / "photos" / "photos.json", photos_description_to_json(photos.description));
+      }
       std::filesystem::create_directories(s->out / "direct");
       file_transaction files;
       for (std::size_t i = 0; i < direct.size(); ++i) write_exr(direct[i], s->out / "direct" / photos.texture_capture.images[i].file, files);
-      files.stage(s->out / "direct" / "capture.json", capture_to_json(photos.texture_capture));
+      files.stage(s->out / "direct" / "capture.json", capture_to_json(direct_capture));
       files.commit();
       std::fprintf(stderr, "photograph: photos and photos.json in %s, texture-space capture in %s, true maps in %s\n",
                    (s->out / "photos").c_str(), (s->out / "direct").c_str(), (s->out / "truth").c_str());

@@ -24,10 +24,15 @@ inline void add_rectify_command(CLI::App& app) {
   auto s = std::make_shared<settings>();
   auto* cmd = app.add_subcommand("rectify", "perspective photographs of a flat sample (photos.json) to a texture-space capture");
   cmd->add_option("photos", s->photos, "photos.json: sample size, camera, and per photo the file, corners and light")->required();
-  cmd->add_option("-o,--out", s->out, "output folder: rectified_NN.exr, mask_NN.png, capture.json")->capture_default_str();
+  cmd->add_option("-o,--out", s->out, "output folder: rectified_NN.exr, mask_NN.png (weights: 0 = ignore), capture.json")->capture_default_str();
   cmd->add_option("--resolution", s->options.resolution, "texels along the sample's longest side (0: what the photos support)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--saturation", s->options.saturation, "linear level at or above which a pixel counts as clipped (0: only the format's largest code)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--margin-px", s->options.resampling.margin_px, "photo pixels left out along each side of a texel's footprint (they also record its neighbours)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--full-confidence-px", s->options.resampling.full_confidence_px,
+                  "photo pixels across a texel that give it full weight in the loss; fewer weigh (d / this)^2 (0: every texel full weight)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--tag-mm", s->frame.tag_mm, "the marker frame's tag size, as given to `markers` (photos without \"corners\")")->capture_default_str();
   cmd->add_option("--gap-mm", s->frame.gap_mm, "the marker frame's gap, as given to `markers`")->capture_default_str();

@@ -1,13 +1,16 @@
-// Rectification: filtering, masks, axis conventions, photos.json errors, and the round trip
-// rectify(photograph(material)) against the texture-space renderer.
+// Rectification: filtering, the footprint's margin and the texels' confidence, masks, axis
+// conventions, photos.json errors, and the round trip rectify(photograph(material)) against the
+// texture-space renderer.
 #include <doctest/doctest.h>
 
 #include <cmath>
 #include <fstream>
 #include <numbers>
+#include <random>
 
 #include "anisocap/calibration/photo_synthesis.hpp"
 #include "anisocap/calibration/rectify.hpp"
+#include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "data/test_folder.hpp"
@@ -60,6 +63,103 @@ TEST_CASE("area averaging: a checkerboard finer than a texel rectifies to its me
   CHECK(r.outside_fraction == 0);
 }
 
+TEST_CASE("the footprint leaves out its margin: texels with sharp borders rectify to their own value") {
+  // Each texel a patch of its own random albedo (nearest lookup), seen obliquely at 2-4 photo
+  // pixels per texel: pixels on a texel's border record its neighbours as well.
+  const int n = 32;
+  material_maps maps(n, n);
+  const float grey[parameter_count] = {0.3f, 0.3f, 0.3f, 0, 0, 0, 0.3f, 0.3f, 1, 0, 0, 0};
+  maps.fill(grey);
+  std::mt19937 gen(7);
+  std::uniform_real_distribution<float> albedo(0.05f, 0.9f);
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x)
+      for (int c = 0; c < 3; ++c) maps.at(diffuse_r + c, x, y) = albedo(gen);
+  photo_setup setup;
+  setup.pose = look_at({0, -150, 220}, {0, 0, 0}, {0, 0, 1});
+  setup.camera = {330, {159.5, 119.5}};
+  setup.light_mm = {40, -60, 250};
+  setup.intensity = {6, 6, 6};
+  const image photo = render_photograph(maps, 100, setup, 320, 240, 4, texture_lookup::nearest);
+  capture direct;
+  capture_image config;
+  const Eigen::Vector3d centre = setup.pose.camera_centre() / 100;
+  config.camera = {float(centre.x()), float(centre.y()), float(centre.z())};
+  config.light = {0.4f, -0.6f, 2.5f};
+  config.intensity = setup.intensity;
+  direct.images.push_back(config);
+  const image truth = render(maps, direct)[0];
+  auto error = [&](const resampling_options& o) {
+    const rectified_photo r = rectify_photo(photo, image(), setup.camera, setup.pose, n, n, 100, o);
+    double difference = 0, total = 0;
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t k = 0; k < truth.pixel_count(); ++k) {
+        REQUIRE(r.mask.plane(0)[k] == 1);
+        difference += std::abs(r.radiance.plane(c)[k] - truth.plane(c)[k]);
+        total += truth.plane(c)[k];
+      }
+    return difference / total;
+  };
+  resampling_options whole;
+  whole.margin_px = 0;
+  const double with_margin = error({}), without = error(whole);
+  MESSAGE("mean relative error: " << with_margin << " with the default margin, " << without << " over the whole texel");
+  CHECK(with_margin < 0.6 * without);
+  CHECK(with_margin < 0.06);
+}
+
+TEST_CASE("confidence: 1 where a texel spans enough photo pixels, (d / full)^2 where it spans fewer; the mask file carries it") {
+  const int w = 40, h = 32;
+  image photo(960, 480, 3);
+  for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.25f);
+  // Frontal: 400 px across 40 texels, 10 px per texel: full confidence everywhere.
+  const frontal_view v;
+  const rectified_photo frontal = rectify_photo(photo, image(), {1200, {479.5, 239.5}}, v.pose, w, h, 100);
+  for (std::size_t k = 0; k < frontal.confidence.pixel_count(); ++k) REQUIRE(frontal.confidence.plane(0)[k] == 1.0f);
+  REQUIRE(frontal.outside_fraction == 0);
+  // Grazing, from beyond the bottom edge: the far (top) rows span a pixel or less along y.
+  const pinhole_camera camera{800, {479.5, 239.5}};
+  const planar_pose pose = look_at({0, -160, 25}, {0, 0, 0}, {0, 0, 1});
+  const resampling_options o;
+  const rectified_photo r = rectify_photo(photo, image(), camera, pose, w, h, 100, o);
+  // The texel's extent in pixels along each axis, from the projections of its edges' midpoints.
+  auto span = [&](int x, int y) {
+    auto at = [&](double u, double v) { return project(camera, pose, texture_to_sample(u, v, w, h, 100)); };
+    return std::min((at(x + 1.0, y + 0.5) - at(x, y + 0.5)).norm(), (at(x + 0.5, y + 1.0) - at(x + 0.5, y)).norm());
+  };
+  REQUIRE(r.outside_fraction == 0);
+  CHECK(span(20, 0) < 1.5);
+  CHECK(span(20, h - 1) > o.full_confidence_px);
+  for (int y = 0; y < h; ++y) {
+    CAPTURE(y);
+    const double d = span(20, y);
+    const double expected = std::pow(std::min(1.0, d / o.full_confidence_px), 2);
+    CHECK(r.confidence.at(0, 20, y) == doctest::Approx(expected).epsilon(1e-4));
+    if (y > 0) CHECK(r.confidence.at(0, 20, y) >= r.confidence.at(0, 20, y - 1));  // nearer rows: more confident
+  }
+  CHECK(r.confidence.at(0, 20, 0) < 0.4);
+  CHECK(r.confidence.at(0, 20, h - 1) == 1.0f);
+  // Written as the mask's weights (8-bit codes) and read back by the capture's reader.
+  rectified_capture capture_out;
+  capture_out.width = w;
+  capture_out.height = h;
+  capture_image im;
+  im.file = "rectified_00.exr";
+  im.mask = "mask_00.png";
+  im.camera = {0, -1.6f, 0.3f};
+  im.light = {0, 0, 2};
+  capture_out.configurations.images.push_back(im);
+  capture_out.photos.push_back(r);
+  testing::test_folder dir;
+  write_rectified_capture(capture_out, dir.path());
+  const image back = read_mask(dir / "mask_00.png", w, h);
+  for (std::size_t k = 0; k < back.pixel_count(); ++k) {
+    CAPTURE(k);
+    if (r.mask.plane(0)[k] == 0) CHECK(back.plane(0)[k] == 0.0f);
+    else CHECK(std::abs(back.plane(0)[k] - std::max(r.confidence.plane(0)[k], 1.0f / 255)) <= 0.5f / 255 + 1e-6f);
+  }
+}
+
 TEST_CASE("texels outside the photo and texels on clipped pixels are masked") {
   const frontal_view v;
   image photo(640, 480, 3);
@@ -77,7 +177,8 @@ TEST_CASE("texels outside the photo and texels on clipped pixels are masked") {
   const rectified_photo s = rectify_photo(photo, image(), v.camera, shifted, 100, 80, 100);
   // Texel of sample point (20, -10): x = 20 + 50, y = 40 + 10.
   CHECK(r.mask.at(0, 70, 50) == 0);
-  CHECK(r.radiance.at(0, 70, 50) == 0);
+  CHECK(r.radiance.at(0, 70, 50) == doctest::Approx(0.25));  // clipped: kept for the estimator
+  CHECK(s.radiance.at(0, 99, 40) == 0);                      // outside the photo: 0
   CHECK(r.mask.at(0, 10, 10) == 1);
   CHECK(r.radiance.at(0, 10, 10) == doctest::Approx(0.25));
   CHECK(r.clipped_fraction > 0);
@@ -85,6 +186,34 @@ TEST_CASE("texels outside the photo and texels on clipped pixels are masked") {
   CHECK(s.outside_fraction > 0.2);
   CHECK(s.mask.at(0, 99, 40) == 0);
   CHECK(s.mask.at(0, 5, 40) == 1);
+}
+
+TEST_CASE("a clipped pixel masks only the texel whose footprint it lies in, and reaches no used texel") {
+  // Frontal: 4 photo pixels per texel. One pixel, at texel (30, 20)'s centre, is clipped and holds
+  // a value far above its surroundings.
+  const frontal_view v;
+  image photo(640, 480, 3);
+  for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.25f);
+  image usable(640, 480, 1);
+  std::fill_n(usable.plane(0), usable.pixel_count(), 1.0f);
+  const Eigen::Vector2d p = project(v.camera, v.pose, texture_to_sample(30.5, 20.5, 100, 80, 100));
+  const int px = int(std::lround(p.x())), py = int(std::lround(p.y()));
+  for (int c = 0; c < 3; ++c) photo.at(c, px, py) = 100.0f;
+  usable.at(0, px, py) = 0.0f;
+  const rectified_photo r = rectify_photo(photo, usable, v.camera, v.pose, 100, 80, 100);
+  CHECK(r.mask.at(0, 30, 20) == 0);
+  CHECK(r.radiance.at(0, 30, 20) > 0.25f);  // kept (clipped) for the estimator, left out of the loss
+  std::size_t masked = 0;
+  for (int y = 0; y < 80; ++y)
+    for (int x = 0; x < 100; ++x) {
+      if (r.mask.at(0, x, y) == 0) {
+        ++masked;
+        continue;
+      }
+      for (int c = 0; c < 3; ++c) REQUIRE(r.radiance.at(c, x, y) == doctest::Approx(0.25f).epsilon(1e-6));
+    }
+  CHECK(masked == 1);
+  CHECK(r.clipped_fraction == doctest::Approx(1.0 / 8000));
 }
 
 TEST_CASE("texture rows run from the sample's top edge: a marked corner lands at texel (0, 0)") {

@@ -482,6 +482,20 @@ TEST_CASE("families: new kinds synthesize, the held-out families evaluate per fa
   CHECK_FALSE(fs::exists(t.path / "s3"));
 }
 
+TEST_CASE("photographs of the printed marker frame: corners left out where the tags are found, rectify finds them") {
+  temp_dir t;
+  auto r = run("photograph -o shoot --size 48 --images 8 --marker-frame", t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json photos = nlohmann::json::parse(read_text(t.path / "shoot/photos/photos.json"));
+  int without = 0;
+  for (const auto& p : photos["photos"]) without += !p.contains("corners");
+  CHECK(without >= 4);  // the photos from above; grazing views may keep theirs
+  r = run("rectify shoot/photos/photos.json -o rect --resolution 48", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("8/8") != std::string::npos);
+  CHECK(fs::exists(t.path / "rect/capture.json"));
+}
+
 TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph, rectify, capture") {
   temp_dir t;
   auto r = run("photograph -o shoot --size 48 --images 8 --photo-width 320 --photo-height 240", t.path);

@@ -183,29 +183,34 @@ TEST_CASE("EXR photographs: saturation level, NaN and negative pixels keep their
   CHECK(contains(error_of([&] { anisocap::read_photo(dir / "a.exr", bad); }), "saturation must be"));
 }
 
-TEST_CASE("read_mask: one channel or RGB, PNG or EXR, zero in every channel = ignore; size checked") {
+TEST_CASE("read_mask: weights, one channel or RGB, PNG codes as stored or EXR values, 0 = ignore; size checked") {
   test_folder dir;
-  const unsigned char grey[] = {0, 255, 1, 0, 7, 0};
+  // PNG: the code over 255, not sRGB-decoded (128 is half weight, not 0.22).
+  const unsigned char grey[] = {0, 255, 1, 0, 128, 0};
   REQUIRE(stbi_write_png((dir / "m1.png").c_str(), 3, 2, 1, grey, 3));
   image m = anisocap::read_mask(dir / "m1.png", 3, 2);
-  const float expected[] = {0, 1, 1, 0, 1, 0};
-  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == expected[i]);
+  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == doctest::Approx(grey[i] / 255.0).epsilon(1e-4));
+  CHECK(m.plane(0)[0] == 0.0f);
+  CHECK(m.plane(0)[1] == 1.0f);
+  // RGB: the largest channel.
   const unsigned char rgb[] = {0, 0, 0, 0, 0, 9, 255, 255, 255, 0, 0, 0, 3, 0, 0, 0, 0, 0};
   REQUIRE(stbi_write_png((dir / "m3.png").c_str(), 3, 2, 3, rgb, 9));
   m = anisocap::read_mask(dir / "m3.png", 3, 2);
-  const float expected_rgb[] = {0, 1, 1, 0, 1, 0};
-  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == expected_rgb[i]);
+  const float expected_rgb[] = {0, 9 / 255.0f, 1, 0, 3 / 255.0f, 0};
+  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == doctest::Approx(expected_rgb[i]).epsilon(1e-4));
+  // EXR: the values, capped at 1.
   image e1(3, 2, 1);
   e1.plane(0)[4] = 0.5f;
+  e1.plane(0)[5] = 3.0f;
   anisocap::write_exr(e1, dir / "m.exr");
   m = anisocap::read_mask(dir / "m.exr", 3, 2);
-  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == (i == 4 ? 1.0f : 0.0f));
+  for (int i = 0; i < 6; ++i) CHECK(m.plane(0)[i] == (i == 4 ? 0.5f : i == 5 ? 1.0f : 0.0f));
   const std::string e = error_of([&] { anisocap::read_mask(dir / "m.exr", 4, 2); });
   CHECK(contains(e, "m.exr"));
   CHECK(contains(e, "the mask is 3x2 but its photograph is 4x2"));
 }
 
-TEST_CASE("load_capture_photos: per-image exposure, mask files AND clipping, clear errors") {
+TEST_CASE("load_capture_photos: per-image exposure, mask file weights times clipping, clear errors") {
   test_folder dir;
   fs::create_directory(dir / "masks");
   // Two 4 x 1 8-bit photographs; image 0 has one clipped pixel (x = 3).
@@ -213,7 +218,7 @@ TEST_CASE("load_capture_photos: per-image exposure, mask files AND clipping, cle
   const unsigned char b[] = {40, 40, 40, 50, 50, 50, 60, 60, 60, 70, 70, 70};
   REQUIRE(stbi_write_png((dir / "IMG_0000.png").c_str(), 4, 1, 3, a, 12));
   REQUIRE(stbi_write_jpg((dir / "IMG_0001.jpg").c_str(), 4, 1, 3, b, 100));
-  const unsigned char mask[] = {0, 255, 255, 255};  // image 0: x = 0 masked by hand
+  const unsigned char mask[] = {0, 255, 51, 255};  // image 0: x = 0 masked by hand, x = 2 weighs 0.2
   REQUIRE(stbi_write_png((dir / "masks" / "m0.png").c_str(), 4, 1, 1, mask, 4));
   capture c;
   c.images = {entry("IMG_0000.png", "masks/m0.png"), entry("IMG_0001.jpg", "", 2.0f)};
@@ -221,8 +226,8 @@ TEST_CASE("load_capture_photos: per-image exposure, mask files AND clipping, cle
   const capture back = anisocap::read_capture(dir / "capture.json");
   auto photos = anisocap::load_capture_photos(back, dir.path());
   REQUIRE(photos.size() == 2);
-  const float expected0[] = {0, 1, 1, 0};  // mask file AND clip mask
-  for (int i = 0; i < 4; ++i) CHECK(photos[0].mask.plane(0)[i] == expected0[i]);
+  const float expected0[] = {0, 1, 0.2f, 0};  // mask file times clip mask
+  for (int i = 0; i < 4; ++i) CHECK(photos[0].mask.plane(0)[i] == doctest::Approx(expected0[i]).epsilon(1e-4));
   CHECK(photos[0].clipped == 1);
   CHECK(photos[0].masked == 2);
   CHECK(photos[1].masked == 0);

@@ -1,6 +1,8 @@
 // Masks in the fused image loss (render/renderer.hpp, loss_targets): masked pixels add exact zeros
 // to the loss and the gradient whatever their targets hold, each image's loss is the mean over its
 // used pixels, the gradient matches finite differences with a mask, and crops keep the weights.
+// Fractional mask values weigh their pixels: the loss is the weighted mean and its gradient matches
+// finite differences.
 #include <doctest/doctest.h>
 #include <omp.h>
 
@@ -29,6 +31,21 @@ std::vector<image> random_masks(int w, int h, std::size_t n, double share, std::
     image m(w, h, 1);
     for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] = out(gen) ? 0.0f : 1.0f;
     m.plane(0)[k % m.pixel_count()] = 1.0f;  // never an empty image
+    masks.push_back(std::move(m));
+  }
+  return masks;
+}
+
+/// One mask per image of weights drawn from {0, 0.25, 0.6, 1}, from `seed`.
+std::vector<image> fractional_masks(int w, int h, std::size_t n, std::uint64_t seed) {
+  std::mt19937_64 gen(seed);
+  std::uniform_int_distribution<int> pick(0, 3);
+  const float levels[] = {0.0f, 0.25f, 0.6f, 1.0f};
+  std::vector<image> masks;
+  for (std::size_t k = 0; k < n; ++k) {
+    image m(w, h, 1);
+    for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] = levels[pick(gen)];
+    m.plane(0)[k % m.pixel_count()] = 0.6f;  // never an empty image
     masks.push_back(std::move(m));
   }
   return masks;
@@ -238,4 +255,80 @@ TEST_CASE("masks: wrong counts and sizes, and an image with every pixel masked, 
   photos[0].plane(0)[masked] = std::nanf("");
   CHECK_NOTHROW(make_loss_targets(photos, s.masks));
   CHECK_THROWS_AS(make_loss_targets(photos), std::invalid_argument);
+}
+
+TEST_CASE("fractional masks: each image's loss is the mask-weighted mean; values above 1 count as 1") {
+  const two_threads threads;
+  scene s;
+  s.masks = fractional_masks(s.w, s.h, 4, 61);
+  const loss_targets t = make_loss_targets(s.photos, s.masks);
+  const auto rendered = render(s.maps, s.cap);
+  std::vector<image> binary = s.masks;
+  for (auto& m : binary)
+    for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] = m.plane(0)[i] != 0.0f ? 1.0f : 0.0f;
+  // The mean of |log differences| over each image's pixels with the weights of `masks`.
+  auto weighted_mean = [&](const std::vector<image>& masks) {
+    double total = 0;
+    for (std::size_t k = 0; k < s.cap.images.size(); ++k) {
+      double sum = 0, used = 0;
+      for (std::size_t i = 0; i < rendered[k].pixel_count(); ++i) {
+        const double m = masks[k].plane(0)[i];
+        used += m;
+        for (int c = 0; c < 3; ++c)
+          sum += m * std::abs(std::log(double(rendered[k].plane(c)[i]) + loss_epsilon) - std::log(double(s.photos[k].plane(c)[i]) + loss_epsilon));
+      }
+      if (&masks == &s.masks) CHECK(t.weights[k] == doctest::Approx(double(s.w * s.h) / used));
+      total += sum / (3.0 * used);
+    }
+    return total;
+  };
+  const double expected = weighted_mean(s.masks);
+  for_each_path(s, t, [&](double l, const material_maps&) { CHECK(l == doctest::Approx(expected).epsilon(1e-5)); });
+  // The weights matter: the same pixels used with weight 1 give the unweighted mean, another value.
+  const double expected_binary = weighted_mean(binary);
+  CHECK(std::abs(expected - expected_binary) > 1e-4 * expected);
+  CHECK(loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos, binary), nullptr) == doctest::Approx(expected_binary).epsilon(1e-5));
+  // Above 1: the same as 1.
+  std::vector<image> above = binary;
+  for (auto& m : above)
+    for (std::size_t i = 0; i < m.pixel_count(); ++i) m.plane(0)[i] *= 7.0f;
+  CHECK(loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos, above), nullptr) ==
+        loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos, binary), nullptr));
+  // Negative or NaN weights are refused.
+  std::vector<image> bad = s.masks;
+  bad[1].plane(0)[3] = -0.5f;
+  CHECK_THROWS_WITH_AS(make_loss_targets(s.photos, bad), doctest::Contains("mask 1 has a negative or non-finite value"), std::invalid_argument);
+  bad[1].plane(0)[3] = std::nanf("");
+  CHECK_THROWS_AS(make_loss_targets(s.photos, bad), std::invalid_argument);
+}
+
+TEST_CASE("fractional masks: the gradient matches central differences") {
+  scene s;
+  s.w = 7, s.h = 5;
+  s.maps = random_maps(7, 5, 71);
+  s.photos = render(random_maps(7, 5, 73), s.cap);
+  s.masks = fractional_masks(7, 5, 4, 74);
+  const loss_targets t = make_loss_targets(s.photos, s.masks);
+  render_options dbl;
+  dbl.double_precision = true;
+  material_maps g(s.w, s.h);
+  loss_and_gradient(s.maps, s.cap, t, &g, {}, dbl);
+  material_maps m = s.maps;
+  for (int k = 0; k < parameter_count; ++k) {
+    float* x = m.plane(k);
+    const std::size_t n = m.texel_count();
+    std::vector<double> analytic(g.plane(k), g.plane(k) + n);
+    double scale = 1e-9;
+    for (double a : analytic) scale = std::max(scale, std::abs(a));
+    const double step = 1.0 / 16384;
+    std::vector<double> xd(x, x + n);
+    auto loss = [&] {
+      for (std::size_t i = 0; i < n; ++i) x[i] = float(xd[i]);
+      return loss_and_gradient(m, s.cap, t, nullptr, {}, dbl);
+    };
+    const auto r = check_gradient<double>(loss, xd.data(), n, analytic.data(), step);
+    for (std::size_t i = 0; i < n; ++i) x[i] = s.maps.plane(k)[i];
+    INFO("plane " << k << " worst texel " << r.worst_index << " max abs error " << r.max_abs_error << " scale " << scale);
+    CHECK(r.max_abs_error < 2e-3 * scale + 1e-7);
+  }
 }

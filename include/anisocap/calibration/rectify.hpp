@@ -5,7 +5,7 @@
 /// (calibration/camera.hpp), each photo resampled onto the texture grid, camera and light
 /// positions converted to the capture's units (the sample's longest side, origin at its centre, z
 /// out of the surface), and a per-image mask of texels the loss must ignore (seen outside the
-/// photo, or touching clipped pixels).
+/// photo, or covering clipped pixels), weighted by how sharply the photo saw each texel.
 ///
 /// Texel (x, y) of a w x h texture (longest side n) covers the sample square whose centre is
 /// `texel_position(x, y, w, h)` times the sample's longest side in mm (render/capture.hpp), so the
@@ -14,6 +14,16 @@
 /// texel, as many per axis as the texel spans photo pixels along that axis, each read with
 /// bilinear interpolation of the linear photo. A photo with more pixels than the texture is thus
 /// area-averaged (no aliasing), one with fewer is interpolated.
+///
+/// A photo pixel near a texel's border also records its neighbour (the pixel's own area and the
+/// bilinear reading reach about 1.5 pixels), so the footprint is shrunk by `margin_px` photo pixels
+/// on each side, down to the texel's centre. Texels spanning few photo pixels cannot avoid their
+/// neighbours, and their rectified values stray further from the texel's own the fewer pixels
+/// they span: each texel gets a confidence in (0, 1], (d / `full_confidence_px`)^2 capped at 1,
+/// with d the photo pixels across the texel along its narrower axis. The confidence is the texel's
+/// weight in the image loss (written as the mask, render/renderer.hpp's loss_targets): a grazing
+/// photo's far half, seen at less than a pixel per texel, still counts, but less. The defaults
+/// are measured by studies/rectify_residuals.cpp (studies/README.md).
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -36,10 +46,17 @@
 
 namespace anisocap {
 
+/// How rectify_photo reads a texel's footprint from the photo (see the file comment).
+struct resampling_options {
+  int max_samples_per_axis = 16;  ///< cap on a texel's footprint samples per axis (keeps grazing views bounded)
+  double margin_px = 1;           ///< photo pixels left out along each side of the footprint
+  double full_confidence_px = 2.5;  ///< photo pixels across a texel's narrower axis that earn full confidence (0: always 1)
+};
+
 /// Options of rectify.
 struct rectify_options {
   int resolution = 0;         ///< texels along the sample's longest side (0: what the photos support, supported_resolution)
-  int max_samples_per_axis = 16;  ///< cap on a texel's footprint samples per axis (keeps grazing views bounded)
+  resampling_options resampling;  ///< how each texel's footprint is read
   float saturation = 0;       ///< values at or above this linear level are clipped (0: only the format's largest code)
   pose_options pose;          ///< pose refinement
   /// Called after each photo is rectified with (photos done, photos in all, that photo's report).
@@ -48,12 +65,13 @@ struct rectify_options {
 
 /// One rectified photograph.
 struct rectified_photo {
-  image radiance;          ///< 3-channel linear texture-space image (0 where masked)
+  image radiance;          ///< 3-channel linear texture-space image (0 outside the photo; clipped texels keep their clipped values, for the estimator)
   image mask;              ///< 1-channel: 1 = use, 0 = ignore (outside the photo or clipped)
+  image confidence;        ///< 1-channel: the texel's confidence in (0, 1] from its sampling density (0 where masked)
   pinhole_camera camera;   ///< the photo's intrinsics
   planar_pose pose;        ///< sample -> camera
   double outside_fraction = 0;  ///< texels not fully inside the photo
-  double clipped_fraction = 0;  ///< texels touching clipped pixels
+  double clipped_fraction = 0;  ///< texels covering clipped pixels
 };
 
 /// All photographs in texture space and the capture that describes them.
@@ -91,17 +109,23 @@ inline double supported_resolution(const pinhole_camera& camera, const planar_po
 }
 
 /// Resamples one linear photo onto a width x height texture of a sample whose longest side is
-/// `longest_mm` (see the file comment). Texels with any footprint sample outside the photo, or
-/// reading a pixel whose `usable` mask (1 channel, 0 = clipped or excluded) is 0, get mask 0 and
-/// radiance 0. An empty `usable` image uses every pixel.
+/// `longest_mm` (see the file comment). Texels with any footprint sample outside the photo get
+/// mask 0 and radiance 0. A footprint sample lying in a pixel whose `usable` mask (1 channel, 0 =
+/// clipped or excluded) is 0 gives its texel mask 0; such texels keep their resampled values (the
+/// loss ignores them, and the estimation network, which sees whole images, sees a bright highlight
+/// there rather than a black hole). The other texels' bilinear readings leave unusable neighbours
+/// out (the usable ones' weights renormalised), so a clipped pixel reaches no used texel and masks
+/// only the texels whose footprint it covers. An empty `usable` image uses every pixel.
 inline rectified_photo rectify_photo(const image& photo, const image& usable, const pinhole_camera& camera,
                                      const planar_pose& pose, int width, int height, double longest_mm,
-                                     int max_samples_per_axis = 16) {
+                                     const resampling_options& resampling = {}) {
   rectified_photo out;
   out.camera = camera;
   out.pose = pose;
   out.radiance = image(width, height, 3);
   out.mask = image(width, height, 1);
+  out.confidence = image(width, height, 1);
+  const int max_samples_per_axis = resampling.max_samples_per_axis;
   // The homography from sample (X, Y, 1) in mm to homogeneous pixels: K [r1 r2 t].
   Eigen::Matrix3d h;
   h.col(0) = pose.rotation.col(0);
@@ -121,13 +145,20 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
       // The texel's extent in pixels along u and v (finite differences across the texel).
       const Eigen::Vector2d du = to_pixel(x + 1.0, y + 0.5) - to_pixel(x, y + 0.5);
       const Eigen::Vector2d dv = to_pixel(x + 0.5, y + 1.0) - to_pixel(x + 0.5, y);
-      const int su = std::clamp(int(std::ceil(du.norm())), 1, max_samples_per_axis);
-      const int sv = std::clamp(int(std::ceil(dv.norm())), 1, max_samples_per_axis);
-      double sum[3] = {0, 0, 0};
+      const double pu = du.norm(), pv = dv.norm();
+      // Half the sampled extent, in texels, once the margin is left out.
+      const double hu = std::max(0.0, 0.5 - resampling.margin_px / std::max(pu, 1e-9));
+      const double hv = std::max(0.0, 0.5 - resampling.margin_px / std::max(pv, 1e-9));
+      const int su = std::clamp(int(std::ceil(2 * hu * pu)), 1, max_samples_per_axis);
+      const int sv = std::clamp(int(std::ceil(2 * hv * pv)), 1, max_samples_per_axis);
+      const double full = resampling.full_confidence_px;
+      const double narrow = full > 0 ? std::min(1.0, std::min(pu, pv) / full) : 1.0;
+      const double confidence = narrow * narrow;
+      double sum[3] = {0, 0, 0}, raw[3] = {0, 0, 0};
       bool inside = true, clip = false;
       for (int j = 0; j < sv && inside; ++j)
         for (int i = 0; i < su && inside; ++i) {
-          const Eigen::Vector2d p = to_pixel(x + (i + 0.5) / su, y + (j + 0.5) / sv);
+          const Eigen::Vector2d p = to_pixel(x + 0.5 + hu * (2.0 * (i + 0.5) / su - 1.0), y + 0.5 + hv * (2.0 * (j + 0.5) / sv - 1.0));
           if (!(p.x() >= 0 && p.y() >= 0 && p.x() <= pw - 1 && p.y() <= ph - 1)) {
             inside = false;
             break;
@@ -138,18 +169,32 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
           const double w[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
           const std::size_t k[4] = {std::size_t(y0) * pw + x0, std::size_t(y0) * pw + x1, std::size_t(y1) * pw + x0,
                                     std::size_t(y1) * pw + x1};
+          // The sample is clipped when the pixel it lies in is; its neighbours' clipped values
+          // are left out of the bilinear reading (the weights of the usable ones renormalised).
+          const std::size_t nearest = std::size_t(std::lround(p.y())) * pw + std::size_t(std::lround(p.x()));
+          if (!usable.empty() && usable.plane(0)[nearest] == 0.0f) clip = true;
+          double kept = 0, part[3] = {0, 0, 0};
           for (int t = 0; t < 4; ++t) {
             if (w[t] <= 0) continue;
-            if (!usable.empty() && usable.plane(0)[k[t]] == 0.0f) clip = true;
-            for (int c = 0; c < 3; ++c) sum[c] += w[t] * photo.plane(c)[k[t]];
+            const bool ok = usable.empty() || usable.plane(0)[k[t]] != 0.0f;
+            for (int c = 0; c < 3; ++c) {
+              raw[c] += w[t] * photo.plane(c)[k[t]];
+              if (ok) part[c] += w[t] * photo.plane(c)[k[t]];
+            }
+            if (ok) kept += w[t];
           }
+          if (kept > 0)
+            for (int c = 0; c < 3; ++c) sum[c] += part[c] / kept;
+          else
+            clip = true;
         }
       const std::size_t index = std::size_t(y) * width + x;
       const bool use = inside && !clip;
       if (!inside) ++outside;
       else if (clip) ++clipped_count;
       out.mask.plane(0)[index] = use ? 1.0f : 0.0f;
-      for (int c = 0; c < 3; ++c) out.radiance.plane(c)[index] = use ? float(sum[c] / (su * sv)) : 0.0f;
+      out.confidence.plane(0)[index] = use ? float(confidence) : 0.0f;
+      for (int c = 0; c < 3; ++c) out.radiance.plane(c)[index] = !inside ? 0.0f : float((use ? sum[c] : raw[c]) / (su * sv));
     }
   }
   const double texels = double(width) * height;
@@ -224,7 +269,7 @@ inline rectified_capture rectify(const photos_description& description, const st
   for (std::size_t i = 0; i < all.size(); ++i) {
     const photo_entry& e = description.photos[i];
     rectified_photo r = rectify_photo(all[i].picture.pixels, all[i].picture.mask, all[i].camera, all[i].pose, width, height,
-                                      longest, options.max_samples_per_axis);
+                                      longest, options.resampling);
     const Eigen::Vector3d camera = all[i].pose.camera_centre() / longest;
     const Eigen::Vector3d light = light_position(e, all[i].pose) / longest;
     capture_image im;
@@ -246,14 +291,24 @@ inline rectified_capture rectify(const photos_description& description, const st
   return result;
 }
 
-/// Writes the rectified images (linear EXR), their masks (8-bit PNG: 255 = use, 0 = ignore) and
-/// capture.json into `out` (created if needed), all or nothing.
+/// The mask file's values of a rectified photo: its confidence where the mask uses the texel, at
+/// least 1/255 so that 8 bits keep every used texel; 0 where it is ignored.
+inline image mask_weights(const rectified_photo& r) {
+  image m(r.mask.width(), r.mask.height(), 1);
+  for (std::size_t k = 0; k < m.pixel_count(); ++k)
+    m.plane(0)[k] = r.mask.plane(0)[k] == 0.0f ? 0.0f : std::clamp(r.confidence.plane(0)[k], 1.0f / 255.0f, 1.0f);
+  return m;
+}
+
+/// Writes the rectified images (linear EXR), their masks (8-bit PNG, linear codes: 0 = ignore, else
+/// the texel's weight in the loss, 255 = 1; mask_weights) and capture.json into `out` (created if
+/// needed), all or nothing.
 inline void write_rectified_capture(const rectified_capture& r, const std::filesystem::path& out) {
   std::filesystem::create_directories(out);
   file_transaction files;
   for (std::size_t i = 0; i < r.photos.size(); ++i) {
     write_exr(r.photos[i].radiance, out / r.configurations.images[i].file, files);
-    write_png(r.photos[i].mask, out / r.configurations.images[i].mask, files, 0.0f, png_encoding::linear);
+    write_png(mask_weights(r.photos[i]), out / r.configurations.images[i].mask, files, 0.0f, png_encoding::linear);
   }
   files.stage(out / "capture.json", capture_to_json(r.configurations, out / "capture.json"));
   files.commit();

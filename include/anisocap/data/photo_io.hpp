@@ -11,6 +11,7 @@
 /// exposure factor); linear files (EXR, HDR) have no largest code, so only the level finds clipping
 /// there. A mask file given by the capture description (zero in every channel: ignore) combines
 /// with the clipped pixels: a pixel is used only when both allow it.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -38,7 +39,7 @@ struct photo_options {
 /// One photograph ready for the loss.
 struct photo {
   image pixels;              ///< 3-channel linear radiance, exposure applied
-  image mask;                ///< 1 channel, same size: 1 = in the loss, 0 = left out
+  image mask;                ///< 1 channel, same size: the pixel's weight in the loss (1 = full, 0 = left out)
   std::size_t clipped = 0;   ///< pixels found clipped (counted whether or not they are excluded)
   std::size_t masked = 0;    ///< pixels with mask 0 (clipped, given mask, or both)
 
@@ -90,26 +91,32 @@ inline photo read_photo(const std::filesystem::path& path, const photo_options& 
   return p;
 }
 
-/// Reads a mask image (any type read_image accepts, one channel or RGB) of `width` x `height`:
-/// 1 where any channel is non-zero (use), 0 where every channel is zero (ignore). Throws io_error
-/// naming the file when it cannot be read, holds NaN or negative values, or differs in size.
+/// Reads a mask image (any type read_image accepts, one channel or RGB) of `width` x `height`: each
+/// pixel's weight in the loss, the largest of its channels, read as stored (PNG and JPEG codes over
+/// their largest code, not sRGB-decoded: 255 = 1, 128 = 0.5; EXR and HDR values as they are),
+/// capped at 1. 0 in every channel = ignore; black and white masks use a pixel fully or not at all.
+/// Throws io_error naming the file when it cannot be read, holds NaN or negative values, or
+/// differs in size.
 inline image read_mask(const std::filesystem::path& path, int width, int height) {
   const image m = read_image(path);
   validate_pixels(m, path);
   if (m.width() != width || m.height() != height)
     throw io_error(path, "the mask is " + std::to_string(m.width()) + "x" + std::to_string(m.height()) + " but its photograph is " +
                              std::to_string(width) + "x" + std::to_string(height));
+  const std::string ext = detail::lower_extension(path);
+  const bool encoded = ext == ".png" || ext == ".jpg" || ext == ".jpeg";
   image out(width, height, 1);
-  for (std::size_t i = 0; i < out.pixel_count(); ++i)
-    out.plane(0)[i] = m.plane(0)[i] != 0.0f || m.plane(1)[i] != 0.0f || m.plane(2)[i] != 0.0f ? 1.0f : 0.0f;
+  for (std::size_t i = 0; i < out.pixel_count(); ++i) {
+    const float v = std::max({m.plane(0)[i], m.plane(1)[i], m.plane(2)[i]});
+    out.plane(0)[i] = v == 0.0f ? 0.0f : std::min(1.0f, encoded ? float(linear_to_srgb(v)) : v);
+  }
   return out;
 }
 
-/// Leaves out of `p`'s loss every pixel that `mask` (1 channel, 0 = ignore) leaves out, keeping
-/// those already left out (the masks combine with AND), and recounts `p.masked`.
+/// Multiplies `p`'s mask by `mask` (1 channel of weights, 0 = ignore): a pixel that either leaves
+/// out stays out (for 0/1 masks, AND), and recounts `p.masked`.
 inline void combine_mask(photo& p, const image& mask) {
-  for (std::size_t i = 0; i < p.mask.pixel_count(); ++i)
-    if (mask.plane(0)[i] == 0.0f) p.mask.plane(0)[i] = 0.0f;
+  for (std::size_t i = 0; i < p.mask.pixel_count(); ++i) p.mask.plane(0)[i] *= mask.plane(0)[i];
   p.masked = detail::count_masked(p.mask);
 }
 

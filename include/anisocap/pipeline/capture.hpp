@@ -227,7 +227,7 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
 /// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
 /// `no_networks` for both to run the first guess and refine alone. `start`, when given, replaces
 /// the estimate (or the first guess). `masks` (optional, one 1-channel image per photograph,
-/// 0 = left out, e.g. clipped pixels: data/photo_io.hpp) keep pixels out of every image loss (the
+/// 0 = left out, e.g. clipped pixels: data/photo_io.hpp; other values weigh the pixel) keep pixels out of every image loss (the
 /// first guess, fine-tune with or without crops, refine and every stage's reported loss); the
 /// estimator still sees whole photographs.
 template <class Estimator = no_networks, class AutoEncoderNet = no_networks>

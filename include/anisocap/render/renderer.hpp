@@ -348,14 +348,16 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
 /// pixels each image's loss uses.
 ///
 /// Masks: a pixel with mask 0 is left out of the loss exactly: it adds 0 to the loss and 0 to every
-/// gradient entry, whatever its target holds. Image i's loss is the mean over its used pixels
-/// (and channels), so that each photograph weighs the same however much of it is masked: its terms
-/// carry the weight T / U_i, with T the texels and U_i the used pixels of the whole image. A crop
-/// keeps the whole image's weights, so crops' losses add up, by area, to the whole image's.
+/// gradient entry, whatever its target holds. A mask value m in (0, 1] weighs the pixel's terms by
+/// m (a pixel the photograph saw less sharply, calibration/rectify.hpp's confidence); values above
+/// 1 count as 1. Image i's loss is the m-weighted mean over its pixels (and channels), so that each
+/// photograph weighs the same however much of it is masked: its terms carry the weight
+/// m(p) T / U_i, with T the texels and U_i the sum of m over the whole image. A crop keeps the whole
+/// image's weights, so crops' losses add up, by area, to the whole image's.
 struct loss_targets {
   std::vector<image> log_images;  ///< one 3-channel planar image per capture image
-  /// Empty: every pixel is used. Otherwise one 1-channel image per capture image: 0 = left out,
-  /// any other value = used.
+  /// Empty: every pixel is used with weight 1. Otherwise one 1-channel image per capture image of
+  /// per-pixel weights in [0, 1]: 0 = left out.
   std::vector<image> masks;
   /// Per capture image, T / U_i (1 without masks); empty means 1 for every image.
   std::vector<double> weights;
@@ -387,7 +389,7 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
 
 /// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels) and
 /// their masks (empty: every pixel used; else one 1-channel image per photograph of its size,
-/// 0 = left out). Throws std::invalid_argument on a NaN or infinite pixel where the mask uses it,
+/// 0 = left out, a value in (0, 1) = used with that weight, above 1 = 1). Throws std::invalid_argument on a NaN or infinite pixel where the mask uses it,
 /// on masks of the wrong number or size, and on an image whose every pixel is masked; negative
 /// values count as 0. Masked pixels get the target log(0.01) (their value never enters the loss).
 inline loss_targets make_loss_targets(const std::vector<image>& photos, const std::vector<image>& masks = {}) {
@@ -408,12 +410,18 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
       if (m.width() != t.width || m.height() != t.height || m.channels() != 1)
         throw std::invalid_argument("make_loss_targets: mask " + std::to_string(i) + " is not a 1-channel image of the photographs' size");
       mask = m.plane(0);
-      std::size_t used = 0;
-      for (std::size_t k = 0; k < m.pixel_count(); ++k) used += mask[k] != 0.0f;
-      if (used == 0) throw std::invalid_argument("make_loss_targets: every pixel of image " + std::to_string(i) + " is masked");
-      weight = double(m.pixel_count()) / double(used);
       image stored(t.width, t.height, 1);
-      for (std::size_t k = 0; k < m.pixel_count(); ++k) stored.plane(0)[k] = mask[k] != 0.0f ? 1.0f : 0.0f;
+      double used = 0;
+      for (std::size_t k = 0; k < m.pixel_count(); ++k) {
+        if (!(mask[k] >= 0.0f) || !std::isfinite(mask[k]))
+          throw std::invalid_argument("make_loss_targets: mask " + std::to_string(i) + " has a negative or non-finite value (" +
+                                      std::to_string(mask[k]) + ") at pixel (" + std::to_string(k % std::size_t(m.width())) + ", " +
+                                      std::to_string(k / std::size_t(m.width())) + ")");
+        stored.plane(0)[k] = std::min(mask[k], 1.0f);
+        used += stored.plane(0)[k];
+      }
+      if (used == 0) throw std::invalid_argument("make_loss_targets: every pixel of image " + std::to_string(i) + " is masked");
+      weight = double(m.pixel_count()) / used;
       t.masks.push_back(std::move(stored));
     }
     t.weights.push_back(weight);
@@ -592,14 +600,15 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     for (std::size_t k = 0; k < configs.size(); ++k) {
       const auto s = detail::shade<F, V, N>(t, configs[k], cull);
       const V geometry = s.geometry.value;
-      // This image's weight per lane: T / U_k, and 0 where its mask leaves the pixel out.
+      // This image's weight per lane: m T / U_k, and 0 where its mask leaves the pixel out.
       V weight = targets.weights.empty() ? lane_weight : lane_weight * V(S(targets.weights[k]));
       bool masked = false;
       auto used = V(0) == V(0);  // every lane
       if (!targets.masks.empty()) {
         masked = true;
-        used = simd::load<V>(targets.masks[k].plane(0) + i) != V(0);
-        weight = simd::select(used, weight, V(0));
+        const V m = simd::load<V>(targets.masks[k].plane(0) + i);
+        used = m != V(0);
+        weight = simd::select(used, weight * m, V(0));
       }
       V w_spec(0), w_geom(0);  // sum_c dL/dR_c * specular_c / ... (see below)
       for (int c = 0; c < 3; ++c) {
