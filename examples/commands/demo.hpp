@@ -36,6 +36,7 @@ inline void add_demo_command(CLI::App& app) {
   c->callback([syn, cap, c] {
     syn->height = syn->width;
     const fs::path root = syn->out;
+    output_lock lock(root);  // the whole demo folder: a second demo cannot rewrite the inputs this one reads
     synthesize_settings input = *syn;
     input.out = root / "input";
     synthesize(input);

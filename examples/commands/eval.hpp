@@ -37,6 +37,7 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
   options.finetune.validate();  // reject impossible options before any work
   options.refine.validate();
   if (!models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
+  output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
   std::map<std::string, row_sum> rows;
   std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table

@@ -42,13 +42,18 @@ inline void synthesize(const synthesize_settings& a) {
   if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height, a.fresnel);
   else if (a.set == "beta") cap = set_beta(a.images, a.seed, a.width, a.height);
   else throw std::invalid_argument("--set must be alpha or beta, got '" + a.set + "'");
-  fs::create_directories(a.out);
-  write_maps(truth, a.out / "truth");
   a.noise.validate();
-  std::vector<image> photos = render(truth, cap);
-  add_sensor_noise(photos, a.noise, a.seed);
-  write_images(photos, cap, a.out);
-  write_capture(cap, a.out / "capture.json");
+  output_lock lock(a.out);  // one run per output folder
+  try {
+    write_maps(truth, a.out / "truth");
+    std::vector<image> photos = render(truth, cap);
+    add_sensor_noise(photos, a.noise, a.seed);
+    write_images(photos, cap, a.out);
+    write_capture(cap, a.out / "capture.json");
+  } catch (...) {
+    lock.release_empty();
+    throw;
+  }
   std::fprintf(stderr, "synthesized %s (%s, seed %llu, %dx%d) with %d inputs (set %s) in %s\n",
                material_kind_name(draw_procedural_parameters(a.seed, options).kind), a.kind.empty() ? "kind from seed" : "forced",
                static_cast<unsigned long long>(a.seed), a.width, a.height, a.images, a.set.c_str(), a.out.c_str());

@@ -139,12 +139,18 @@ inline void add_train_commands(CLI::App& app) {
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
     const auto& o = est->options;
-    if (est->preset == "paper") {
-      auto net = std::make_unique<estimation_network<estimator_paper>>(o.seed);
-      training::train_estimator(o, *net);
-    } else {
-      auto net = std::make_unique<estimation_network<estimator_compact>>(o.seed);
-      training::train_estimator(o, *net);
+    output_lock lock(o.out_dir);  // one run per output folder
+    try {
+      if (est->preset == "paper") {
+        auto net = std::make_unique<estimation_network<estimator_paper>>(o.seed);
+        training::train_estimator(o, *net);
+      } else {
+        auto net = std::make_unique<estimation_network<estimator_compact>>(o.seed);
+        training::train_estimator(o, *net);
+      }
+    } catch (...) {
+      lock.release_empty();  // refused options leave no folder behind
+      throw;
     }
   });
   auto ae = std::make_shared<train_settings>();
@@ -153,12 +159,18 @@ inline void add_train_commands(CLI::App& app) {
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
     const auto& o = ae->options;
-    if (ae->preset == "paper") {
-      auto net = std::make_unique<auto_encoder<autoencoder_paper>>(o.seed);
-      training::train_autoencoder(o, *net);
-    } else {
-      auto net = std::make_unique<auto_encoder<autoencoder_compact>>(o.seed);
-      training::train_autoencoder(o, *net);
+    output_lock lock(o.out_dir);  // one run per output folder
+    try {
+      if (ae->preset == "paper") {
+        auto net = std::make_unique<auto_encoder<autoencoder_paper>>(o.seed);
+        training::train_autoencoder(o, *net);
+      } else {
+        auto net = std::make_unique<auto_encoder<autoencoder_compact>>(o.seed);
+        training::train_autoencoder(o, *net);
+      }
+    } catch (...) {
+      lock.release_empty();  // refused options leave no folder behind
+      throw;
     }
   });
   auto ev = std::make_shared<network_eval_settings>();
