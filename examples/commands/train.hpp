@@ -46,6 +46,27 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   }
 }
 
+/// Runs `train(options, net)` on a network of the chosen preset (Paper or Compact, built from the
+/// run seed) while holding the output folder's lock; a run refused before writing anything leaves
+/// no folder behind.
+template <class Paper, class Compact, class Train>
+void train_in_locked_folder(const train_settings& s, Train train) {
+  const training::train_options& o = s.options;
+  output_lock lock(o.out_dir);  // one run per output folder
+  try {
+    if (s.preset == "paper") {
+      auto net = std::make_unique<Paper>(o.seed);
+      train(o, *net);
+    } else {
+      auto net = std::make_unique<Compact>(o.seed);
+      train(o, *net);
+    }
+  } catch (...) {
+    lock.release_empty();
+    throw;
+  }
+}
+
 /// Settings of eval-networks.
 struct network_eval_settings {
   std::string estimator = "models/compact/estimator.safetensors";
@@ -138,40 +159,16 @@ inline void add_train_commands(CLI::App& app) {
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
-    const auto& o = est->options;
-    output_lock lock(o.out_dir);  // one run per output folder
-    try {
-      if (est->preset == "paper") {
-        auto net = std::make_unique<estimation_network<estimator_paper>>(o.seed);
-        training::train_estimator(o, *net);
-      } else {
-        auto net = std::make_unique<estimation_network<estimator_compact>>(o.seed);
-        training::train_estimator(o, *net);
-      }
-    } catch (...) {
-      lock.release_empty();  // refused options leave no folder behind
-      throw;
-    }
+    train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>>(
+        *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();
   ae->options = training::train_options::autoencoder();
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    const auto& o = ae->options;
-    output_lock lock(o.out_dir);  // one run per output folder
-    try {
-      if (ae->preset == "paper") {
-        auto net = std::make_unique<auto_encoder<autoencoder_paper>>(o.seed);
-        training::train_autoencoder(o, *net);
-      } else {
-        auto net = std::make_unique<auto_encoder<autoencoder_compact>>(o.seed);
-        training::train_autoencoder(o, *net);
-      }
-    } catch (...) {
-      lock.release_empty();  // refused options leave no folder behind
-      throw;
-    }
+    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>>(
+        *ae, [](const training::train_options& o, auto& net) { training::train_autoencoder(o, net); });
   });
   auto ev = std::make_shared<network_eval_settings>();
   auto* ev_cmd = app.add_subcommand("eval-networks", "per-parameter errors of the compact estimator (against the mean-map baseline) and auto-encoder");

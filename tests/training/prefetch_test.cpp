@@ -17,24 +17,14 @@
 
 #include "anisocap/training/training.hpp"
 #include "../networks/tiny_presets.hpp"
+#include "../support/temp_folders.hpp"
 
 using namespace anisocap;
 namespace fs = std::filesystem;
+using anisocap::testing::all_weights;
+using anisocap::testing::fresh_folder;
 
 namespace {
-fs::path fresh_folder(const std::string& name) {
-  const fs::path p = fs::temp_directory_path() / ("anisocap_prefetch_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(p);
-  return p;
-}
-
-template <class Net>
-std::vector<float> all_weights(Net& net) {
-  std::vector<float> w;
-  nn::detail::visit_weights(net, [&](auto& p) { w.insert(w.end(), p.value.begin(), p.value.end()); });
-  return w;
-}
-
 std::string file_text(const fs::path& file) {
   std::ifstream in(file);
   return std::string((std::istreambuf_iterator<char>(in)), {});
@@ -129,7 +119,7 @@ TEST_CASE("prefetcher: an exception in the building thread surfaces as itself fr
 }
 
 TEST_CASE("training with prefetching: an exception in the step's thread leaves through the trainer while a batch is being built") {
-  const fs::path dir = fresh_folder("throwing");
+  const fs::path dir = fresh_folder("prefetch_throwing");
   auto o = tiny_options(dir, 64, true);
   o.progress_seconds = 0;  // a progress line after every step
   o.log = [](const std::string& line) {
@@ -161,50 +151,42 @@ TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, st
   CHECK_FALSE(std::equal(batch[0].truth_net.data(), batch[0].truth_net.data() + batch[0].truth_net.size(), batch[1].truth_net.data()));
 }
 
-TEST_CASE("training with prefetching: the same weights as without, straight and resumed") {
-  const fs::path serial = fresh_folder("serial"), ahead = fresh_folder("ahead"), resumed = fresh_folder("resumed");
-  SUBCASE("estimator") {
-    estimation_network<testing::estimator_tiny> a(3), b(3), c(99);
-    training::train_estimator(tiny_options(serial, 64, false), a);
-    training::train_estimator(tiny_options(ahead, 64, true), b);
-    {
-      estimation_network<testing::estimator_tiny> killed(3);
-      auto o = tiny_options(resumed, 64, true);
-      o.stop_after = 2;
-      training::train_estimator(o, killed);
-    }
-    auto o = tiny_options(resumed, 64, true);
-    o.resume = true;
-    training::train_estimator(o, c);
-    const auto wa = all_weights(a), wb = all_weights(b), wc = all_weights(c);
-    REQUIRE(wa.size() == wb.size());
-    REQUIRE(wa.size() == wc.size());
-    CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
-    CHECK(std::equal(wa.begin(), wa.end(), wc.begin()));
-    CHECK(file_text(serial / "validation.csv") == file_text(ahead / "validation.csv"));
-    CHECK(file_text(serial / "validation.csv") == file_text(resumed / "validation.csv"));
+/// Trains Net (built from a seed) serially, with prefetching, and with prefetching stopped after
+/// step 2 and resumed; all three must end with the same weights and validation.csv.
+template <class Net, class Train>
+void check_prefetching_changes_nothing(int size, Train train) {
+  const fs::path serial = fresh_folder("prefetch_serial"), ahead = fresh_folder("prefetch_ahead"), resumed = fresh_folder("prefetch_resumed");
+  Net a(3), b(3), c(99);
+  train(tiny_options(serial, size, false), a);
+  train(tiny_options(ahead, size, true), b);
+  {
+    Net killed(3);
+    auto o = tiny_options(resumed, size, true);
+    o.stop_after = 2;
+    train(o, killed);
   }
-  SUBCASE("auto-encoder") {
-    auto_encoder<testing::autoencoder_tiny> a(3), b(3), c(42);
-    training::train_autoencoder(tiny_options(serial, 32, false), a);
-    training::train_autoencoder(tiny_options(ahead, 32, true), b);
-    {
-      auto_encoder<testing::autoencoder_tiny> killed(3);
-      auto o = tiny_options(resumed, 32, true);
-      o.stop_after = 2;
-      training::train_autoencoder(o, killed);
-    }
-    auto o = tiny_options(resumed, 32, true);
-    o.resume = true;
-    training::train_autoencoder(o, c);
-    const auto wa = all_weights(a), wb = all_weights(b), wc = all_weights(c);
-    REQUIRE(wa.size() == wb.size());
-    REQUIRE(wa.size() == wc.size());
-    CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
-    CHECK(std::equal(wa.begin(), wa.end(), wc.begin()));
-    CHECK(file_text(serial / "validation.csv") == file_text(ahead / "validation.csv"));
-  }
+  auto o = tiny_options(resumed, size, true);
+  o.resume = true;
+  train(o, c);
+  const auto wa = all_weights(a), wb = all_weights(b), wc = all_weights(c);
+  REQUIRE(wa.size() == wb.size());
+  REQUIRE(wa.size() == wc.size());
+  CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
+  CHECK(std::equal(wa.begin(), wa.end(), wc.begin()));
+  CHECK(file_text(serial / "validation.csv") == file_text(ahead / "validation.csv"));
+  CHECK(file_text(serial / "validation.csv") == file_text(resumed / "validation.csv"));
   fs::remove_all(serial);
   fs::remove_all(ahead);
   fs::remove_all(resumed);
+}
+
+TEST_CASE("training with prefetching: the same weights as without, straight and resumed") {
+  SUBCASE("estimator") {
+    check_prefetching_changes_nothing<estimation_network<testing::estimator_tiny>>(
+        64, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
+  }
+  SUBCASE("auto-encoder") {
+    check_prefetching_changes_nothing<auto_encoder<testing::autoencoder_tiny>>(
+        32, [](const training::train_options& o, auto& net) { training::train_autoencoder(o, net); });
+  }
 }

@@ -10,24 +10,14 @@
 
 #include "anisocap/training/training.hpp"
 #include "../networks/tiny_presets.hpp"
+#include "../support/temp_folders.hpp"
 
 using namespace anisocap;
 namespace fs = std::filesystem;
+using anisocap::testing::all_weights;
+using anisocap::testing::fresh_folder;
 
 namespace {
-fs::path fresh_folder(const std::string& name) {
-  const fs::path p = fs::temp_directory_path() / ("anisocap_networks_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(p);
-  return p;
-}
-
-template <class Net>
-std::vector<float> all_weights(Net& net) {
-  std::vector<float> w;
-  nn::detail::visit_weights(net, [&](auto& p) { w.insert(w.end(), p.value.begin(), p.value.end()); });
-  return w;
-}
-
 training::train_options tiny_options(const fs::path& dir, int size) {
   training::train_options o;
   o.out_dir = dir;
@@ -46,7 +36,7 @@ training::train_options tiny_options(const fs::path& dir, int size) {
 }  // namespace
 
 TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k steps straight") {
-  const fs::path a = fresh_folder("straight"), b = fresh_folder("resumed");
+  const fs::path a = fresh_folder("networks_straight"), b = fresh_folder("networks_resumed");
   estimation_network<testing::estimator_tiny> straight(3);
   training::train_estimator(tiny_options(a, 64), straight);
   {
@@ -72,7 +62,7 @@ TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k step
   CHECK(std::count(sa.begin(), sa.end(), '\n') == 3);
   CHECK(fs::exists(a / "estimator.safetensors"));
   // Resuming without a checkpoint is a clear error naming the file.
-  auto missing = tiny_options(fresh_folder("missing"), 64);
+  auto missing = tiny_options(fresh_folder("networks_missing"), 64);
   missing.resume = true;
   CHECK_THROWS_WITH_AS(training::train_estimator(missing, resumed), doctest::Contains("checkpoint.json"), std::runtime_error);
   fs::remove_all(a);
@@ -80,7 +70,7 @@ TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k step
 }
 
 TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statistics included)") {
-  const fs::path a = fresh_folder("ae_straight"), b = fresh_folder("ae_resumed");
+  const fs::path a = fresh_folder("networks_ae_straight"), b = fresh_folder("networks_ae_resumed");
   auto_encoder<testing::autoencoder_tiny> straight(3);
   training::train_autoencoder(tiny_options(a, 32), straight);
   {
@@ -192,7 +182,7 @@ TEST_CASE("training materials: the held-out families never appear among training
   CHECK_FALSE(is_held_out(draw_procedural_parameters(seed, forced).kind));
   // The extended mix (held-out families included) is refused before anything is written.
   CHECK_THROWS_AS(training::training_material_options(material_mix::extended), std::invalid_argument);
-  const fs::path dir = fresh_folder("extended");
+  const fs::path dir = fresh_folder("networks_extended");
   auto o = tiny_options(dir, 64);
   o.mix = material_mix::extended;
   estimation_network<testing::estimator_tiny> net(3);
@@ -201,7 +191,7 @@ TEST_CASE("training materials: the held-out families never appear among training
 }
 
 TEST_CASE("training materials: a run resumes only on the mix it started with") {
-  const fs::path dir = fresh_folder("mix_resume");
+  const fs::path dir = fresh_folder("networks_mix_resume");
   {
     auto_encoder<testing::autoencoder_tiny> net(3);
     auto o = tiny_options(dir, 32);
