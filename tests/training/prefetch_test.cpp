@@ -18,6 +18,7 @@
 #include "anisocap/training/training.hpp"
 #include "../networks/tiny_presets.hpp"
 #include "../support/temp_folders.hpp"
+#include "tiny_options.hpp"
 
 using namespace anisocap;
 namespace fs = std::filesystem;
@@ -31,19 +32,8 @@ std::string file_text(const fs::path& file) {
 }
 
 training::train_options tiny_options(const fs::path& dir, int size, bool prefetch) {
-  training::train_options o;
-  o.out_dir = dir;
-  o.steps = 4;
-  o.size = size;
-  o.batch = 2;
-  o.learning_rate = 1e-3;
-  o.seed = 5;
-  o.validate_every = 2;
-  o.validation_count = 1;
-  o.checkpoint_minutes = 1e9;
-  o.checkpoint_every = 2;
+  training::train_options o = testing::tiny_options(dir, size);
   o.prefetch = prefetch;
-  o.log = [](const std::string&) {};
   return o;
 }
 

@@ -11,29 +11,14 @@
 #include "anisocap/training/training.hpp"
 #include "../networks/tiny_presets.hpp"
 #include "../support/temp_folders.hpp"
+#include "tiny_options.hpp"
 
 using namespace anisocap;
 namespace fs = std::filesystem;
 using anisocap::testing::all_weights;
 using anisocap::testing::fresh_folder;
+using anisocap::testing::tiny_options;
 
-namespace {
-training::train_options tiny_options(const fs::path& dir, int size) {
-  training::train_options o;
-  o.out_dir = dir;
-  o.steps = 4;
-  o.size = size;
-  o.batch = 2;
-  o.learning_rate = 1e-3;
-  o.seed = 5;
-  o.validate_every = 2;
-  o.validation_count = 1;
-  o.checkpoint_minutes = 1e9;
-  o.checkpoint_every = 2;
-  o.log = [](const std::string&) {};
-  return o;
-}
-}  // namespace
 
 TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k steps straight") {
   const fs::path a = fresh_folder("networks_straight"), b = fresh_folder("networks_resumed");
