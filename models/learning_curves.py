@@ -7,11 +7,20 @@ validation.csv a `train-*` run wrote, BATCH its batch size, SAMPLES_BEFORE and H
 the weights it started from (`--init`) had already seen, and HOURS_OF_RUN the run's wall time (its
 steps are spread evenly over it). Example (the command behind models/learning_curves.png):
 
+    H=models/compact/history
     /usr/bin/python3 models/learning_curves.py -o models/learning_curves.png \
-        estimator:models/compact/history/estimator_run1.csv:2:0:0:0.77 \
-        estimator:models/compact/history/estimator_run2.csv:2:11200:0.77:1.34 \
-        autoencoder:models/compact/history/autoencoder_run1.csv:4:0:0:1.05 \
-        autoencoder:models/compact/history/autoencoder_run2.csv:4:51344:1.05:1.34
+        estimator:$H/estimator_run1.csv:2:0:0:0.77 \
+        estimator:$H/estimator_run2.csv:2:11200:0.77:1.34 \
+        estimator:$H/estimator_run3_training_mix.csv:2:22952:2.11:1.28 \
+        estimator:$H/estimator_run4_lobe_l1.csv:2:28540:3.39:2.0 \
+        autoencoder:$H/autoencoder_run1.csv:4:0:0:1.05 \
+        autoencoder:$H/autoencoder_run2.csv:4:51344:1.05:1.34 \
+        autoencoder:$H/autoencoder_run3_training_mix.csv:4:84012:2.39:1.35 \
+        autoencoder:$H/autoencoder_run4_lobe_l1.csv:4:105876:3.74:2.0
+
+Runs 3 and 4 validate on materials drawn from the training mix (the same seeds, other families),
+so their rows are not comparable one for one with runs 1 and 2: the step at 23 000 (estimator) and
+84 000 (auto-encoder) materials is that change.
 """
 import argparse
 import csv
