@@ -31,6 +31,10 @@ inline void add_rectify_command(CLI::App& app) {
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--margin-px", s->options.resampling.margin_px, "photo pixels left out along each side of a texel's footprint (they also record its neighbours)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--footprint", s->options.resampling.statistic,
+                  "how a texel's footprint becomes its value: mean (area average: no aliasing) or median (of its pixels: no bias from sensor noise clipped at black, for samples uniform at the texel scale)")
+      ->transform(CLI::CheckedTransformer(std::map<std::string, footprint_statistic>{{"median", footprint_statistic::median}, {"mean", footprint_statistic::mean}}))
+      ->default_str("mean");
   cmd->add_option("--full-confidence-px", s->options.resampling.full_confidence_px,
                   "photo pixels across a texel that give it full weight in the loss; fewer weigh (d / this)^2 (0: every texel full weight)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);

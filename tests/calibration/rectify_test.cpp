@@ -63,6 +63,46 @@ TEST_CASE("area averaging: a checkerboard finer than a texel rectifies to its me
   CHECK(r.outside_fraction == 0);
 }
 
+TEST_CASE("footprint statistics: the median keeps a black texel black under sensor noise clipped at black, the mean does not") {
+  // A frontal photo of a uniform sample, 8 x 8 photo pixels per texel, with Gaussian noise of
+  // standard deviation sigma clipped at 0 as a sensor reports it: the area average of such pixels
+  // is biased up by about sigma / sqrt(2 pi) where the sample is black; their median is not.
+  const frontal_view v;
+  const double sigma = 0.01;
+  std::mt19937 gen(11);
+  std::normal_distribution<double> noise(0.0, sigma);
+  auto photo_of = [&](double value) {
+    image photo(640, 480, 3);
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = float(std::max(0.0, value + noise(gen)));
+    return photo;
+  };
+  auto mean_texel = [&](const image& photo, footprint_statistic statistic) {
+    resampling_options o;
+    o.statistic = statistic;
+    const rectified_photo r = rectify_photo(photo, image(), v.camera, v.pose, 50, 40, 100, o);
+    double sum = 0;
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t k = 0; k < r.radiance.pixel_count(); ++k) sum += r.radiance.plane(c)[k];
+    return sum / double(3 * r.radiance.pixel_count());
+  };
+  const image black = photo_of(0.0), grey = photo_of(0.3);
+  const double bias = sigma / std::sqrt(2 * std::numbers::pi);
+  CHECK(mean_texel(black, footprint_statistic::mean) == doctest::Approx(bias).epsilon(0.05));
+  CHECK(mean_texel(black, footprint_statistic::median) < 0.3 * bias);  // even counts average the two middle values
+  // Well above the noise both are unbiased.
+  CHECK(mean_texel(grey, footprint_statistic::mean) == doctest::Approx(0.3).epsilon(0.002));
+  CHECK(mean_texel(grey, footprint_statistic::median) == doctest::Approx(0.3).epsilon(0.002));
+  // Without noise, the median of a uniform footprint is its value exactly.
+  image flat(640, 480, 3);
+  for (int c = 0; c < 3; ++c) std::fill_n(flat.plane(c), flat.pixel_count(), 0.125f);
+  resampling_options o;
+  o.statistic = footprint_statistic::median;
+  const rectified_photo r = rectify_photo(flat, image(), v.camera, v.pose, 50, 40, 100, o);
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t k = 0; k < r.radiance.pixel_count(); ++k) REQUIRE(r.radiance.plane(c)[k] == 0.125f);
+}
+
 TEST_CASE("the footprint leaves out its margin: texels with sharp borders rectify to their own value") {
   // Each texel a patch of its own random albedo (nearest lookup), seen obliquely at 2-4 photo
   // pixels per texel: pixels on a texel's border record its neighbours as well.

@@ -13,7 +13,14 @@
 /// them. Resampling integrates each texel's footprint: s_u x s_v sample points spread over the
 /// texel, as many per axis as the texel spans photo pixels along that axis, each read with
 /// bilinear interpolation of the linear photo. A photo with more pixels than the texture is thus
-/// area-averaged (no aliasing), one with fewer is interpolated.
+/// area-averaged (no aliasing), one with fewer is interpolated. A sensor reports no negative
+/// light, so where the sample is black its pixels are noise clipped at 0, and their area average
+/// is biased up (by sigma / sqrt(2 pi) for noise of standard deviation sigma): the fit reads it as
+/// diffuse albedo, which shows on polished metals photographed under a separate light (mostly
+/// black but for the highlight). `footprint_statistic::median` takes, per channel, the median of
+/// the pixels the samples lie in instead: unbiased for a texel that is uniform at the texture's
+/// scale, but it picks one side of structure finer than a texel, so the area average stays the
+/// default (studies/README.md, "Rectified photographs, step by step", has both measured).
 ///
 /// A photo pixel near a texel's border also records its neighbour (the pixel's own area and the
 /// bilinear reading reach about 1.5 pixels), so the footprint is shrunk by `margin_px` photo pixels
@@ -46,11 +53,18 @@
 
 namespace anisocap {
 
+/// How a texel's footprint samples combine into its value.
+enum class footprint_statistic {
+  mean,    ///< the mean of bilinear readings: the footprint's area average
+  median,  ///< per channel, the median of the pixels the samples lie in: robust to sensor noise clipped at black
+};
+
 /// How rectify_photo reads a texel's footprint from the photo (see the file comment).
 struct resampling_options {
   int max_samples_per_axis = 16;  ///< cap on a texel's footprint samples per axis (keeps grazing views bounded)
   double margin_px = 1;           ///< photo pixels left out along each side of the footprint
   double full_confidence_px = 2.5;  ///< photo pixels across a texel's narrower axis that earn full confidence (0: always 1)
+  footprint_statistic statistic = footprint_statistic::mean;  ///< how a footprint's samples become the texel's value
 };
 
 /// Options of rectify.
@@ -108,6 +122,16 @@ inline double supported_resolution(const pinhole_camera& camera, const planar_po
   return std::sqrt(std::abs(0.5 * area) * longest * longest / (width_mm * height_mm));
 }
 
+namespace detail {
+/// The median of `v` (the mean of the two middle values for an even count); reorders `v`.
+inline double median_of(std::vector<float>& v) {
+  const std::size_t m = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + std::ptrdiff_t(m), v.end());
+  if (v.size() % 2 == 1) return v[m];
+  return 0.5 * (double(v[m]) + double(*std::max_element(v.begin(), v.begin() + std::ptrdiff_t(m))));
+}
+}  // namespace detail
+
 /// Resamples one linear photo onto a width x height texture of a sample whose longest side is
 /// `longest_mm` (see the file comment). Texels with any footprint sample outside the photo get
 /// mask 0 and radiance 0. A footprint sample lying in a pixel whose `usable` mask (1 channel, 0 =
@@ -139,8 +163,10 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
     return Eigen::Vector2d(q.x() / q.z(), q.y() / q.z());
   };
   std::size_t outside = 0, clipped_count = 0;
+  const bool median = resampling.statistic == footprint_statistic::median;
 #pragma omp parallel for schedule(dynamic, 4) reduction(+ : outside, clipped_count)
   for (int y = 0; y < height; ++y) {
+    std::vector<float> values[3];  // the median's samples per channel, reused along the row
     for (int x = 0; x < width; ++x) {
       // The texel's extent in pixels along u and v (finite differences across the texel).
       const Eigen::Vector2d du = to_pixel(x + 1.0, y + 0.5) - to_pixel(x, y + 0.5);
@@ -156,6 +182,7 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
       const double confidence = narrow * narrow;
       double sum[3] = {0, 0, 0}, raw[3] = {0, 0, 0};
       bool inside = true, clip = false;
+      for (auto& v : values) v.clear();
       for (int j = 0; j < sv && inside; ++j)
         for (int i = 0; i < su && inside; ++i) {
           const Eigen::Vector2d p = to_pixel(x + 0.5 + hu * (2.0 * (i + 0.5) / su - 1.0), y + 0.5 + hv * (2.0 * (j + 0.5) / sv - 1.0));
@@ -183,11 +210,16 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
             }
             if (ok) kept += w[t];
           }
-          if (kept > 0)
+          if (kept > 0) {
             for (int c = 0; c < 3; ++c) sum[c] += part[c] / kept;
-          else
+            if (median && (usable.empty() || usable.plane(0)[nearest] != 0.0f))
+              for (int c = 0; c < 3; ++c) values[c].push_back(photo.plane(c)[nearest]);
+          } else {
             clip = true;
+          }
         }
+      if (median && inside && !clip)
+        for (int c = 0; c < 3; ++c) sum[c] = detail::median_of(values[c]) * (su * sv);
       const std::size_t index = std::size_t(y) * width + x;
       const bool use = inside && !clip;
       if (!inside) ++outside;
