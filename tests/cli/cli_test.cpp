@@ -378,6 +378,20 @@ TEST_CASE("impossible options and broken weights are refused before any output")
   CHECK(r.output.find("bad_models/compact/estimator.safetensors") != std::string::npos);
   CHECK(r.output.find("not finite") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "out"));
+  // eval with weights that fail to load (malformed, or holding NaN): refused naming the file, and
+  // the output folder it locked is removed again.
+  fs::create_directories(t.path / "malformed_models/compact");
+  fs::copy_file(models / "autoencoder.safetensors", t.path / "malformed_models/compact/autoencoder.safetensors");
+  write(t.path / "malformed_models/compact/estimator.safetensors", "not a safetensors file");
+  for (const char* folder : {"malformed_models", "bad_models"}) {
+    CAPTURE(folder);
+    const auto e = run(std::string("eval -o eval_out --count 1 --min-size 32 --max-size 32 --images 4 --sets beta --models ") + folder,
+                       t.path);
+    INFO(e.output);
+    CHECK(e.status != 0);
+    CHECK(e.output.find(std::string(folder) + "/compact/estimator.safetensors") != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path / "eval_out"));
+  }
 }
 
 TEST_CASE("options that were silently wrong: threads, huge sizes, lights below the surface, one image") {
