@@ -532,6 +532,65 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 
 }  // namespace detail
 
+/// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
+/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 + render loss) and
+/// its gradient, backward, one Adam step. `t` is cleared first (reuse it across steps to keep its
+/// memory). Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples) {
+  const int B = int(samples.size()), N = int(samples[0].photos.size());
+  const int H = samples[0].truth.height(), W = samples[0].truth.width();
+  t.clear();
+  auto x = t.make_variable<3>(B * N, H, W, false);
+  for (int b = 0; b < B; ++b)
+    for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
+  auto y = net.forward(t, x, N);
+  const loss_terms l = map_losses(y.value, samples, &y.grad);
+  t.backward();
+  opt.step();
+  return l;
+}
+
+/// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
+/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses, and with
+/// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
+/// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
+/// step. `t` is cleared first. Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
+                            const train_options& o, long step) {
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
+  const int B = int(samples.size()), H = samples[0].truth_net.height(), W = samples[0].truth_net.width();
+  t.clear();
+  auto x = t.make_variable<parameter_count>(B, H, W, false);
+  for (int b = 0; b < B; ++b) std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
+  net.set_training(true);
+  auto z = net.encode(t, x);
+  auto y = net.decode(t, z);
+  loss_terms l = map_losses(y.value, samples, &y.grad);
+  if (o.smoothness_weight > 0) {
+    auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
+    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+    for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
+    auto y2 = net.decode(t, nn::add(t, z, delta));
+    const double n = double(y.value.size());
+    const float g = float(o.smoothness_weight / n);
+    double s = 0;
+    for (std::size_t i = 0; i < y.value.size(); ++i) {
+      const float d = y.value.data()[i] - y2.value.data()[i];
+      s += std::abs(d);
+      const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
+      y.grad.data()[i] += sg;
+      y2.grad.data()[i] -= sg;
+    }
+    l.smoothness = s / n;
+    l.total += o.smoothness_weight * l.smoothness;
+  }
+  t.backward();
+  opt.step();
+  return l;
+}
+
 /// Trains the estimator (docs/method.md section 7): per step, `batch` procedural materials with their 5 training
 /// inputs; loss = L1 (network space) + render loss; Adam (default rate 5e-5, the paper's).
 template <class Preset>
@@ -540,18 +599,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long, const std::vector<sample>& samples) {
-    const int N = int(samples[0].photos.size());
-    t.clear();
-    auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
-    for (int b = 0; b < o.batch; ++b)
-      for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
-    auto y = net.forward(t, x, N);
-    const loss_terms l = map_losses(y.value, samples, &y.grad);
-    t.backward();
-    opt.step();
-    return l.total;
-  };
+  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples).total; };
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
@@ -568,38 +616,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 1e-3));
   opt.add_parameters(net);
   ad::tape t;
-  constexpr int Z = auto_encoder<Preset>::latent_channels;
-  auto step_fn = [&](long step, const std::vector<sample>& samples) {
-    t.clear();
-    auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
-    for (int b = 0; b < o.batch; ++b)
-      std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
-    net.set_training(true);
-    auto z = net.encode(t, x);
-    auto y = net.decode(t, z);
-    loss_terms l = map_losses(y.value, samples, &y.grad);
-    if (o.smoothness_weight > 0) {
-      auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
-      nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
-      for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
-      auto y2 = net.decode(t, nn::add(t, z, delta));
-      const double n = double(y.value.size());
-      const float g = float(o.smoothness_weight / n);
-      double s = 0;
-      for (std::size_t i = 0; i < y.value.size(); ++i) {
-        const float d = y.value.data()[i] - y2.value.data()[i];
-        s += std::abs(d);
-        const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
-        y.grad.data()[i] += sg;
-        y2.grad.data()[i] -= sg;
-      }
-      l.smoothness = s / n;
-      l.total += o.smoothness_weight * l.smoothness;
-    }
-    t.backward();
-    opt.step();
-    return l.total;
-  };
+  auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
   };
