@@ -339,6 +339,28 @@ TEST_CASE("a capture that fails part-way through writing its results leaves the 
   CHECK(fs::exists(t.path / "out/novel"));
 }
 
+TEST_CASE("train --resume: another batch is refused naming checkpoint.json; without a checkpoint no folder is left") {
+  temp_dir t;
+  const std::string run_options = " --size 32 --validate-every 1 --validation-count 1 --checkpoint-minutes 100";
+  auto r = run("train-autoencoder --out ae --steps 1 --batch 2" + run_options, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  r = run("train-autoencoder --out ae --steps 2 --batch 3 --resume" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("ae/checkpoint.json") != std::string::npos);
+  CHECK(r.output.find("resume it with --batch 2") != std::string::npos);
+  r = run("train-autoencoder --out ae --steps 2 --batch 2 --resume --lr 3e-4" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("learning rate 0.001 -> 0.0003 from step 1") != std::string::npos);
+  r = run("train-autoencoder --out nothing_here --steps 2 --resume" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("nothing_here/checkpoint.json") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "nothing_here"));
+}
+
 TEST_CASE("outputs stay inside -o and never overwrite the command's inputs") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
