@@ -1,8 +1,8 @@
 // One training step of each compact network (training/training.hpp) split in two: building the
 // step's samples (make_batch: procedural materials, the estimator's 5 inputs, the 4 render-loss
-// targets) and the network step (forward, losses, backward, Adam), run one after the other as
-// train_estimator and train_autoencoder do with prefetching off. The samples' share of a step is
-// what prefetching them on a second thread can hide at best. Steps of consecutive training
+// targets) and the network step (estimator_step, autoencoder_step: forward, losses, backward,
+// Adam), run one after the other as train_estimator and train_autoencoder do with prefetching
+// off. The samples' share of a step is what prefetching them on a second thread can hide at best. Steps of consecutive training
 // seeds (different materials each step); prints the mean over --steps steps after the first, in ms.
 //
 // usage: anisocap_study_training_step [--steps 50] [--size 128] [--batch 2] [--materials original|training]
@@ -83,15 +83,7 @@ int main(int argc, char** argv) {
     opt.add_parameters(net);
     ad::tape t;
     report("estimator, compact", o, time_steps(o, true, [&](long, const std::vector<training::sample>& samples) {
-      const int N = int(samples[0].photos.size());
-      t.clear();
-      auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
-      for (int b = 0; b < o.batch; ++b)
-        for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
-      auto y = net.forward(t, x, N);
-      training::map_losses(y.value, samples, &y.grad);
-      t.backward();
-      opt.step();
+      training::estimator_step(t, net, opt, samples);
     }));
   }
   {
@@ -99,30 +91,8 @@ int main(int argc, char** argv) {
     nn::adam opt(nn::learning_rate_schedule::constant(1e-3));
     opt.add_parameters(net);
     ad::tape t;
-    constexpr int Z = auto_encoder<autoencoder_compact>::latent_channels;
     report("auto-encoder, compact", o, time_steps(o, false, [&](long step, const std::vector<training::sample>& samples) {
-      t.clear();
-      auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
-      for (int b = 0; b < o.batch; ++b)
-        std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
-      net.set_training(true);
-      auto z = net.encode(t, x);
-      auto y = net.decode(t, z);
-      training::map_losses(y.value, samples, &y.grad);
-      // The smoothness term: a second decode at z + delta and its L1 against the first.
-      auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
-      nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
-      for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
-      auto y2 = net.decode(t, nn::add(t, z, delta));
-      const float g = float(o.smoothness_weight / double(y.value.size()));
-      for (std::size_t i = 0; i < y.value.size(); ++i) {
-        const float d = y.value.data()[i] - y2.value.data()[i];
-        const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
-        y.grad.data()[i] += sg;
-        y2.grad.data()[i] -= sg;
-      }
-      t.backward();
-      opt.step();
+      training::autoencoder_step(t, net, opt, samples, o, step);
     }));
   }
 }

@@ -125,13 +125,17 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const auto t_write = std::chrono::steady_clock::now();
   material_maps& maps = result.maps;
   canonicalise(maps);
-  fs::create_directories(s.out);
-  write_maps(maps, s.out);
-  if (s.view) write_viewer(maps, s.out / "material.html", {s.out.filename().string()});
-  write_renders(maps, cap, s.out / "renders", all_features, inputs);
-  write_capture_sheet(s.out / "contact_sheet.png", photos, render(maps, cap), maps, truth ? &*truth : nullptr);
+  create_output_folder(s.out);
+  // Every result file is staged under a temporary name and all are renamed into place together at
+  // the end: a failure while producing any of them leaves the folder's earlier results as they were.
+  file_transaction files;
+  const std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
+  if (s.view) files.stage(s.out / "material.html", viewer_html(maps, {s.out.filename().string()}));
+  const std::vector<image> rerenders = render(maps, cap);
+  stage_images(rerenders, cap, s.out / "renders", files, inputs);
+  write_png(make_capture_sheet(photos, rerenders, maps, truth ? &*truth : nullptr), s.out / "contact_sheet.png", files);
   const capture novel = novel_view_set(1, maps.width(), maps.height());
-  write_renders(maps, novel, s.out / "novel");
+  stage_images(render(maps, novel), novel, s.out / "novel", files);
   const double write_seconds = seconds_since(t_write);
 
   nlohmann::json report;
@@ -171,7 +175,9 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
     report["errors"]["novel_view_image_loss"] = novel_view_error(maps, *truth, novel);
   }
   report["peak_memory_bytes"] = peak_resident_bytes();
-  write_file_atomically(s.out / "report.json", report.dump(2) + "\n");
+  files.stage(s.out / "report.json", report.dump(2) + "\n");
+  files.commit();
+  remove_stale_files(stale_maps);
   cleanup.succeeded = true;
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume

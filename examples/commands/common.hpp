@@ -133,17 +133,24 @@ inline std::vector<fs::path> map_files(const fs::path& folder) {
   return files;
 }
 
-/// Writes `images` (one per capture image) into `out`: one linear EXR per image under its capture
-/// file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside every EXR.
-/// Names stay inside `out` (output_inside) and none may be one of `inputs`. All files appear
-/// together or not at all.
-inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out, const std::vector<fs::path>& inputs = {}) {
+/// Creates `folder` (and its parents); io_error naming it when that fails (a file in the way).
+inline void create_output_folder(const fs::path& folder) {
+  std::error_code ec;
+  fs::create_directories(folder, ec);
+  if (!fs::is_directory(folder))
+    throw io_error(folder, "cannot create the output folder" + (ec ? ": " + ec.message() : std::string()));
+}
+
+/// Stages `images` (one per capture image) for `out` into `files`: one linear EXR per image under
+/// its capture file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside
+/// every EXR. Names stay inside `out` (output_inside) and none may be one of `inputs`.
+inline void stage_images(const std::vector<image>& images, const capture& cap, const fs::path& out, file_transaction& files,
+                         const std::vector<fs::path>& inputs = {}) {
   refuse_overwriting_inputs(image_outputs(cap, out), inputs);
-  fs::create_directories(out);
-  file_transaction files;
+  create_output_folder(out);
   for (std::size_t i = 0; i < images.size(); ++i) {
     const fs::path target = output_inside(out, cap.images[i].file);
-    if (target.has_parent_path()) fs::create_directories(target.parent_path());
+    if (target.has_parent_path()) create_output_folder(target.parent_path());
     const auto ext = target.extension().string();
     if (ext == ".exr" || ext == ".EXR") {
       write_exr(images[i], target, files);
@@ -152,6 +159,12 @@ inline void write_images(const std::vector<image>& images, const capture& cap, c
       write_png(images[i], target, files);
     }
   }
+}
+
+/// Writes `images` into `out` as stage_images lays them out; all files appear together or not at all.
+inline void write_images(const std::vector<image>& images, const capture& cap, const fs::path& out, const std::vector<fs::path>& inputs = {}) {
+  file_transaction files;
+  stage_images(images, cap, out, files, inputs);
   files.commit();
 }
 

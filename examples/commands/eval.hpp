@@ -22,22 +22,11 @@ struct eval_settings {
   fresnel_options fresnel;  // set alpha's grazing configurations (default: the paper's 2)
 };
 
-/// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and
-/// stage the mean over materials of each per-parameter MSE, the novel-view image loss and seconds
-/// per material.
-inline void eval_command(const eval_settings& e, const model_choice& models, const capture_options& options) {
-  if (e.count < 1 || e.min_size < 1 || e.max_size < e.min_size) throw std::invalid_argument("eval: need --count >= 1 and 1 <= --min-size <= --max-size");
-  for (const auto& set : e.sets)
-    if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
-  for (int n : e.image_counts)
-    if (n < 4 || n < e.fresnel.count + 2)
-      throw std::invalid_argument("eval: --images values must be >= 4 and >= --fresnel + 2");
-  e.noise.validate();
-  const std::vector<material_kind> families = material_kinds_from_names(e.families);
-  options.finetune.validate();  // reject impossible options before any work
-  options.refine.validate();
-  if (!models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
-  output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
+/// eval's work once its options are checked and e.out is locked: captures each material (of
+/// `families`, e.families read), writing table.md and table.csv into e.out (atomically) after
+/// every material.
+inline void evaluate_materials(const eval_settings& e, const std::vector<material_kind>& families, const model_choice& models,
+                               const capture_options& options) {
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
   std::map<std::string, row_sum> rows;
   std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
@@ -124,6 +113,30 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
   const std::string table = write_tables();
   std::printf("%s\n(%d materials, %d to %d texels a side; per-material rows in %s)\n", table.c_str(), e.count, e.min_size, e.max_size,
               (e.out / "table.csv").c_str());
+}
+
+/// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and
+/// stage the mean over materials of each per-parameter MSE, the novel-view image loss and seconds
+/// per material.
+inline void eval_command(const eval_settings& e, const model_choice& models, const capture_options& options) {
+  if (e.count < 1 || e.min_size < 1 || e.max_size < e.min_size) throw std::invalid_argument("eval: need --count >= 1 and 1 <= --min-size <= --max-size");
+  for (const auto& set : e.sets)
+    if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
+  for (int n : e.image_counts)
+    if (n < 4 || n < e.fresnel.count + 2)
+      throw std::invalid_argument("eval: --images values must be >= 4 and >= --fresnel + 2");
+  e.noise.validate();
+  const std::vector<material_kind> families = material_kinds_from_names(e.families);
+  options.finetune.validate();  // reject impossible options before any work
+  options.refine.validate();
+  if (!models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
+  output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
+  try {
+    evaluate_materials(e, families, models, options);
+  } catch (...) {
+    lock.release_empty();  // weights that fail to load (or hold NaN) leave no empty folder
+    throw;
+  }
 }
 
 /// Registers `anisocap eval`.

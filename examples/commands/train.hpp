@@ -30,7 +30,8 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
   cmd->add_option("--batch", o.batch, "materials per step");
-  cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder)");
+  cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder; on --resume, the run's saved rate, "
+                  "and another rate is logged and recorded in checkpoint.json)");
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 #include <string>
@@ -288,6 +289,78 @@ std::string replaced(std::string text, const std::string& from, const std::strin
 }
 }  // namespace
 
+/// Every regular file under `folder` (relative path -> contents).
+std::map<std::string, std::string> files_under(const fs::path& folder) {
+  std::map<std::string, std::string> files;
+  for (const auto& entry : fs::recursive_directory_iterator(folder))
+    if (entry.is_regular_file()) {
+      std::ifstream in(entry.path(), std::ios::binary);
+      files[fs::relative(entry.path(), folder).string()] = std::string((std::istreambuf_iterator<char>(in)), {});
+    }
+  return files;
+}
+
+TEST_CASE("a capture that fails part-way through writing its results leaves the earlier results as they were") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  auto r = run("capture syn/capture.json -o out --stages refine --steps 5", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  // The novel views are written after the maps, the renders and the contact sheet: a file where
+  // their folder goes makes the second run fail there, with every earlier output already produced.
+  fs::remove_all(t.path / "out/novel");
+  write(t.path / "out/novel", "in the way");
+  const auto before = files_under(t.path / "out");
+  REQUIRE(before.count("diffuse.exr") == 1);
+  REQUIRE(before.count("renders/input_00.exr") == 1);
+  REQUIRE(before.count("report.json") == 1);
+  r = run("capture syn/capture.json -o out --stages refine --steps 9", t.path);  // other maps than the first run's
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("out/novel: cannot create the output folder") != std::string::npos);
+  // Nothing of the failed run is left: the same files with the same bytes, no temporaries.
+  const auto after = files_under(t.path / "out");
+  CHECK(after.size() == before.size());
+  for (const auto& [name, bytes] : before) {
+    CAPTURE(name);
+    CHECK(after.count(name) == 1);
+    CHECK((after.count(name) == 1 && after.at(name) == bytes));
+  }
+  for (const auto& entry : fs::recursive_directory_iterator(t.path / "out")) {
+    CAPTURE(entry.path());
+    CHECK(entry.path().filename().string().find(".anisocap-tmp-") == std::string::npos);
+  }
+  // The same run with the way cleared replaces the results.
+  fs::remove(t.path / "out/novel");
+  r = run("capture syn/capture.json -o out --stages refine --steps 9", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(files_under(t.path / "out").at("diffuse.exr") != before.at("diffuse.exr"));
+  CHECK(fs::exists(t.path / "out/novel"));
+}
+
+TEST_CASE("train --resume: another batch is refused naming checkpoint.json; without a checkpoint no folder is left") {
+  temp_dir t;
+  const std::string run_options = " --size 32 --validate-every 1 --validation-count 1 --checkpoint-minutes 100";
+  auto r = run("train-autoencoder --out ae --steps 1 --batch 2" + run_options, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  r = run("train-autoencoder --out ae --steps 2 --batch 3 --resume" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("ae/checkpoint.json") != std::string::npos);
+  CHECK(r.output.find("resume it with --batch 2") != std::string::npos);
+  r = run("train-autoencoder --out ae --steps 2 --batch 2 --resume --lr 3e-4" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("learning rate 0.001 -> 0.0003 from step 1") != std::string::npos);
+  r = run("train-autoencoder --out nothing_here --steps 2 --resume" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("nothing_here/checkpoint.json") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "nothing_here"));
+}
+
 TEST_CASE("outputs stay inside -o and never overwrite the command's inputs") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
@@ -378,6 +451,20 @@ TEST_CASE("impossible options and broken weights are refused before any output")
   CHECK(r.output.find("bad_models/compact/estimator.safetensors") != std::string::npos);
   CHECK(r.output.find("not finite") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "out"));
+  // eval with weights that fail to load (malformed, or holding NaN): refused naming the file, and
+  // the output folder it locked is removed again.
+  fs::create_directories(t.path / "malformed_models/compact");
+  fs::copy_file(models / "autoencoder.safetensors", t.path / "malformed_models/compact/autoencoder.safetensors");
+  write(t.path / "malformed_models/compact/estimator.safetensors", "not a safetensors file");
+  for (const char* folder : {"malformed_models", "bad_models"}) {
+    CAPTURE(folder);
+    const auto e = run(std::string("eval -o eval_out --count 1 --min-size 32 --max-size 32 --images 4 --sets beta --models ") + folder,
+                       t.path);
+    INFO(e.output);
+    CHECK(e.status != 0);
+    CHECK(e.output.find(std::string(folder) + "/compact/estimator.safetensors") != std::string::npos);
+    CHECK_FALSE(fs::exists(t.path / "eval_out"));
+  }
 }
 
 TEST_CASE("options that were silently wrong: threads, huge sizes, lights below the surface, one image") {

@@ -235,3 +235,27 @@ TEST_CASE("map set: an invalid set is refused and the existing set stays untouch
   CHECK(snapshot(dir) == before);
   CHECK(contains(error_of([&] { anisocap::write_maps(material_maps(), dir.path()); }), "empty"));
 }
+
+TEST_CASE("map set: a staged set appears only on commit; discarded, the existing set stays untouched") {
+  test_folder dir;
+  anisocap::write_maps(random_maps(4, 4, true, 11), dir.path());
+  const auto before = snapshot(dir);
+  const material_maps next = random_maps(4, 4, false, 12);
+  std::vector<fs::path> stale;
+  {
+    anisocap::file_transaction files;
+    stale = anisocap::stage_maps(next, dir.path(), files);
+    CHECK(files.staged() == 12);  // 6 EXRs and their previews
+    CHECK(anisocap::read_maps(dir.path()).has_height());  // the earlier set is still the one there
+  }  // not committed: discarded
+  CHECK(snapshot(dir) == before);
+  // The set without a height map makes the earlier height.exr and its preview stale.
+  CHECK(stale == std::vector<fs::path>{dir / "height.exr", dir / "height.png"});
+  anisocap::file_transaction files;
+  stale = anisocap::stage_maps(next, dir.path(), files);
+  files.commit();
+  anisocap::remove_stale_files(stale);
+  const material_maps read = anisocap::read_maps(dir.path());
+  CHECK_FALSE(read.has_height());
+  CHECK(std::equal(read.plane(anisocap::diffuse_r), read.plane(anisocap::diffuse_r) + 16, next.plane(anisocap::diffuse_r)));
+}

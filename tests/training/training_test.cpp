@@ -3,8 +3,10 @@
 #include <doctest/doctest.h>
 
 #include <filesystem>
+#include <algorithm>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include <unistd.h>
 
@@ -46,10 +48,11 @@ TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k step
   CHECK(sa == sb);
   CHECK(std::count(sa.begin(), sa.end(), '\n') == 3);
   CHECK(fs::exists(a / "estimator.safetensors"));
-  // Resuming without a checkpoint is a clear error naming the file.
+  // Resuming without a checkpoint is a clear error naming the file, and creates no folder.
   auto missing = tiny_options(fresh_folder("networks_missing"), 64);
   missing.resume = true;
   CHECK_THROWS_WITH_AS(training::train_estimator(missing, resumed), doctest::Contains("checkpoint.json"), std::runtime_error);
+  CHECK_FALSE(fs::exists(missing.out_dir));
   fs::remove_all(a);
   fs::remove_all(b);
 }
@@ -192,4 +195,141 @@ TEST_CASE("training materials: a run resumes only on the mix it started with") {
   training::train_autoencoder(o, net);
   CHECK(fs::exists(dir / "autoencoder.safetensors"));
   fs::remove_all(dir);
+}
+
+namespace {
+
+std::string file_text(const fs::path& file) {
+  std::ifstream in(file);
+  return std::string((std::istreambuf_iterator<char>(in)), {});
+}
+
+/// The tiny auto-encoder's widths under another preset name: its weights fit the tiny one's.
+struct autoencoder_tiny_renamed : testing::autoencoder_tiny {
+  static constexpr const char* name = "tiny_renamed";
+};
+
+bool any_line_contains(const std::vector<std::string>& lines, const std::string& part) {
+  return std::any_of(lines.begin(), lines.end(), [&](const std::string& l) { return l.find(part) != std::string::npos; });
+}
+
+}  // namespace
+
+TEST_CASE("training: a resume with another network, preset, seed, size or batch is refused, naming checkpoint.json and the saved value") {
+  const fs::path dir = fresh_folder("networks_resume_settings");
+  {
+    auto_encoder<testing::autoencoder_tiny> net(3);
+    auto o = tiny_options(dir, 32);
+    o.stop_after = 2;
+    training::train_autoencoder(o, net);
+  }
+  const std::string saved = file_text(dir / "checkpoint.json");
+  auto resume = [&] {
+    auto o = tiny_options(dir, 32);
+    o.resume = true;
+    return o;
+  };
+  auto_encoder<testing::autoencoder_tiny> net(3);
+  auto refused = [](auto train, const std::string& message) {
+    CHECK_THROWS_WITH_AS(train(), doctest::Contains("checkpoint.json"), std::runtime_error);
+    CHECK_THROWS_WITH_AS(train(), doctest::Contains(message.c_str()), std::runtime_error);
+  };
+  auto o = resume();
+  o.batch = 4;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with batch 2, not 4; resume it with --batch 2");
+  o = resume();
+  o.seed = 6;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with seed 5, not 6; resume it with --seed 5");
+  o = resume();
+  o.size = 64;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with size 32, not 64; resume it with --size 32");
+  auto_encoder<autoencoder_tiny_renamed> renamed(3);
+  o = resume();
+  refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");
+  estimation_network<testing::estimator_tiny> estimator(3);
+  o = resume();
+  o.size = 64;
+  refused([&] { training::train_estimator(o, estimator); }, "trains the autoencoder, not the estimator; resume it with train-autoencoder");
+  // Refused resumes change nothing; the run's own settings resume it to the end.
+  CHECK(file_text(dir / "checkpoint.json") == saved);
+  training::train_autoencoder(resume(), net);
+  CHECK(training::read_checkpoint_description(dir).at("step").get<long>() == 4);
+  fs::remove_all(dir);
+}
+
+TEST_CASE("training: a resume keeps the saved learning rate, or logs, records and uses another one") {
+  const fs::path straight = fresh_folder("networks_rate_straight"), kept = fresh_folder("networks_rate_kept"),
+                 lowered = fresh_folder("networks_rate_lowered");
+  estimation_network<testing::estimator_tiny> reference(3);
+  training::train_estimator(tiny_options(straight, 64), reference);  // 1e-3 throughout
+  for (const fs::path& dir : {kept, lowered}) {
+    estimation_network<testing::estimator_tiny> killed(3);
+    auto o = tiny_options(dir, 64);
+    o.stop_after = 2;
+    training::train_estimator(o, killed);
+  }
+  std::vector<std::string> log;
+  auto resume = [&](const fs::path& dir, double rate) {
+    auto o = tiny_options(dir, 64);
+    o.resume = true;
+    o.learning_rate = rate;
+    o.log = [&](const std::string& line) { log.push_back(line); };
+    return o;
+  };
+  // Without --lr the run keeps its saved 1e-3 (not the estimator's default 5e-5): the straight run's weights.
+  estimation_network<testing::estimator_tiny> same(99);
+  training::train_estimator(resume(kept, 0), same);
+  const auto w = all_weights(reference), w_same = all_weights(same);
+  REQUIRE(w.size() == w_same.size());
+  CHECK(std::equal(w.begin(), w.end(), w_same.begin()));
+  CHECK_FALSE(any_line_contains(log, "learning rate"));
+  json description = training::read_checkpoint_description(kept);
+  CHECK(description.at("learning_rate").get<double>() == 1e-3);
+  CHECK_FALSE(description.contains("learning_rate_changes"));
+  // Another rate is logged, recorded in checkpoint.json and used.
+  estimation_network<testing::estimator_tiny> slower(99);
+  log.clear();
+  training::train_estimator(resume(lowered, 3e-4), slower);
+  CHECK(any_line_contains(log, "estimator: learning rate 0.001 -> 0.0003 from step 2"));
+  description = training::read_checkpoint_description(lowered);
+  CHECK(description.at("learning_rate").get<double>() == 3e-4);
+  REQUIRE(description.at("learning_rate_changes").size() == 1);
+  const json change = description.at("learning_rate_changes")[0];
+  CHECK(change.at("step").get<long>() == 2);
+  CHECK(change.at("from").get<double>() == 1e-3);
+  CHECK(change.at("to").get<double>() == 3e-4);
+  const auto w_slower = all_weights(slower);
+  CHECK_FALSE(std::equal(w.begin(), w.end(), w_slower.begin()));
+  // Resuming again at the new rate, given or not, is no change: nothing logged, the record kept.
+  for (double rate : {3e-4, 0.0}) {
+    log.clear();
+    auto o = resume(lowered, rate);
+    o.steps += rate > 0 ? 1 : 2;
+    training::train_estimator(o, slower);
+    CHECK_FALSE(any_line_contains(log, "learning rate"));
+    description = training::read_checkpoint_description(lowered);
+    CHECK(description.at("learning_rate").get<double>() == 3e-4);
+    CHECK(description.at("learning_rate_changes").size() == 1);
+  }
+  fs::remove_all(straight);
+  fs::remove_all(kept);
+  fs::remove_all(lowered);
+}
+
+TEST_CASE("training: checkpoints as earlier versions wrote them resume with their own settings") {
+  // The seed written as 4.0, the rate as 3e-04, and (older still) no "materials": the original mix.
+  const json saved = parse_json(R"({"network": "estimator", "preset": "compact", "seed": 4.0, "size": 128, "batch": 2,
+                                    "learning_rate": 3e-04, "step": 11952, "optimizer_steps": 11952, "file": "c.safetensors"})",
+                                "checkpoint.json");
+  json given = {{"network", "estimator"}, {"preset", "compact"}, {"seed", 4.0}, {"size", 128}, {"batch", 2},
+                {"learning_rate", 3e-4}, {"materials", "original"}};
+  CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
+  given["materials"] = "training";
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
+                       doctest::Contains("resume it with --materials original"), std::runtime_error);
+  given["materials"] = "original";
+  json wrong = saved;
+  wrong["seed"] = "4";
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(wrong, given, "checkpoint.json"), doctest::Contains("malformed \"seed\""),
+                       std::runtime_error);
 }

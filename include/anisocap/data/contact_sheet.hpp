@@ -151,9 +151,8 @@ inline float display_scale(const std::vector<image>& images) {
 }
 
 /// The capture contact sheet: inputs, re-renders, |difference| x 4, estimated maps, and the true
-/// maps when given, written as an sRGB PNG (atomically).
-inline void write_capture_sheet(const std::filesystem::path& path, const std::vector<image>& inputs,
-                                const std::vector<image>& renders, const material_maps& estimate,
+/// maps when given.
+inline image make_capture_sheet(const std::vector<image>& inputs, const std::vector<image>& renders, const material_maps& estimate,
                                 const material_maps* truth = nullptr, int tile_size = 160) {
   const float scale = display_scale(inputs);
   auto scaled = [&](const image& im, float s) {
@@ -173,7 +172,14 @@ inline void write_capture_sheet(const std::filesystem::path& path, const std::ve
   }
   rows.push_back(map_tiles(estimate, "estimate "));
   if (truth) rows.push_back(map_tiles(*truth, "truth "));
-  write_png(make_contact_sheet(rows, tile_size), path);
+  return make_contact_sheet(rows, tile_size);
+}
+
+/// make_capture_sheet written as an sRGB PNG (atomically).
+inline void write_capture_sheet(const std::filesystem::path& path, const std::vector<image>& inputs,
+                                const std::vector<image>& renders, const material_maps& estimate,
+                                const material_maps* truth = nullptr, int tile_size = 160) {
+  write_png(make_capture_sheet(inputs, renders, estimate, truth, tile_size), path);
 }
 
 }  // namespace anisocap

@@ -265,12 +265,13 @@ inline material_maps read_maps(const std::filesystem::path& dir) {
   return m;
 }
 
-/// Writes `maps` as a map set into folder `dir` (created if needed), with PNG previews beside the
-/// EXRs when `previews`. The maps are validated first (as read_maps does, with the same clamping
-/// and wrapping), and every file is written under a temporary name before any is renamed into
-/// place, so an error leaves an existing set untouched. A stale height.exr (and stale previews when
-/// `previews` is false) from an earlier set is removed so the folder holds one consistent set.
-inline void write_maps(const material_maps& maps, const std::filesystem::path& dir, bool previews = true) {
+/// The staging half of write_maps: validates `maps` (as read_maps does, with the same clamping and
+/// wrapping), creates `dir` and stages the set's EXRs (and PNG previews when `previews`) into
+/// `transaction`. Returns the files of an earlier set in `dir` that the new set makes stale (a
+/// height.exr the new set lacks, previews when `previews` is false): remove them with
+/// remove_stale_files once the transaction is committed.
+inline std::vector<std::filesystem::path> stage_maps(const material_maps& maps, const std::filesystem::path& dir,
+                                                     file_transaction& transaction, bool previews = true) {
   if (maps.texel_count() == 0) throw io_error(dir, "cannot write an empty map set");
   material_maps canonical = maps;
   detail::check_and_canonicalise(canonical, dir);
@@ -278,7 +279,6 @@ inline void write_maps(const material_maps& maps, const std::filesystem::path& d
   std::filesystem::create_directories(dir, ec);
   if (!std::filesystem::is_directory(dir, ec)) throw io_error(dir, "cannot create the map set folder");
   const std::vector<image> images = detail::map_images(canonical);
-  file_transaction transaction;
   for (std::size_t f = 0; f < images.size(); ++f) {
     write_exr(images[f], dir / map_file_names[f], transaction);
     if (previews) {
@@ -287,7 +287,6 @@ inline void write_maps(const material_maps& maps, const std::filesystem::path& d
       write_png(preview, detail::preview_name(dir, map_file_names[f]), transaction, 0.0f, encoding);
     }
   }
-  transaction.commit();
   std::vector<std::filesystem::path> stale;
   if (!canonical.has_height()) {
     stale.push_back(dir / map_file_names[6]);
@@ -295,10 +294,28 @@ inline void write_maps(const material_maps& maps, const std::filesystem::path& d
   }
   if (!previews)
     for (std::size_t f = 0; f < 6; ++f) stale.push_back(detail::preview_name(dir, map_file_names[f]));
-  for (const auto& file : stale) {
+  return stale;
+}
+
+/// Removes those of `files` that exist; io_error naming the first that cannot be removed.
+inline void remove_stale_files(const std::vector<std::filesystem::path>& files) {
+  for (const auto& file : files) {
+    std::error_code ec;
     std::filesystem::remove(file, ec);
     if (ec) throw io_error(file, "cannot remove the stale file of an earlier map set: " + ec.message());
   }
+}
+
+/// Writes `maps` as a map set into folder `dir` (created if needed), with PNG previews beside the
+/// EXRs when `previews` (stage_maps). Every file is written under a temporary name before any is
+/// renamed into place, so an error leaves an existing set untouched. A stale height.exr (and stale
+/// previews when `previews` is false) from an earlier set is removed so the folder holds one
+/// consistent set.
+inline void write_maps(const material_maps& maps, const std::filesystem::path& dir, bool previews = true) {
+  file_transaction transaction;
+  const std::vector<std::filesystem::path> stale = stage_maps(maps, dir, transaction, previews);
+  transaction.commit();
+  remove_stale_files(stale);
 }
 
 }  // namespace anisocap

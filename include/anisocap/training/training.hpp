@@ -21,6 +21,8 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <string_view>
+#include <utility>
 #include <vector>
 
 #include <omp.h>
@@ -262,19 +264,27 @@ void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
   if (!previous.empty() && previous != file) std::filesystem::remove(dir / previous);
 }
 
-/// Restores a checkpoint written by save_checkpoint; returns its step. Throws std::runtime_error
-/// naming the file when it is missing, malformed or does not match the network.
-template <class Net>
-long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json* info = nullptr) {
+/// The contents of dir/checkpoint.json (written by save_checkpoint). Throws std::runtime_error
+/// naming the file when it is missing, malformed or lacks "file", "step" or "optimizer_steps".
+inline json read_checkpoint_description(const std::filesystem::path& dir) {
   const auto description = dir / "checkpoint.json";
   std::ifstream in(description);
   if (!in) throw std::runtime_error(description.string() + ": no checkpoint to resume from");
   std::stringstream text;
   text << in.rdbuf();
-  const json object = parse_json(text.str(), description.string());
+  json object = parse_json(text.str(), description.string());
+  if (!object.is_object()) throw std::runtime_error(description.string() + ": not a checkpoint description (a JSON object)");
   for (const char* key : {"file", "step", "optimizer_steps"})
     if (!object.contains(key) || (std::string_view(key) == "file" ? !object.at(key).is_string() : !object.at(key).is_number()))
       throw std::runtime_error(description.string() + ": missing or malformed \"" + key + "\"");
+  return object;
+}
+
+/// Restores a checkpoint written by save_checkpoint; returns its step. Throws std::runtime_error
+/// naming the file when it is missing, malformed or does not match the network.
+template <class Net>
+long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json* info = nullptr) {
+  const json object = read_checkpoint_description(dir);
   const auto file = dir / object.at("file").get<std::string>();
   nn::load_weights(file, net);
   const nn::safetensors_file contents = nn::read_safetensors(file);
@@ -372,15 +382,58 @@ inline void append_validation(const std::filesystem::path& file, long step, doub
   out << row;
 }
 
+/// A setting as a checkpoint writes it: strings as they are, whole numbers without a fraction.
+inline std::string setting_text(const json& value) {
+  if (value.is_string()) return value.get<std::string>();
+  if (value.is_number()) {
+    const double v = value.get<double>();
+    char text[64];
+    if (v == std::nearbyint(v) && std::abs(v) < 1e18) std::snprintf(text, sizeof text, "%lld", static_cast<long long>(v));
+    else std::snprintf(text, sizeof text, "%g", v);
+    return text;
+  }
+  return value.dump();
+}
+
+/// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
+/// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
+/// (`saved`) in the network, preset, seed, size, batch or materials: such a run would silently
+/// continue as another one. Entries a checkpoint lacks (older ones have no "materials": the
+/// original mix) are not compared.
+inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
+  const auto text = [](const json& v) { return setting_text(v); };
+  if (saved.contains("network") && text(saved.at("network")) != text(given.at("network")))
+    throw std::runtime_error(file.string() + ": the run in this folder trains the " + text(saved.at("network")) + ", not the " +
+                             text(given.at("network")) + "; resume it with train-" + text(saved.at("network")));
+  static const std::pair<const char*, const char*> options[] = {
+      {"preset", "--preset"}, {"seed", "--seed"}, {"size", "--size"}, {"batch", "--batch"}, {"materials", "--materials"}};
+  for (const auto& [key, option] : options) {
+    json value = saved.contains(key) ? saved.at(key) : json();
+    if (value.is_null() && std::string_view(key) == "materials") value = "original";
+    if (value.is_null()) continue;
+    if (value.is_number() != given.at(key).is_number() || (!value.is_number() && !value.is_string()))
+      throw std::runtime_error(file.string() + ": malformed \"" + key + "\"");
+    const bool same = value.is_number() ? value.get<double>() == given.at(key).get<double>() : value == given.at(key);
+    if (!same)
+      throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + text(value) + ", not " +
+                               text(given.at(key)) + "; resume it with " + option + " " + text(value));
+  }
+}
+
 /// The loop shared by both trainers: `step_fn(step, samples)` runs one optimiser step on the step's
 /// batch (make_batch; prefetched on a second thread with o.prefetch) and returns its loss;
 /// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
+///
+/// A resumed run must be the run its checkpoint.json describes (check_resume_settings). Only the
+/// learning rate may change on resume (a step-down schedule): without --lr (o.learning_rate 0) the
+/// run keeps its saved rate; with another rate the change is logged and recorded in
+/// checkpoint.json ("learning_rate", and "learning_rate_changes" with the step of each change).
+/// Nothing is created before the run is known to start: a refused resume leaves no folder.
 template <class Net, class StepFn, class ValidateFn>
 void run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, bool with_photos, StepFn step_fn,
          ValidateFn validate_fn) {
   o.validate();
   training_material_options(o.mix);  // reject the extended mix before touching out_dir
-  std::filesystem::create_directories(o.out_dir);
   long step = 0;
   json info = json::object();
   info["network"] = kind;
@@ -392,23 +445,35 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["materials"] = material_mix_name(o.mix);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
-    json saved;
-    step = load_checkpoint(o.out_dir, net, opt, &saved);
-    // A run continues on the materials it started with (checkpoints without the entry predate the mixes).
-    if (saved.contains("materials") && !saved.at("materials").is_string())
-      throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": malformed \"materials\"");
-    const std::string started = saved.contains("materials") ? saved.at("materials").get<std::string>() : "original";
-    if (started != material_mix_name(o.mix))
-      throw std::runtime_error((o.out_dir / "checkpoint.json").string() + ": the run trained on the " + started +
-                               " materials; resume it with --materials " + started);
+    const auto description = o.out_dir / "checkpoint.json";
+    const json saved = read_checkpoint_description(o.out_dir);
+    check_resume_settings(saved, info, description);
+    if (saved.contains("learning_rate_changes")) info["learning_rate_changes"] = saved.at("learning_rate_changes");
+    step = load_checkpoint(o.out_dir, net, opt);
+    if (saved.contains("learning_rate")) {
+      if (!saved.at("learning_rate").is_number() || !(saved.at("learning_rate").get<double>() > 0))
+        throw std::runtime_error(description.string() + ": malformed \"learning_rate\"");
+      const double before = saved.at("learning_rate").get<double>();
+      if (o.learning_rate == 0) {
+        opt.schedule = nn::learning_rate_schedule::constant(before);
+      } else if (std::abs(o.learning_rate - before) > 1e-12 * before) {
+        char line[160];
+        std::snprintf(line, sizeof line, "%s: learning rate %g -> %g from step %ld", kind.c_str(), before, o.learning_rate, step);
+        o.log(line);
+        if (!info.contains("learning_rate_changes")) info["learning_rate_changes"] = json::array();
+        info["learning_rate_changes"].push_back({{"step", step}, {"from", before}, {"to", o.learning_rate}});
+      }
+      info["learning_rate"] = opt.learning_rate();
+    }
     truncate_csv(csv, step);
     o.log(kind + ": resumed at step " + std::to_string(step));
   } else {
-    std::filesystem::remove(csv);
     if (!o.init_weights.empty()) {
       nn::load_weights(o.init_weights, net);
       o.log(kind + ": starting from the weights in " + o.init_weights.string());
     }
+    std::filesystem::create_directories(o.out_dir);
+    std::filesystem::remove(csv);
   }
   using clock = std::chrono::steady_clock;
   const auto start = clock::now();
@@ -467,6 +532,65 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 
 }  // namespace detail
 
+/// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
+/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 + render loss) and
+/// its gradient, backward, one Adam step. `t` is cleared first (reuse it across steps to keep its
+/// memory). Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples) {
+  const int B = int(samples.size()), N = int(samples[0].photos.size());
+  const int H = samples[0].truth.height(), W = samples[0].truth.width();
+  t.clear();
+  auto x = t.make_variable<3>(B * N, H, W, false);
+  for (int b = 0; b < B; ++b)
+    for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
+  auto y = net.forward(t, x, N);
+  const loss_terms l = map_losses(y.value, samples, &y.grad);
+  t.backward();
+  opt.step();
+  return l;
+}
+
+/// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
+/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses, and with
+/// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
+/// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
+/// step. `t` is cleared first. Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
+                            const train_options& o, long step) {
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
+  const int B = int(samples.size()), H = samples[0].truth_net.height(), W = samples[0].truth_net.width();
+  t.clear();
+  auto x = t.make_variable<parameter_count>(B, H, W, false);
+  for (int b = 0; b < B; ++b) std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
+  net.set_training(true);
+  auto z = net.encode(t, x);
+  auto y = net.decode(t, z);
+  loss_terms l = map_losses(y.value, samples, &y.grad);
+  if (o.smoothness_weight > 0) {
+    auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
+    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+    for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
+    auto y2 = net.decode(t, nn::add(t, z, delta));
+    const double n = double(y.value.size());
+    const float g = float(o.smoothness_weight / n);
+    double s = 0;
+    for (std::size_t i = 0; i < y.value.size(); ++i) {
+      const float d = y.value.data()[i] - y2.value.data()[i];
+      s += std::abs(d);
+      const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
+      y.grad.data()[i] += sg;
+      y2.grad.data()[i] -= sg;
+    }
+    l.smoothness = s / n;
+    l.total += o.smoothness_weight * l.smoothness;
+  }
+  t.backward();
+  opt.step();
+  return l;
+}
+
 /// Trains the estimator (docs/method.md section 7): per step, `batch` procedural materials with their 5 training
 /// inputs; loss = L1 (network space) + render loss; Adam (default rate 5e-5, the paper's).
 template <class Preset>
@@ -475,18 +599,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long, const std::vector<sample>& samples) {
-    const int N = int(samples[0].photos.size());
-    t.clear();
-    auto x = t.make_variable<3>(o.batch * N, o.size, o.size, false);
-    for (int b = 0; b < o.batch; ++b)
-      for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
-    auto y = net.forward(t, x, N);
-    const loss_terms l = map_losses(y.value, samples, &y.grad);
-    t.backward();
-    opt.step();
-    return l.total;
-  };
+  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples).total; };
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
@@ -503,38 +616,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 1e-3));
   opt.add_parameters(net);
   ad::tape t;
-  constexpr int Z = auto_encoder<Preset>::latent_channels;
-  auto step_fn = [&](long step, const std::vector<sample>& samples) {
-    t.clear();
-    auto x = t.make_variable<parameter_count>(o.batch, o.size, o.size, false);
-    for (int b = 0; b < o.batch; ++b)
-      std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
-    net.set_training(true);
-    auto z = net.encode(t, x);
-    auto y = net.decode(t, z);
-    loss_terms l = map_losses(y.value, samples, &y.grad);
-    if (o.smoothness_weight > 0) {
-      auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
-      nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
-      for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
-      auto y2 = net.decode(t, nn::add(t, z, delta));
-      const double n = double(y.value.size());
-      const float g = float(o.smoothness_weight / n);
-      double s = 0;
-      for (std::size_t i = 0; i < y.value.size(); ++i) {
-        const float d = y.value.data()[i] - y2.value.data()[i];
-        s += std::abs(d);
-        const float sg = d > 0 ? g : (d < 0 ? -g : 0.0f);
-        y.grad.data()[i] += sg;
-        y2.grad.data()[i] -= sg;
-      }
-      l.smoothness = s / n;
-      l.total += o.smoothness_weight * l.smoothness;
-    }
-    t.backward();
-    opt.step();
-    return l.total;
-  };
+  auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
   };
