@@ -32,9 +32,13 @@ inline void add_rectify_command(CLI::App& app) {
   cmd->add_option("--margin-px", s->options.resampling.margin_px, "photo pixels left out along each side of a texel's footprint (they also record its neighbours)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--footprint", s->options.resampling.statistic,
-                  "how a texel's footprint becomes its value: mean (area average: no aliasing) or median (of its pixels: no bias from sensor noise clipped at black, for samples uniform at the texel scale)")
-      ->transform(CLI::CheckedTransformer(std::map<std::string, footprint_statistic>{{"median", footprint_statistic::median}, {"mean", footprint_statistic::mean}}))
-      ->default_str("mean");
+                  "how a texel's footprint becomes its value: auto (the median of its pixels where their mean is at most --dark-level, "
+                  "unbiased by sensor noise clipped at black; the mean elsewhere), mean (area average) or median")
+      ->transform(CLI::CheckedTransformer(std::map<std::string, footprint_statistic>{
+          {"auto", footprint_statistic::automatic}, {"mean", footprint_statistic::mean}, {"median", footprint_statistic::median}}))
+      ->default_str("auto");
+  cmd->add_option("--dark-level", s->options.resampling.dark_level, "--footprint auto: the linear level (1 = the format's white) up to which the median is used")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--full-confidence-px", s->options.resampling.full_confidence_px,
                   "photo pixels across a texel that give it full weight in the loss; fewer weigh (d / this)^2 (0: every texel full weight)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);

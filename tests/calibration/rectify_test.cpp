@@ -63,7 +63,7 @@ TEST_CASE("area averaging: a checkerboard finer than a texel rectifies to its me
   CHECK(r.outside_fraction == 0);
 }
 
-TEST_CASE("footprint statistics: the median keeps a black texel black under sensor noise clipped at black, the mean does not") {
+TEST_CASE("footprint statistics: the median keeps a black texel black under sensor noise clipped at black, the mean does not; automatic takes each where it is right") {
   // A frontal photo of a uniform sample, 8 x 8 photo pixels per texel, with Gaussian noise of
   // standard deviation sigma clipped at 0 as a sensor reports it: the area average of such pixels
   // is biased up by about sigma / sqrt(2 pi) where the sample is black; their median is not.
@@ -93,6 +93,19 @@ TEST_CASE("footprint statistics: the median keeps a black texel black under sens
   // Well above the noise both are unbiased.
   CHECK(mean_texel(grey, footprint_statistic::mean) == doctest::Approx(0.3).epsilon(0.002));
   CHECK(mean_texel(grey, footprint_statistic::median) == doctest::Approx(0.3).epsilon(0.002));
+  // automatic, the default: the median in the dark, the area average above dark_level.
+  CHECK(mean_texel(black, footprint_statistic::automatic) == mean_texel(black, footprint_statistic::median));
+  CHECK(mean_texel(grey, footprint_statistic::automatic) == mean_texel(grey, footprint_statistic::mean));
+  CHECK(resampling_options{}.statistic == footprint_statistic::automatic);
+  // Sparse bright pixels finer than a texel (every other pixel of every other row): the median
+  // drops them, the area average and automatic keep their share.
+  image sparse(640, 480, 3);
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 640; ++x)
+      for (int c = 0; c < 3; ++c) sparse.at(c, x, y) = float(x % 2 == 0 && y % 2 == 0);
+  CHECK(mean_texel(sparse, footprint_statistic::median) == 0.0);
+  CHECK(mean_texel(sparse, footprint_statistic::mean) == doctest::Approx(0.25).epsilon(0.05));
+  CHECK(mean_texel(sparse, footprint_statistic::automatic) == mean_texel(sparse, footprint_statistic::mean));
   // Without noise, the median of a uniform footprint is its value exactly.
   image flat(640, 480, 3);
   for (int c = 0; c < 3; ++c) std::fill_n(flat.plane(c), flat.pixel_count(), 0.125f);

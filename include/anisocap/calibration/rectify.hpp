@@ -13,14 +13,17 @@
 /// them. Resampling integrates each texel's footprint: s_u x s_v sample points spread over the
 /// texel, as many per axis as the texel spans photo pixels along that axis, each read with
 /// bilinear interpolation of the linear photo. A photo with more pixels than the texture is thus
-/// area-averaged (no aliasing), one with fewer is interpolated. A sensor reports no negative
-/// light, so where the sample is black its pixels are noise clipped at 0, and their area average
-/// is biased up (by sigma / sqrt(2 pi) for noise of standard deviation sigma): the fit reads it as
-/// diffuse albedo, which shows on polished metals photographed under a separate light (mostly
-/// black but for the highlight). `footprint_statistic::median` takes, per channel, the median of
-/// the pixels the samples lie in instead: unbiased for a texel that is uniform at the texture's
-/// scale, but it picks one side of structure finer than a texel, so the area average stays the
-/// default (studies/README.md, "Rectified photographs, step by step", has both measured).
+/// area-averaged (no aliasing), one with fewer is interpolated.
+///
+/// A sensor reports no negative light, so where the sample is black its pixels are noise clipped
+/// at 0, and their area average is biased up (by sigma / sqrt(2 pi) for noise of standard
+/// deviation sigma); the fit reads that as diffuse albedo, which shows on polished metals
+/// photographed under a separate light (black but for the highlight). The median of the pixels the
+/// samples lie in is not biased so for a texel that is uniform at the texture's scale, but it
+/// picks one side of structure finer than a texel (aliasing). `footprint_statistic::automatic`,
+/// the default, takes per channel the median where the area average is at most `dark_level`
+/// (there the clipped noise dominates, and the two differ by about `dark_level` at most) and the area
+/// average elsewhere (studies/README.md, "Rectified photographs, step by step", measures all three).
 ///
 /// A photo pixel near a texel's border also records its neighbour (the pixel's own area and the
 /// bilinear reading reach about 1.5 pixels), so the footprint is shrunk by `margin_px` photo pixels
@@ -57,6 +60,7 @@ namespace anisocap {
 enum class footprint_statistic {
   mean,    ///< the mean of bilinear readings: the footprint's area average
   median,  ///< per channel, the median of the pixels the samples lie in: robust to sensor noise clipped at black
+  automatic,  ///< per channel, the median where the mean is at most resampling_options::dark_level, else the mean
 };
 
 /// How rectify_photo reads a texel's footprint from the photo (see the file comment).
@@ -64,7 +68,8 @@ struct resampling_options {
   int max_samples_per_axis = 16;  ///< cap on a texel's footprint samples per axis (keeps grazing views bounded)
   double margin_px = 1;           ///< photo pixels left out along each side of the footprint
   double full_confidence_px = 2.5;  ///< photo pixels across a texel's narrower axis that earn full confidence (0: always 1)
-  footprint_statistic statistic = footprint_statistic::mean;  ///< how a footprint's samples become the texel's value
+  footprint_statistic statistic = footprint_statistic::automatic;  ///< how a footprint's samples become the texel's value
+  double dark_level = 0.01;       ///< automatic: the linear level (photo units, 1 = the format's white) up to which the median is used
 };
 
 /// Options of rectify.
@@ -163,7 +168,8 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
     return Eigen::Vector2d(q.x() / q.z(), q.y() / q.z());
   };
   std::size_t outside = 0, clipped_count = 0;
-  const bool median = resampling.statistic == footprint_statistic::median;
+  const bool median = resampling.statistic != footprint_statistic::mean;
+  const bool always_median = resampling.statistic == footprint_statistic::median;
 #pragma omp parallel for schedule(dynamic, 4) reduction(+ : outside, clipped_count)
   for (int y = 0; y < height; ++y) {
     std::vector<float> values[3];  // the median's samples per channel, reused along the row
@@ -219,7 +225,8 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
           }
         }
       if (median && inside && !clip)
-        for (int c = 0; c < 3; ++c) sum[c] = detail::median_of(values[c]) * (su * sv);
+        for (int c = 0; c < 3; ++c)
+          if (always_median || sum[c] <= resampling.dark_level * (su * sv)) sum[c] = detail::median_of(values[c]) * (su * sv);
       const std::size_t index = std::size_t(y) * width + x;
       const bool use = inside && !clip;
       if (!inside) ++outside;
