@@ -2,10 +2,12 @@
 # End to end without a camera: synthetic perspective photographs (8-bit sRGB JPEG, clipped
 # highlights, sensor noise) of procedural materials -> `anisocap rectify` -> `anisocap capture`,
 # against the same material and configurations captured directly in texture space (EXR, same
-# noise). Per-parameter MSE and novel-view loss, co-located flash and separate light, N = 8 and 12.
+# noise), and clipped at white as the photographs are (direct-clipped/: what a perfect rectification
+# of the 8-bit photographs would give). Per-parameter MSE and novel-view loss, co-located flash and
+# separate light, N = 8 and 12.
 # Usage: studies/rectify_eval.sh [build/anisocap] [output folder]; SEEDS, SIZE, PHOTO ("960x720"),
 # CAPTURE (the capture options) and RECTIFY (extra rectify options) override the defaults. A run
-# whose two report.json files exist is skipped, so the study resumes where it stopped.
+# whose three report.json files exist is skipped, so the study resumes where it stopped.
 set -euo pipefail
 bin=${1:-build/anisocap}
 out=${2:-rectify-eval}
@@ -21,7 +23,7 @@ for seed in $seeds; do
   for n in 8 12; do
     for light in separate flash; do
       dir="$out/$seed-$n-$light"
-      [[ -f $dir/direct-result/report.json && -f $dir/rectified-result/report.json ]] && continue
+      [[ -f $dir/direct-result/report.json && -f $dir/clipped-result/report.json && -f $dir/rectified-result/report.json ]] && continue
       rm -rf "$dir"
       flag=()
       [[ $light == flash ]] && flag=(--flash)
@@ -29,6 +31,7 @@ for seed in $seeds; do
         --photo-width "${photo%x*}" --photo-height "${photo#*x}" --shot-noise 0.01 --read-noise 0.002 "${flag[@]}"
       "$bin" rectify "$dir/photos/photos.json" -o "$dir/rectified" --resolution "$size" "${rectify_options[@]}"
       "$bin" capture "$dir/direct/capture.json" -o "$dir/direct-result" --truth "$dir/truth" "${capture_options[@]}"
+      "$bin" capture "$dir/direct-clipped/capture.json" -o "$dir/clipped-result" --truth "$dir/truth" "${capture_options[@]}"
       "$bin" capture "$dir/rectified/capture.json" -o "$dir/rectified-result" --truth "$dir/truth" "${capture_options[@]}"
     done
   done

@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
-"""The table of studies/rectify_eval.sh: mean per-parameter MSE and novel-view loss over materials,
-rectified (perspective photos -> rectify -> capture) against direct (texture-space capture), and
-their ratio. Usage: rectify_table.py OUTPUT_FOLDER [--skip SEED ...] (leave those materials out)"""
+"""The table of studies/rectify_eval.sh: mean per-parameter MSE and novel-view loss over materials
+of three captures of the same photographs: direct (the texture-space capture, linear and
+unclipped), clipped (the same clipped at white with its clipped texels masked, as the 8-bit
+photographs are) and rectified (perspective photos -> rectify -> capture); then rectified over
+direct (the goal) and rectified over clipped (what rectification itself costs). Runs without a
+clipped capture leave its rows out. Usage: rectify_table.py OUTPUT_FOLDER [--skip SEED ...]"""
 import json, pathlib, sys
 from collections import defaultdict
 
@@ -9,26 +12,40 @@ root = pathlib.Path(sys.argv[1])
 skip = set(sys.argv[sys.argv.index("--skip") + 1:]) if "--skip" in sys.argv else set()
 keys = ["diffuse", "specular", "normal", "lobes", "rotation", "fresnel", "novel_view_image_loss"]
 names = ["a_d", "a_s", "n_s", "sigma", "alpha", "F0", "novel-view loss"]
+sources = ("direct", "clipped", "rectified")
 sums = defaultdict(lambda: defaultdict(float))
-counts = defaultdict(int)
+counts = defaultdict(lambda: defaultdict(int))
+runs = 0
 for run in sorted(p for p in root.iterdir() if p.is_dir()):
     seed, n, light = run.name.split("-")
     if seed in skip:
         continue
-    reports = {s: run / f"{s}-result" / "report.json" for s in ("direct", "rectified")}
-    if not all(r.exists() for r in reports.values()):
+    reports = {s: run / f"{s}-result" / "report.json" for s in sources}
+    if not (reports["direct"].exists() and reports["rectified"].exists()):
         continue
+    runs += 1
     for source, path in reports.items():
+        if not path.exists():
+            continue
         errors = json.loads(path.read_text())["errors"]
         for k in keys:
             sums[(int(n), light, source)][k] += errors[k]
-    counts[(int(n), light)] += 1
+        counts[(int(n), light)][source] += 1
+
+
+def ratio(a, b):
+    return f"{a / b:.2f}" if b > 0 else "-"
+
+
 print("| N | light | capture | " + " | ".join(names) + " |")
 print("|---|---|---|" + "---|" * len(names))
 for (n, light), count in sorted(counts.items()):
-    rows = {s: {k: sums[(n, light, s)][k] / count for k in keys} for s in ("direct", "rectified")}
-    for s in ("direct", "rectified"):
+    present = [s for s in sources if count[s] == count["direct"]]
+    rows = {s: {k: sums[(n, light, s)][k] / count[s] for k in keys} for s in present}
+    for s in present:
         print(f"| {n} | {light} | {s} | " + " | ".join(f"{rows[s][k]:.4f}" for k in keys) + " |")
-    print(f"| {n} | {light} | ratio | " + " | ".join(f"{rows['rectified'][k] / rows['direct'][k]:.2f}" if rows['direct'][k] > 0 else "-" for k in keys) + " |")
+    print(f"| {n} | {light} | rectified / direct | " + " | ".join(ratio(rows["rectified"][k], rows["direct"][k]) for k in keys) + " |")
+    if "clipped" in present:
+        print(f"| {n} | {light} | rectified / clipped | " + " | ".join(ratio(rows["rectified"][k], rows["clipped"][k]) for k in keys) + " |")
 seeds = sorted({p.name.split('-')[0] for p in root.iterdir() if p.is_dir()} - skip)
-print(f"\n({sum(counts.values())} runs: {', '.join(seeds)} seeds)")
+print(f"\n({runs} runs: {', '.join(seeds)} seeds)")

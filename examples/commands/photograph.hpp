@@ -35,8 +35,8 @@ inline void add_photograph_command(CLI::App& app) {
     marker_frame_options frame;
   };
   auto s = std::make_shared<settings>();
-  auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, photos.json) of a material, with truth/ and the texture-space capture direct/");
-  cmd->add_option("-o,--out", s->out, "output folder: photos/, direct/, truth/")->capture_default_str();
+  auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, photos.json) of a material, with truth/ and the texture-space captures direct/ and direct-clipped/");
+  cmd->add_option("-o,--out", s->out, "output folder: photos/, direct/, direct-clipped/, truth/")->capture_default_str();
   cmd->add_option("--maps", s->maps, "map set to photograph (default: a procedural material)");
   cmd->add_option("--size", s->size, "procedural material size in texels (square)")->capture_default_str()->check(CLI::PositiveNumber);
   cmd->add_option("--seed", s->seed, "material, configuration and noise seed")->capture_default_str();
@@ -124,13 +124,39 @@ inline void add_photograph_command(CLI::App& app) {
         }
         write_file_atomically(s->out / "photos" / "photos.json", photos_description_to_json(photos.description));
       }
+      // The same texture-space capture clipped as the photographs are: values at or above white
+      // (1 in the photographs' units) clip, and their texels are left out through a mask as
+      // rectify leaves out clipped pixels: the capture a perfect rectification of these 8-bit
+      // photographs would give, so that the rectification's own cost and the clipping's separate.
+      capture clipped_capture = direct_capture;
+      std::vector<image> clipped = direct, clipped_masks;
+      for (std::size_t i = 0; i < clipped.size(); ++i) {
+        image mask(clipped[i].width(), clipped[i].height(), 1);
+        for (std::size_t k = 0; k < clipped[i].pixel_count(); ++k) {
+          bool white = false;
+          for (int c = 0; c < 3; ++c) {
+            float& v = clipped[i].plane(c)[k];
+            if (v >= 1.0f) white = true;
+            v = std::min(v, 1.0f);
+          }
+          mask.plane(0)[k] = white ? 0.0f : 1.0f;
+        }
+        clipped_masks.push_back(std::move(mask));
+        clipped_capture.images[i].mask = "mask_" + std::filesystem::path(clipped_capture.images[i].file).stem().string() + ".png";
+      }
       std::filesystem::create_directories(s->out / "direct");
+      std::filesystem::create_directories(s->out / "direct-clipped");
       file_transaction files;
-      for (std::size_t i = 0; i < direct.size(); ++i) write_exr(direct[i], s->out / "direct" / photos.texture_capture.images[i].file, files);
+      for (std::size_t i = 0; i < direct.size(); ++i) {
+        write_exr(direct[i], s->out / "direct" / photos.texture_capture.images[i].file, files);
+        write_exr(clipped[i], s->out / "direct-clipped" / clipped_capture.images[i].file, files);
+        write_png(clipped_masks[i], s->out / "direct-clipped" / clipped_capture.images[i].mask, files, 0.0f, png_encoding::linear);
+      }
       files.stage(s->out / "direct" / "capture.json", capture_to_json(direct_capture));
+      files.stage(s->out / "direct-clipped" / "capture.json", capture_to_json(clipped_capture));
       files.commit();
-      std::fprintf(stderr, "photograph: photos and photos.json in %s, texture-space capture in %s, true maps in %s\n",
-                   (s->out / "photos").c_str(), (s->out / "direct").c_str(), (s->out / "truth").c_str());
+      std::fprintf(stderr, "photograph: photos and photos.json in %s, texture-space capture in %s (clipped as the photos: %s), true maps in %s\n",
+                   (s->out / "photos").c_str(), (s->out / "direct").c_str(), (s->out / "direct-clipped").c_str(), (s->out / "truth").c_str());
     } catch (const std::exception& e) {
       std::fprintf(stderr, "anisocap: error: %s\n", e.what());
       std::exit(1);

@@ -597,6 +597,22 @@ TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph
   auto r = run("photograph -o shoot --size 48 --images 8 --photo-width 320 --photo-height 240", t.path);
   REQUIRE(r.status == 0);
   REQUIRE(fs::exists(t.path / "shoot/photos/photos.json"));
+  // direct-clipped/ is direct/ clipped at white, its clipped texels masked out, as the JPEGs are.
+  std::size_t clipped_texels = 0;
+  for (int i = 0; i < 8; ++i) {
+    const std::string n = "0" + std::to_string(i);
+    const anisocap::image direct = anisocap::read_image(t.path / ("shoot/direct/input_" + n + ".exr"));
+    const anisocap::image clipped = anisocap::read_image(t.path / ("shoot/direct-clipped/input_" + n + ".exr"));
+    const anisocap::image mask = anisocap::read_image(t.path / ("shoot/direct-clipped/mask_input_" + n + ".png"));
+    for (std::size_t k = 0; k < direct.pixel_count(); ++k) {
+      const bool white = std::max({direct.plane(0)[k], direct.plane(1)[k], direct.plane(2)[k]}) >= 1.0f;
+      clipped_texels += white;
+      REQUIRE(mask.plane(0)[k] == (white ? 0.0f : 1.0f));
+      for (int c = 0; c < 3; ++c) REQUIRE(clipped.plane(c)[k] == std::min(direct.plane(c)[k], 1.0f));
+    }
+  }
+  CHECK(clipped_texels > 0);
+  CHECK(read_text(t.path / "shoot/direct-clipped/capture.json").find("\"mask\": \"mask_input_00.png\"") != std::string::npos);
   r = run("rectify shoot/photos/photos.json -o rect --resolution 48", t.path);
   REQUIRE(r.status == 0);
   CHECK(r.output.find("8/8") != std::string::npos);
