@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """The table of studies/rectify_eval.sh: mean per-parameter MSE and novel-view loss over materials
 of three captures of the same photographs: direct (the texture-space capture, linear and
-unclipped), clipped (the same clipped at white with its clipped texels masked, as the 8-bit
-photographs are) and rectified (perspective photos -> rectify -> capture); then rectified over
-direct (the goal) and rectified over clipped (what rectification itself costs). Runs without a
-clipped capture leave its rows out. Usage: rectify_table.py OUTPUT_FOLDER [--skip SEED ...]"""
+unclipped), redrawn (the same with another draw of the sensor noise, studies/rectify_noise_draw.sh:
+the capture's own spread), clipped (the same clipped at white with its clipped texels masked, as
+the 8-bit photographs are) and rectified (perspective photos -> rectify -> capture); then rectified
+over direct (the goal), over clipped (what rectification itself costs) and over redrawn. Runs
+without one of the optional captures leave its rows out. Usage: rectify_table.py OUTPUT_FOLDER [--skip SEED ...]"""
 import json, pathlib, sys
 from collections import defaultdict
 
@@ -12,7 +13,7 @@ root = pathlib.Path(sys.argv[1])
 skip = set(sys.argv[sys.argv.index("--skip") + 1:]) if "--skip" in sys.argv else set()
 keys = ["diffuse", "specular", "normal", "lobes", "rotation", "fresnel", "novel_view_image_loss"]
 names = ["a_d", "a_s", "n_s", "sigma", "alpha", "F0", "novel-view loss"]
-sources = ("direct", "clipped", "rectified")
+sources = ("direct", "redrawn", "clipped", "rectified")
 sums = defaultdict(lambda: defaultdict(float))
 counts = defaultdict(lambda: defaultdict(int))
 runs = 0
@@ -47,5 +48,8 @@ for (n, light), count in sorted(counts.items()):
     print(f"| {n} | {light} | rectified / direct | " + " | ".join(ratio(rows["rectified"][k], rows["direct"][k]) for k in keys) + " |")
     if "clipped" in present:
         print(f"| {n} | {light} | rectified / clipped | " + " | ".join(ratio(rows["rectified"][k], rows["clipped"][k]) for k in keys) + " |")
+    if "redrawn" in present:
+        print(f"| {n} | {light} | redrawn / direct | " + " | ".join(ratio(rows["redrawn"][k], rows["direct"][k]) for k in keys) + " |")
+        print(f"| {n} | {light} | rectified / redrawn | " + " | ".join(ratio(rows["rectified"][k], rows["redrawn"][k]) for k in keys) + " |")
 seeds = sorted({p.name.split('-')[0] for p in root.iterdir() if p.is_dir()} - skip)
 print(f"\n({runs} runs: {', '.join(seeds)} seeds)")

@@ -29,6 +29,7 @@ inline void add_photograph_command(CLI::App& app) {
     std::optional<std::filesystem::path> maps;
     int size = 128, images = 12;
     std::uint64_t seed = 1;
+    std::uint64_t noise_seed = 0;
     std::string kind, set = "alpha", lookup = "bilinear";
     photo_synthesis_options options;
     bool marker_frame = false;
@@ -40,6 +41,8 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->add_option("--maps", s->maps, "map set to photograph (default: a procedural material)");
   cmd->add_option("--size", s->size, "procedural material size in texels (square)")->capture_default_str()->check(CLI::PositiveNumber);
   cmd->add_option("--seed", s->seed, "material, configuration and noise seed")->capture_default_str();
+  cmd->add_option("--noise-seed", s->noise_seed, "another draw of the sensor noise for the same material and configurations (0: --seed's)")
+      ->capture_default_str();
   cmd->add_option("--kind", s->kind, "procedural material kind (plain_weave, twill, satin, brushed_metal, ...)");
   cmd->add_option("--images", s->images, "number of photographs")->capture_default_str()->check(CLI::Range(4, 1000));
   cmd->add_option("--set", s->set, "configuration set: alpha or beta")->capture_default_str()->check(CLI::IsMember({"alpha", "beta"}));
@@ -65,7 +68,8 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->callback([s, fill] {
     try {
       photo_synthesis_options o = s->options;
-      o.seed = s->seed;
+      const std::uint64_t noise_seed = s->noise_seed != 0 ? hash64(s->seed ^ hash64(s->noise_seed)) : s->seed;
+      o.seed = noise_seed;
       o.lookup = s->lookup == "nearest" ? texture_lookup::nearest : texture_lookup::bilinear;
       material_maps truth;
       if (s->maps) {
@@ -104,7 +108,7 @@ inline void add_photograph_command(CLI::App& app) {
         const float e = float(photos.exposures[i]);
         for (int c = 0; c < 3; ++c)
           for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] *= e;
-        add_sensor_noise(direct[i], o.noise, hash64(s->seed ^ (0x646972656374ULL + i)));
+        add_sensor_noise(direct[i], o.noise, hash64(noise_seed ^ (0x646972656374ULL + i)));
         for (float& intensity : direct_capture.images[i].intensity) intensity *= e;
       }
       write_maps(truth, s->out / "truth");

@@ -592,6 +592,20 @@ TEST_CASE("photographs of the printed marker frame: corners left out where the t
   CHECK(fs::exists(t.path / "rect/capture.json"));
 }
 
+TEST_CASE("photograph --noise-seed: another draw of the noise, the same material, configurations and exposures") {
+  temp_dir t;
+  for (const char* draw : {"0", "1", "2"}) {
+    auto r = run(std::string("photograph -o d") + draw + " --size 32 --images 8 --photo-width 160 --photo-height 120 --read-noise 0.01 --noise-seed " + draw, t.path);
+    REQUIRE(r.status == 0);
+  }
+  CHECK(read_text(t.path / "d1/truth/diffuse.exr") == read_text(t.path / "d2/truth/diffuse.exr"));
+  CHECK(read_text(t.path / "d0/direct/capture.json") == read_text(t.path / "d1/direct/capture.json"));  // configurations, intensities
+  CHECK(read_text(t.path / "d1/direct/capture.json") == read_text(t.path / "d2/direct/capture.json"));
+  CHECK(read_text(t.path / "d1/direct/input_03.exr") != read_text(t.path / "d2/direct/input_03.exr"));
+  CHECK(read_text(t.path / "d0/direct/input_03.exr") != read_text(t.path / "d1/direct/input_03.exr"));
+  CHECK(read_text(t.path / "d1/photos/photo_03.jpg") != read_text(t.path / "d2/photos/photo_03.jpg"));
+}
+
 TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph, rectify, capture") {
   temp_dir t;
   auto r = run("photograph -o shoot --size 48 --images 8 --photo-width 320 --photo-height 240", t.path);
