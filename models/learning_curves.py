@@ -2,21 +2,24 @@
 """Learning curves of the shipped networks: validation error per parameter against samples seen
 and against training wall time, across every training run that led to the shipped weights.
 
-Each run is given as KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN, where CSV is the
-validation.csv a `train-*` run wrote, BATCH its batch size, SAMPLES_BEFORE and HOURS_BEFORE what
-the weights it started from (`--init`) had already seen, and HOURS_OF_RUN the run's wall time (its
-steps are spread evenly over it). Example (the command behind models/learning_curves.png):
+Each run is given as KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN[:FIRST_STEP], where
+CSV is the validation.csv a `train-*` run wrote, BATCH its batch size, SAMPLES_BEFORE and
+HOURS_BEFORE what the weights it started from (`--init`, or the check-point a `--resume` continued)
+had already seen, HOURS_OF_RUN the run's wall time (its steps are spread evenly over it), and
+FIRST_STEP the step a resumed run started at (its CSV counts steps from the original start). Example (the command behind models/learning_curves.png):
 
     H=models/compact/history
     /usr/bin/python3 models/learning_curves.py -o models/learning_curves.png \
         estimator:$H/estimator_run1.csv:2:0:0:0.77 \
         estimator:$H/estimator_run2.csv:2:11200:0.77:1.34 \
         estimator:$H/estimator_run3_training_mix.csv:2:22952:2.11:1.28 \
-        estimator:$H/estimator_run4_lobe_l1.csv:2:28540:3.39:2.0 \
+        estimator:$H/estimator_run4_lobe_l1.csv:2:28540:3.39:2.58 \
+        estimator:$H/estimator_run5_resumed.csv:2:46890:5.97:1.93:9175 \
         autoencoder:$H/autoencoder_run1.csv:4:0:0:1.05 \
         autoencoder:$H/autoencoder_run2.csv:4:51344:1.05:1.34 \
         autoencoder:$H/autoencoder_run3_training_mix.csv:4:84012:2.39:1.35 \
-        autoencoder:$H/autoencoder_run4_lobe_l1.csv:4:105876:3.74:2.0
+        autoencoder:$H/autoencoder_run4_lobe_l1.csv:4:105876:3.74:2.58 \
+        autoencoder:$H/autoencoder_run5_resumed.csv:4:164356:6.32:1.93:14620
 
 Runs 3 and 4 validate on materials drawn from the training mix (the same seeds, other families),
 so their rows are not comparable one for one with runs 1 and 2: the step at 23 000 (estimator) and
@@ -34,11 +37,15 @@ OPTIONAL = [("mse_rotation_anisotropic", "alpha, anisotropic texels")]
 
 def read_run(spec):
     try:
-        kind, path, batch, samples_before, hours_before, hours = spec.split(":")
+        fields = spec.split(":")
+        kind, path, batch, samples_before, hours_before, hours = fields[:6]
+        first_step = int(fields[6]) if len(fields) == 7 else 0
+        if len(fields) not in (6, 7):
+            raise ValueError
         batch, samples_before = int(batch), int(samples_before)
         hours_before, hours = float(hours_before), float(hours)
     except ValueError:
-        sys.exit(f"learning_curves: '{spec}': expected KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN")
+        sys.exit(f"learning_curves: '{spec}': expected KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN[:FIRST_STEP]")
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
@@ -46,10 +53,10 @@ def read_run(spec):
         sys.exit(f"learning_curves: {path}: {e.strerror}")
     if not rows:
         sys.exit(f"learning_curves: {path}: no validation rows")
-    last_step = float(rows[-1]["step"])
+    last_step = float(rows[-1]["step"]) - first_step
     points = []
     for r in rows:
-        step = float(r["step"])
+        step = float(r["step"]) - first_step
         points.append({"samples": samples_before + step * batch,
                        "hours": hours_before + hours * step / last_step,
                        **{p: float(r[p]) for p in PARAMETERS + ["val_loss"]},
