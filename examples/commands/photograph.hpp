@@ -56,6 +56,8 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->add_option("--lookup", s->lookup, "texture lookup between texel centres: bilinear, or nearest (each texel a patch of constant material)")
       ->capture_default_str()->check(CLI::IsMember({"bilinear", "nearest"}));
   cmd->add_option("--quality", s->options.jpeg_quality, "JPEG quality")->capture_default_str()->check(CLI::Range(1, 100));
+  cmd->add_flag("--linear-exr", s->options.linear_exr,
+                "linear float EXR photographs clipped at 1 (a RAW developed linearly; rectify them with --saturation 1) instead of 8-bit sRGB JPEG");
   auto* fill = cmd->add_option("--fill", s->options.fill, "the sample's image spans at most this share of the frame (sets each photo's focal length)")
                    ->capture_default_str()->check(CLI::Range(0.05, 1.0));
   cmd->add_flag("--marker-frame", s->marker_frame,

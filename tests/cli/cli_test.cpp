@@ -606,6 +606,27 @@ TEST_CASE("photograph --noise-seed: another draw of the noise, the same material
   CHECK(read_text(t.path / "d1/photos/photo_03.jpg") != read_text(t.path / "d2/photos/photo_03.jpg"));
 }
 
+TEST_CASE("photograph --linear-exr: linear photographs clipped at 1 that rectify reads with --saturation 1") {
+  temp_dir t;
+  auto r = run("photograph -o shoot --size 32 --images 8 --photo-width 160 --photo-height 120 --read-noise 0.002 --linear-exr", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(read_text(t.path / "shoot/photos/photos.json").find("photo_03.exr") != std::string::npos);
+  const anisocap::image photo = anisocap::read_image(t.path / "shoot/photos/photo_03.exr");
+  float largest = 0;
+  std::size_t white = 0;
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t k = 0; k < photo.pixel_count(); ++k) {
+      largest = std::max(largest, photo.plane(c)[k]);
+      white += photo.plane(c)[k] == 1.0f;
+    }
+  CHECK(largest == 1.0f);  // clipped at white, as a sensor's white level clips
+  CHECK(white > 0);
+  r = run("rectify shoot/photos/photos.json -o rect --resolution 32 --saturation 1", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("photo_03.exr") != std::string::npos);
+  CHECK(r.output.find("clipped") != std::string::npos);
+}
+
 TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph, rectify, capture") {
   temp_dir t;
   auto r = run("photograph -o shoot --size 48 --images 8 --photo-width 320 --photo-height 240", t.path);

@@ -184,13 +184,14 @@ struct photo_synthesis_options {
   sensor_noise noise;                  ///< sensor noise on the exposed linear values, before clipping
   std::uint64_t seed = 1;              ///< noise seed
   int jpeg_quality = 95;               ///< JPEG quality (1-100)
+  bool linear_exr = false;             ///< linear float EXR photographs clipped at 1 (a RAW developed linearly) instead of 8-bit sRGB JPEG
   std::shared_ptr<const printed_surround> surround;  ///< a print around the sample (e.g. the marker frame), or none
 };
 
 /// Synthetic photographs of one material with their description.
 struct synthetic_photographs {
   photos_description description;          ///< photos.json (files photo_NN.jpg, exact corners)
-  std::vector<std::vector<unsigned char>> jpeg;  ///< the encoded photographs
+  std::vector<std::vector<unsigned char>> encoded;  ///< the encoded photographs (JPEG, or EXR with linear_exr)
   std::vector<photo_setup> setups;         ///< the true camera, pose and light of each photo
   std::vector<double> exposures;           ///< each photo's exposure factor (pixel = exposure x radiance)
   capture texture_capture;                 ///< the same configurations for the texture-space renderer (flash: light at the flash)
@@ -238,7 +239,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     capture_image texture_config = config;
     photo_entry entry;
     char name[32];
-    std::snprintf(name, sizeof name, "photo_%02zu.jpg", i);
+    std::snprintf(name, sizeof name, o.linear_exr ? "photo_%02zu.exr" : "photo_%02zu.jpg", i);
     entry.file = name;
     if (o.flash) {
       const auto& f = o.flash_offset_mm;
@@ -271,18 +272,26 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     for (int c = 0; c < 3; ++c)
       for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] *= float(exposure);
     add_sensor_noise(photo, o.noise, hash64(o.seed + 0x70686f746fULL * (i + 1)));
-    std::vector<unsigned char> pixels(photo.pixel_count() * 3);
-    for (std::size_t k = 0; k < photo.pixel_count(); ++k)
-      for (int c = 0; c < 3; ++c)
-        pixels[k * 3 + std::size_t(c)] =
-            static_cast<unsigned char>(std::lround(255.0 * linear_to_srgb(std::clamp(double(photo.plane(c)[k]), 0.0, 1.0))));
     std::vector<unsigned char> bytes;
-    auto append = [](void* context, void* data, int size) {
-      auto* b = static_cast<std::vector<unsigned char>*>(context);
-      b->insert(b->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
-    };
-    if (!stbi_write_jpg_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.jpeg_quality))
-      throw std::runtime_error("photograph: JPEG encoding failed");
+    if (o.linear_exr) {
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = std::min(photo.plane(c)[k], 1.0f);
+      const float* planes[3] = {photo.plane(2), photo.plane(1), photo.plane(0)};
+      const char* names[3] = {"B", "G", "R"};
+      bytes = detail::encode_exr(planes, names, 3, o.width, o.height, false, entry.file);
+    } else {
+      std::vector<unsigned char> pixels(photo.pixel_count() * 3);
+      for (std::size_t k = 0; k < photo.pixel_count(); ++k)
+        for (int c = 0; c < 3; ++c)
+          pixels[k * 3 + std::size_t(c)] =
+              static_cast<unsigned char>(std::lround(255.0 * linear_to_srgb(std::clamp(double(photo.plane(c)[k]), 0.0, 1.0))));
+      auto append = [](void* context, void* data, int size) {
+        auto* b = static_cast<std::vector<unsigned char>*>(context);
+        b->insert(b->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
+      };
+      if (!stbi_write_jpg_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.jpeg_quality))
+        throw std::runtime_error("photograph: JPEG encoding failed");
+    }
     corner_pixels c;
     for (int k = 0; k < 4; ++k) c[std::size_t(k)] = project(setup.camera, setup.pose, corners[std::size_t(k)]);
     entry.corners = c;
@@ -293,7 +302,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     entry.camera = camera;
     texture_config.file = config.file;
     out.description.photos.push_back(entry);
-    out.jpeg.push_back(std::move(bytes));
+    out.encoded.push_back(std::move(bytes));
     out.setups.push_back(setup);
     out.exposures.push_back(exposure);
     out.texture_capture.images.push_back(texture_config);
@@ -305,7 +314,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
 inline void write_synthetic_photographs(const synthetic_photographs& s, const std::filesystem::path& out) {
   std::filesystem::create_directories(out);
   file_transaction files;
-  for (std::size_t i = 0; i < s.jpeg.size(); ++i) files.stage(out / s.description.photos[i].file, s.jpeg[i].data(), s.jpeg[i].size());
+  for (std::size_t i = 0; i < s.encoded.size(); ++i) files.stage(out / s.description.photos[i].file, s.encoded[i].data(), s.encoded[i].size());
   files.stage(out / "photos.json", photos_description_to_json(s.description));
   files.commit();
 }
