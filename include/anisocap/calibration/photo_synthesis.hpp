@@ -276,9 +276,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     if (o.linear_exr) {
       for (int c = 0; c < 3; ++c)
         for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = std::min(photo.plane(c)[k], 1.0f);
-      const float* planes[3] = {photo.plane(2), photo.plane(1), photo.plane(0)};
-      const char* names[3] = {"B", "G", "R"};
-      bytes = detail::encode_exr(planes, names, 3, o.width, o.height, false, entry.file);
+      bytes = detail::encode_exr(photo, entry.file);
     } else {
       std::vector<unsigned char> pixels(photo.pixel_count() * 3);
       for (std::size_t k = 0; k < photo.pixel_count(); ++k)

@@ -218,7 +218,7 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
           }
           if (kept > 0) {
             for (int c = 0; c < 3; ++c) sum[c] += part[c] / kept;
-            if (median && (usable.empty() || usable.plane(0)[nearest] != 0.0f))
+            if (median)  // a clipped nearest pixel has set `clip`: the texel is left out, its median unused
               for (int c = 0; c < 3; ++c) values[c].push_back(photo.plane(c)[nearest]);
           } else {
             clip = true;

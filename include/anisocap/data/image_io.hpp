@@ -348,23 +348,30 @@ inline image read_exr(const std::filesystem::path& path) {
   return out;
 }
 
-/// Writes a 1- or 3-channel image as a float32, ZIP-compressed EXR (channels Y, or B G R),
-/// atomically. Values are written as they are (validate first where that matters).
-inline void write_exr(const image& img, const std::filesystem::path& path, file_transaction& transaction) {
+namespace detail {
+/// A 1- or 3-channel image as float32, ZIP-compressed EXR bytes (channels Y, or B G R); io_error
+/// naming `path` for other channel counts.
+inline std::vector<unsigned char> encode_exr(const image& img, const std::filesystem::path& path) {
   if (img.empty()) throw io_error(path, "cannot write an empty image");
   if (img.channels() == 3) {
     const float* planes[3] = {img.plane(2), img.plane(1), img.plane(0)};
     const char* names[3] = {"B", "G", "R"};
-    const auto bytes = detail::encode_exr(planes, names, 3, img.width(), img.height(), false, path);
-    transaction.stage(path, bytes.data(), bytes.size());
-  } else if (img.channels() == 1) {
+    return encode_exr(planes, names, 3, img.width(), img.height(), false, path);
+  }
+  if (img.channels() == 1) {
     const float* planes[1] = {img.plane(0)};
     const char* names[1] = {"Y"};
-    const auto bytes = detail::encode_exr(planes, names, 1, img.width(), img.height(), false, path);
-    transaction.stage(path, bytes.data(), bytes.size());
-  } else {
-    throw io_error(path, "EXR output takes 1 or 3 channels, the image has " + std::to_string(img.channels()));
+    return encode_exr(planes, names, 1, img.width(), img.height(), false, path);
   }
+  throw io_error(path, "EXR output takes 1 or 3 channels, the image has " + std::to_string(img.channels()));
+}
+}  // namespace detail
+
+/// Writes a 1- or 3-channel image as a float32, ZIP-compressed EXR (channels Y, or B G R),
+/// atomically. Values are written as they are (validate first where that matters).
+inline void write_exr(const image& img, const std::filesystem::path& path, file_transaction& transaction) {
+  const auto bytes = detail::encode_exr(img, path);
+  transaction.stage(path, bytes.data(), bytes.size());
 }
 
 /// Writes a 1- or 3-channel image as a float32 EXR, atomically (see the transaction overload).

@@ -280,17 +280,16 @@ inline json read_checkpoint_description(const std::filesystem::path& dir) {
   return object;
 }
 
-/// Restores a checkpoint written by save_checkpoint; returns its step. Throws std::runtime_error
-/// naming the file when it is missing, malformed or does not match the network.
+/// Restores the checkpoint that `object` (dir/checkpoint.json, read_checkpoint_description)
+/// describes; returns its step. Throws std::runtime_error naming the file when it is missing,
+/// malformed or does not match the network.
 template <class Net>
-long load_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, json* info = nullptr) {
-  const json object = read_checkpoint_description(dir);
+long load_checkpoint(const std::filesystem::path& dir, const json& object, Net& net, nn::adam& opt) {
   const auto file = dir / object.at("file").get<std::string>();
   nn::load_weights(file, net);
   const nn::safetensors_file contents = nn::read_safetensors(file);
   opt.load_state(contents, file.string());
   opt.set_steps(object.at("optimizer_steps").get<long>());
-  if (info) *info = object;
   return object.at("step").get<long>();
 }
 
@@ -401,10 +400,9 @@ inline std::string setting_text(const json& value) {
 /// continue as another one. Entries a checkpoint lacks (older ones have no "materials": the
 /// original mix) are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
-  const auto text = [](const json& v) { return setting_text(v); };
-  if (saved.contains("network") && text(saved.at("network")) != text(given.at("network")))
-    throw std::runtime_error(file.string() + ": the run in this folder trains the " + text(saved.at("network")) + ", not the " +
-                             text(given.at("network")) + "; resume it with train-" + text(saved.at("network")));
+  if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
+    throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
+                             setting_text(given.at("network")) + "; resume it with train-" + setting_text(saved.at("network")));
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"}, {"size", "--size"}, {"batch", "--batch"}, {"materials", "--materials"}};
   for (const auto& [key, option] : options) {
@@ -415,8 +413,8 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       throw std::runtime_error(file.string() + ": malformed \"" + key + "\"");
     const bool same = value.is_number() ? value.get<double>() == given.at(key).get<double>() : value == given.at(key);
     if (!same)
-      throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + text(value) + ", not " +
-                               text(given.at(key)) + "; resume it with " + option + " " + text(value));
+      throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + setting_text(value) + ", not " +
+                               setting_text(given.at(key)) + "; resume it with " + option + " " + setting_text(value));
   }
 }
 
@@ -449,7 +447,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     const json saved = read_checkpoint_description(o.out_dir);
     check_resume_settings(saved, info, description);
     if (saved.contains("learning_rate_changes")) info["learning_rate_changes"] = saved.at("learning_rate_changes");
-    step = load_checkpoint(o.out_dir, net, opt);
+    step = load_checkpoint(o.out_dir, saved, net, opt);
     if (saved.contains("learning_rate")) {
       if (!saved.at("learning_rate").is_number() || !(saved.at("learning_rate").get<double>() > 0))
         throw std::runtime_error(description.string() + ": malformed \"learning_rate\"");
