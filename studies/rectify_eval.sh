@@ -7,9 +7,12 @@
 # separate light, N = 8 and 12.
 # Usage: studies/rectify_eval.sh [build/anisocap] [output folder]; SEEDS, SIZE, PHOTO ("960x720"),
 # CAPTURE (the capture options) and RECTIFY (extra rectify options) override the defaults;
-# LINEAR_EXR=1 photographs in linear EXR clipped at 1 instead of JPEG (rectified with --saturation 1);
-# LIGHTS ("separate flash") picks the lights. A run
-# whose three report.json files exist is skipped, so the study resumes where it stopped.
+# FORMAT (jpeg, png or exr; default jpeg) is the photographs' format: png is the JPEG's 8-bit
+# quantisation without its compression, exr linear float clipped to [0, 1] but not quantised (rectified with --saturation 1);
+# LIGHTS ("separate flash") picks the lights. REDRAW=K adds, for the separate light, the capture
+# of another draw of the same sensor noise (`photograph --noise-seed K`, its direct/ captured into
+# redrawn-result): the capture's own spread, which rectify_table.py shows beside the others. A
+# capture whose report.json exists is skipped, so the study resumes where it stopped.
 set -euo pipefail
 bin=${1:-build/anisocap}
 out=${2:-rectify-eval}
@@ -21,26 +24,36 @@ photo=${PHOTO:-960x720}
 read -r -a capture_options <<< "${CAPTURE:-}"
 read -r -a rectify_options <<< "${RECTIFY:-}"
 read -r -a lights <<< "${LIGHTS:-separate flash}"
-photo_format=()
-if [[ -n ${LINEAR_EXR:-} ]]; then
-  photo_format=(--linear-exr)
-  rectify_options+=(--saturation 1)
-fi
+format=${FORMAT:-jpeg}
+[[ $format == exr ]] && rectify_options+=(--saturation 1)
 mkdir -p "$out"
 for seed in $seeds; do
   for n in 8 12; do
     for light in "${lights[@]}"; do
       dir="$out/$seed-$n-$light"
-      [[ -f $dir/direct-result/report.json && -f $dir/clipped-result/report.json && -f $dir/rectified-result/report.json ]] && continue
-      rm -rf "$dir"
       flag=()
       [[ $light == flash ]] && flag=(--flash)
-      "$bin" photograph -o "$dir" --seed "$seed" --size "$size" --images "$n" --lookup nearest \
-        --photo-width "${photo%x*}" --photo-height "${photo#*x}" --shot-noise 0.01 --read-noise 0.002 "${flag[@]}" "${photo_format[@]}"
-      "$bin" rectify "$dir/photos/photos.json" -o "$dir/rectified" --resolution "$size" "${rectify_options[@]}"
-      "$bin" capture "$dir/direct/capture.json" -o "$dir/direct-result" --truth "$dir/truth" "${capture_options[@]}"
-      "$bin" capture "$dir/direct-clipped/capture.json" -o "$dir/clipped-result" --truth "$dir/truth" "${capture_options[@]}"
-      "$bin" capture "$dir/rectified/capture.json" -o "$dir/rectified-result" --truth "$dir/truth" "${capture_options[@]}"
+      # photograph DIR [--noise-seed K]: the photographs, direct/, direct-clipped/ and truth/.
+      photograph() {
+        "$bin" photograph -o "$1" --seed "$seed" "${@:2}" --size "$size" --images "$n" --lookup nearest \
+          --photo-width "${photo%x*}" --photo-height "${photo#*x}" --shot-noise 0.01 --read-noise 0.002 "${flag[@]}" --format "$format"
+      }
+      # capture NAME CAPTURE_JSON: into DIR/NAME-result unless it is there.
+      capture() {
+        [[ -f $dir/$1-result/report.json ]] || "$bin" capture "$2" -o "$dir/$1-result" --truth "$dir/truth" "${capture_options[@]}"
+      }
+      if [[ ! -f $dir/rectified/capture.json ]]; then
+        rm -rf "$dir"
+        photograph "$dir"
+        "$bin" rectify "$dir/photos/photos.json" -o "$dir/rectified" --resolution "$size" "${rectify_options[@]}"
+      fi
+      capture direct "$dir/direct/capture.json"
+      capture clipped "$dir/direct-clipped/capture.json"
+      capture rectified "$dir/rectified/capture.json"
+      if [[ -n ${REDRAW:-} && $light == separate ]]; then
+        [[ -f $dir/redrawn/direct/capture.json ]] || { rm -rf "$dir/redrawn"; photograph "$dir/redrawn" --noise-seed "$REDRAW"; }
+        capture redrawn "$dir/redrawn/direct/capture.json"
+      fi
     done
   done
 done

@@ -23,6 +23,7 @@ struct capture_settings {
   model_choice models;
   capture_options options;
   photo_options photos;  ///< clipped-pixel detection (--saturation, --fit-clipped)
+  std::optional<float> floor;  ///< --floor: replaces every image's floor (capture_image::floor)
 };
 
 /// Runs a capture: writes the map set (canonical, export/canonical_maps.hpp), the viewer page
@@ -35,7 +36,11 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   if (parsed->count("--models") > 0 && !s.models.present())
     throw std::invalid_argument("--models " + s.models.models.string() + ": no " + s.models.preset + " weights there (" +
                                 s.models.estimator().string() + ", " + s.models.autoencoder().string() + ")");
-  const capture cap = read_capture(s.capture_file);
+  capture cap = read_capture(s.capture_file);
+  if (s.floor) {
+    if (!(std::isfinite(*s.floor) && *s.floor >= 0)) throw std::invalid_argument("--floor must be a finite number >= 0");
+    for (capture_image& im : cap.images) im.floor = *s.floor;
+  }
   const std::vector<photo> loaded = load_capture_photos(cap, s.capture_file.parent_path(), s.photos);
   const std::vector<image> photos = photo_pixels(loaded);
   const std::vector<image> masks = photo_masks(loaded);
@@ -50,7 +55,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
     if (!entry.mask.empty())
       std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, entry.file.c_str(),
                    100.0 * p.masked_fraction(), entry.mask.c_str(), p.clipped > 0 && s.photos.exclude_clipped ? " and clipping" : "");
-    photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure},
+    photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure}, {"floor", entry.floor},
                             {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
   }
   if (photos.size() < 4)
@@ -194,6 +199,10 @@ inline void add_capture_options(CLI::App* c, capture_settings& s) {
   add_model_options(c, s.models);
   c->add_flag("--resume", s.resume, "continue a killed run from OUT/.checkpoint");
   add_optimiser_options(c, s.options);
+  c->add_option("--floor", s.floor,
+                "every image's floor, replacing capture.json's: the linear level (in the files' values) below which they are not "
+                "measurements; the loss takes photograph and render as at least this (rectify sets it for JPEG photos; 0: none)")
+      ->check(CLI::NonNegativeNumber);
   c->add_option("--saturation", s.photos.saturation, "linear level at or above which a pixel counts as clipped, in any format (EXR, HDR: the only clip test; 0: off). 8/16-bit PNG and JPEG pixels at the largest code are always clipped")
       ->check(CLI::NonNegativeNumber);
   c->add_flag_callback("--fit-clipped", [&s] { s.photos.exclude_clipped = false; },

@@ -1,5 +1,5 @@
 #pragma once
-// `anisocap photograph`: synthetic perspective photographs (JPEG + photos.json) of a procedural
+// `anisocap photograph`: synthetic perspective photographs (JPEG, PNG or EXR + photos.json) of a procedural
 // material or a map set, with the same configurations rendered directly in texture space beside
 // them, to test `rectify` + `capture` without a camera (calibration/photo_synthesis.hpp).
 #include <CLI/CLI.hpp>
@@ -14,6 +14,7 @@
 
 #include "anisocap/calibration/markers.hpp"
 #include "anisocap/calibration/photo_synthesis.hpp"
+#include "anisocap/calibration/rectify.hpp"
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/data/photo_io.hpp"
@@ -30,13 +31,14 @@ inline void add_photograph_command(CLI::App& app) {
     int size = 128, images = 12;
     std::uint64_t seed = 1;
     std::uint64_t noise_seed = 0;
-    std::string kind, set = "alpha", lookup = "bilinear";
+    std::string kind, set = "alpha", lookup = "bilinear", format = "jpeg";
     photo_synthesis_options options;
     bool marker_frame = false;
     marker_frame_options frame;
+    float floor = rectify_options{}.floor;
   };
   auto s = std::make_shared<settings>();
-  auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, photos.json) of a material, with truth/ and the texture-space captures direct/ and direct-clipped/");
+  auto* cmd = app.add_subcommand("photograph", "synthetic perspective photographs (JPEG, PNG or EXR, and photos.json) of a material, with truth/ and the texture-space captures direct/ and direct-clipped/");
   cmd->add_option("-o,--out", s->out, "output folder: photos/, direct/, direct-clipped/, truth/")->capture_default_str();
   cmd->add_option("--maps", s->maps, "map set to photograph (default: a procedural material)");
   cmd->add_option("--size", s->size, "procedural material size in texels (square)")->capture_default_str()->check(CLI::PositiveNumber);
@@ -55,9 +57,11 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->add_option("--white-fraction", s->options.white_fraction, "exposure: this fraction of the sample's pixels stays below white")->capture_default_str();
   cmd->add_option("--lookup", s->lookup, "texture lookup between texel centres: bilinear, or nearest (each texel a patch of constant material)")
       ->capture_default_str()->check(CLI::IsMember({"bilinear", "nearest"}));
+  cmd->add_option("--format", s->format,
+                  "photo format: jpeg (8-bit sRGB, as a phone writes), png (8-bit sRGB, lossless), exr (linear float clipped to [0, 1], a RAW "
+                  "developed linearly; rectify it with --saturation 1)")
+      ->capture_default_str()->check(CLI::IsMember({"jpeg", "png", "exr"}));
   cmd->add_option("--quality", s->options.jpeg_quality, "JPEG quality")->capture_default_str()->check(CLI::Range(1, 100));
-  cmd->add_flag("--linear-exr", s->options.linear_exr,
-                "linear float EXR photographs clipped at 1 (a RAW developed linearly; rectify them with --saturation 1) instead of 8-bit sRGB JPEG");
   auto* fill = cmd->add_option("--fill", s->options.fill, "the sample's image spans at most this share of the frame (sets each photo's focal length)")
                    ->capture_default_str()->check(CLI::Range(0.05, 1.0));
   cmd->add_flag("--marker-frame", s->marker_frame,
@@ -65,6 +69,10 @@ inline void add_photograph_command(CLI::App& app) {
                 "leaves out the corners of photos whose tags are found: rectify finds them from the tags");
   cmd->add_option("--tag-mm", s->frame.tag_mm, "with --marker-frame: the frame's tag size, as given to `markers`")->capture_default_str();
   cmd->add_option("--gap-mm", s->frame.gap_mm, "with --marker-frame: the frame's gap, as given to `markers`")->capture_default_str();
+  cmd->add_option("--floor", s->floor,
+                  "floor of the texture-space captures direct/ and direct-clipped/ (capture.json), as rectify's --floor gives the "
+                  "photographs")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--shot-noise", s->options.noise.shot, "sensor shot noise at white (relative standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--read-noise", s->options.noise.read, "sensor read noise (standard deviation)")->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->callback([s, fill] {
@@ -73,6 +81,7 @@ inline void add_photograph_command(CLI::App& app) {
       const std::uint64_t noise_seed = s->noise_seed != 0 ? hash64(s->seed ^ hash64(s->noise_seed)) : s->seed;
       o.seed = noise_seed;
       o.lookup = s->lookup == "nearest" ? texture_lookup::nearest : texture_lookup::bilinear;
+      o.format = s->format == "png" ? photo_format::png : s->format == "exr" ? photo_format::linear_exr : photo_format::jpeg;
       material_maps truth;
       if (s->maps) {
         truth = read_maps(*s->maps);
@@ -112,6 +121,8 @@ inline void add_photograph_command(CLI::App& app) {
           for (std::size_t k = 0; k < direct[i].pixel_count(); ++k) direct[i].plane(c)[k] *= e;
         add_sensor_noise(direct[i], o.noise, hash64(noise_seed ^ (0x646972656374ULL + i)));
         for (float& intensity : direct_capture.images[i].intensity) intensity *= e;
+        // The floor rectify gives the photographs, so that both captures run the same loss.
+        direct_capture.images[i].floor = s->floor;
       }
       write_maps(truth, s->out / "truth");
       write_synthetic_photographs(photos, s->out / "photos");

@@ -29,6 +29,10 @@ inline void add_rectify_command(CLI::App& app) {
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--saturation", s->options.saturation, "linear level at or above which a pixel counts as clipped (0: only the format's largest code)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
+  cmd->add_option("--floor", s->options.floor,
+                  "floor written into capture.json for every photo: the linear level (1 = an 8/16-bit photo's white) below which its "
+                  "values are sensor noise, not measurements; the loss takes photograph and render as at least this (0: none)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--margin-px", s->options.resampling.margin_px, "photo pixels left out along each side of a texel's footprint (they also record its neighbours)")
       ->capture_default_str()->check(CLI::NonNegativeNumber);
   cmd->add_option("--footprint", s->options.resampling.statistic,

@@ -606,9 +606,9 @@ TEST_CASE("photograph --noise-seed: another draw of the noise, the same material
   CHECK(read_text(t.path / "d1/photos/photo_03.jpg") != read_text(t.path / "d2/photos/photo_03.jpg"));
 }
 
-TEST_CASE("photograph --linear-exr: linear photographs clipped at 1 that rectify reads with --saturation 1") {
+TEST_CASE("photograph --format exr: linear photographs clipped at 1 that rectify reads with --saturation 1") {
   temp_dir t;
-  auto r = run("photograph -o shoot --size 32 --images 8 --photo-width 160 --photo-height 120 --read-noise 0.002 --linear-exr", t.path);
+  auto r = run("photograph -o shoot --size 32 --images 8 --photo-width 160 --photo-height 120 --read-noise 0.002 --format exr", t.path);
   REQUIRE(r.status == 0);
   CHECK(read_text(t.path / "shoot/photos/photos.json").find("photo_03.exr") != std::string::npos);
   const anisocap::image photo = anisocap::read_image(t.path / "shoot/photos/photo_03.exr");
@@ -625,6 +625,35 @@ TEST_CASE("photograph --linear-exr: linear photographs clipped at 1 that rectify
   REQUIRE(r.status == 0);
   CHECK(r.output.find("photo_03.exr") != std::string::npos);
   CHECK(r.output.find("clipped") != std::string::npos);
+}
+
+TEST_CASE("photograph --format png: the JPEG's 8-bit sRGB codes without its compression") {
+  temp_dir t;
+  const std::string shoot = "--size 32 --images 8 --photo-width 160 --photo-height 120 --read-noise 0.002 --shot-noise 0.01";
+  REQUIRE(run("photograph -o png " + shoot + " --format png", t.path).status == 0);
+  REQUIRE(run("photograph -o exr " + shoot + " --format exr", t.path).status == 0);
+  REQUIRE(run("photograph -o jpeg " + shoot, t.path).status == 0);
+  CHECK(read_text(t.path / "png/photos/photos.json").find("photo_03.png") != std::string::npos);
+  // The same noise draw: the PNG holds exactly the linear photo clipped to [0, 1], sRGB-encoded and
+  // rounded to 8 bits; the JPEG only approximately.
+  const anisocap::image linear = anisocap::read_image(t.path / "exr/photos/photo_03.exr");
+  const anisocap::image png = anisocap::read_image(t.path / "png/photos/photo_03.png");
+  const anisocap::image jpeg = anisocap::read_image(t.path / "jpeg/photos/photo_03.jpg");
+  REQUIRE(png.pixel_count() == linear.pixel_count());
+  double worst_png = 0, worst_jpeg = 0;
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t k = 0; k < linear.pixel_count(); ++k) {
+      const double x = linear.plane(c)[k];
+      const double code = std::round(255.0 * anisocap::linear_to_srgb(std::clamp(x, 0.0, 1.0)));
+      const double expected = anisocap::srgb_to_linear(code / 255.0);
+      worst_png = std::max(worst_png, std::abs(png.plane(c)[k] - expected));
+      worst_jpeg = std::max(worst_jpeg, std::abs(jpeg.plane(c)[k] - expected));
+    }
+  CHECK(worst_png < 1e-6);
+  CHECK(worst_jpeg > 1e-3);
+  const auto r = run("rectify png/photos/photos.json -o rect --resolution 32", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("photo_03.png") != std::string::npos);
 }
 
 TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph, rectify, capture") {
@@ -657,10 +686,31 @@ TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph
   }
   const std::string description = read_text(t.path / "rect/capture.json");
   CHECK(description.find("\"mask\"") != std::string::npos);
+  // Every photo and every texture-space image carries the same noise floor (rectify --floor,
+  // photograph --floor), so that both captures run the same loss.
+  const auto floors = [](const std::string& text) {
+    std::vector<double> f;
+    const nlohmann::json parsed = nlohmann::json::parse(text);
+    for (const auto& im : parsed["images"]) f.push_back(im.value("floor", 0.0));
+    return f;
+  };
+  CHECK(floors(description) == std::vector<double>(8, 0.005));
+  CHECK(floors(read_text(t.path / "shoot/direct/capture.json")) == std::vector<double>(8, 0.005));
+  CHECK(floors(read_text(t.path / "shoot/direct-clipped/capture.json")) == std::vector<double>(8, 0.005));
   r = run("capture rect/capture.json -o maps --stages refine --steps 20 --no-view", t.path);
   REQUIRE(r.status == 0);
   CHECK(fs::exists(t.path / "maps/diffuse.exr"));
-  CHECK(fs::exists(t.path / "maps/report.json"));
+  const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "maps/report.json"));
+  CHECK(report["photos"][3]["floor"].get<double>() == double(0.005f));
+  // capture --floor replaces the description's floors, and the loss changes with them.
+  r = run("capture rect/capture.json -o maps0 --stages refine --steps 20 --no-view --floor 0", t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json report0 = nlohmann::json::parse(read_text(t.path / "maps0/report.json"));
+  CHECK(report0["photos"][3]["floor"].get<double>() == 0.0);
+  CHECK(report0["loss"].get<double>() != report["loss"].get<double>());
+  r = run("rectify shoot/photos/photos.json -o rect0 --resolution 48 --floor 0", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(read_text(t.path / "rect0/capture.json").find("floor") == std::string::npos);
   // A photo whose corners leave the texture order is one error naming the photo, and nothing is written.
   nlohmann::json photos = nlohmann::json::parse(read_text(t.path / "shoot/photos/photos.json"));
   photos["photos"][0]["corners"] = nlohmann::json::parse("[[0, 0], [0, 10], [10, 10], [10, 0]]");

@@ -7,7 +7,8 @@
 /// that is either where the configuration puts it or fixed to the camera (a flash). Each photo is
 /// exposed so that a chosen fraction of the sample's pixels stays below white, gets simulated
 /// sensor noise, is clipped to [0, 1], sRGB-encoded to 8 bits and stored as a JPEG, as a phone
-/// would; the photos.json beside them gives the exact corners, the light and intensity x exposure.
+/// would (or losslessly as an 8-bit PNG, or as linear float EXR, a RAW developed linearly); the
+/// photos.json beside them gives the exact corners, the light and intensity x exposure.
 #include <stb/stb_image_write.h>
 
 #include <Eigen/Dense>
@@ -171,6 +172,13 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
   return photo;
 }
 
+/// How photograph_capture stores its photographs.
+enum class photo_format {
+  jpeg,       ///< 8-bit sRGB JPEG (photo_NN.jpg), clipped to [0, 1]: what a phone writes
+  png,        ///< 8-bit sRGB PNG (photo_NN.png), clipped to [0, 1]: the JPEG's quantisation without its compression
+  linear_exr  ///< linear float EXR (photo_NN.exr), clipped to [0, 1] but not quantised: a RAW developed linearly; rectify with --saturation 1
+};
+
 /// Options of photograph_capture.
 struct photo_synthesis_options {
   int width = 800, height = 600;       ///< photo size in pixels
@@ -183,15 +191,15 @@ struct photo_synthesis_options {
   std::array<double, 3> flash_offset_mm{0, 0, 0};  ///< flash offset in camera coordinates (x right, y down, z forward)
   sensor_noise noise;                  ///< sensor noise on the exposed linear values, before clipping
   std::uint64_t seed = 1;              ///< noise seed
+  photo_format format = photo_format::jpeg;  ///< how the photographs are stored
   int jpeg_quality = 95;               ///< JPEG quality (1-100)
-  bool linear_exr = false;             ///< linear float EXR photographs clipped at 1 (a RAW developed linearly) instead of 8-bit sRGB JPEG
   std::shared_ptr<const printed_surround> surround;  ///< a print around the sample (e.g. the marker frame), or none
 };
 
 /// Synthetic photographs of one material with their description.
 struct synthetic_photographs {
   photos_description description;          ///< photos.json (files photo_NN.jpg, exact corners)
-  std::vector<std::vector<unsigned char>> encoded;  ///< the encoded photographs (JPEG, or EXR with linear_exr)
+  std::vector<std::vector<unsigned char>> encoded;  ///< the encoded photographs (options.format)
   std::vector<photo_setup> setups;         ///< the true camera, pose and light of each photo
   std::vector<double> exposures;           ///< each photo's exposure factor (pixel = exposure x radiance)
   capture texture_capture;                 ///< the same configurations for the texture-space renderer (flash: light at the flash)
@@ -239,7 +247,8 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     capture_image texture_config = config;
     photo_entry entry;
     char name[32];
-    std::snprintf(name, sizeof name, o.linear_exr ? "photo_%02zu.exr" : "photo_%02zu.jpg", i);
+    const char* extension = o.format == photo_format::jpeg ? "jpg" : o.format == photo_format::png ? "png" : "exr";
+    std::snprintf(name, sizeof name, "photo_%02zu.%s", i, extension);
     entry.file = name;
     if (o.flash) {
       const auto& f = o.flash_offset_mm;
@@ -273,7 +282,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
       for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] *= float(exposure);
     add_sensor_noise(photo, o.noise, hash64(o.seed + 0x70686f746fULL * (i + 1)));
     std::vector<unsigned char> bytes;
-    if (o.linear_exr) {
+    if (o.format == photo_format::linear_exr) {
       for (int c = 0; c < 3; ++c)
         for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = std::min(photo.plane(c)[k], 1.0f);
       bytes = detail::encode_exr(photo, entry.file);
@@ -287,8 +296,10 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
         auto* b = static_cast<std::vector<unsigned char>*>(context);
         b->insert(b->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
       };
-      if (!stbi_write_jpg_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.jpeg_quality))
-        throw std::runtime_error("photograph: JPEG encoding failed");
+      const bool written = o.format == photo_format::jpeg
+                               ? stbi_write_jpg_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.jpeg_quality)
+                               : stbi_write_png_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.width * 3);
+      if (!written) throw std::runtime_error("photograph: image encoding failed");
     }
     corner_pixels c;
     for (int k = 0; k < 4; ++k) c[std::size_t(k)] = project(setup.camera, setup.pose, corners[std::size_t(k)]);

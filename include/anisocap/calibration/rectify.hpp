@@ -77,6 +77,13 @@ struct rectify_options {
   int resolution = 0;         ///< texels along the sample's longest side (0: what the photos support, supported_resolution)
   resampling_options resampling;  ///< how each texel's footprint is read
   float saturation = 0;       ///< values at or above this linear level are clipped (0: only the format's largest code)
+  /// The floor written into capture.json for every photo (capture_image::floor; linear, in the
+  /// photo's values, 1 = an 8/16-bit format's white; 0: none): the level below which a photo's
+  /// values are sensor noise rather than measurements. Where a sample is dark, its pixels are noise
+  /// clipped at black, whose mean lies above the truth; JPEG compression smooths that noise so
+  /// that even the footprint's median does. The L1 fit follows the sign of every such pixel and
+  /// reads the bias as lobe tails: sigma and a'_s of metals lit by a separate light suffered most.
+  float floor = 0.005f;
   pose_options pose;          ///< pose refinement
   /// Called after each photo is rectified with (photos done, photos in all, that photo's report).
   std::function<void(std::size_t, std::size_t, const std::string&)> progress;
@@ -268,6 +275,7 @@ using corner_finder = std::function<corner_pixels(const photo&, const photos_des
 inline rectified_capture rectify(const photos_description& description, const std::filesystem::path& base_dir,
                                  const rectify_options& options = {}, const corner_finder& find_corners = {}) {
   if (options.resolution < 0) throw std::invalid_argument("rectify: resolution must be >= 0 (0: what the photos support)");
+  if (!(options.floor >= 0 && std::isfinite(options.floor))) throw std::invalid_argument("rectify: the floor must be a finite number >= 0");
   if (description.photos.empty()) throw std::invalid_argument("rectify: no photos");
   struct prepared {
     photo picture;
@@ -317,6 +325,7 @@ inline rectified_capture rectify(const photos_description& description, const st
     im.light = {float(light.x()), float(light.y()), float(light.z())};
     im.intensity = e.intensity;
     im.mask = rectified_file_name(i, "mask", ".png");
+    im.floor = options.floor;
     result.configurations.images.push_back(im);
     if (options.progress) {
       char line[256];

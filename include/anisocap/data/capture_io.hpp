@@ -6,8 +6,11 @@
 ///
 /// `intensity` is a number or [r, g, b]. Optional per image: `"mask": "mask_00.png"` (a PNG or EXR,
 /// one channel or RGB, of the photograph's size, relative to this file: pixels zero in every
-/// channel are left out of the loss) and `"exposure": 2.0` (the photograph's linear values are
-/// multiplied by it; data/photo_io.hpp reads both). Positions are in units of the material's longest
+/// channel are left out of the loss), `"exposure": 2.0` (the photograph's linear values are
+/// multiplied by it; data/photo_io.hpp reads both) and `"floor": 0.005` (the level, in the file's
+/// own linear values, below which they are not measurements, such as a JPEG's darkest codes: the
+/// image loss counts the photograph and the render as at least floor x exposure; render/renderer.hpp,
+/// loss_targets). Positions are in units of the material's longest
 /// side, origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
 /// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
 /// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
@@ -43,6 +46,7 @@ inline void check_capture_image(const capture_image& im, std::size_t index, cons
   if (!is_readable_image(im.file)) fail(std::string("\"file\" must name an image of a supported type: ") + readable_image_types);
   if (!im.mask.empty() && !is_readable_image(im.mask)) fail(std::string("\"mask\" must name an image of a supported type: ") + readable_image_types);
   if (!(std::isfinite(im.exposure) && im.exposure > 0)) fail("exposure must be a positive finite number (got " + std::to_string(im.exposure) + ")");
+  if (!(std::isfinite(im.floor) && im.floor >= 0)) fail("floor must be a finite number >= 0 (got " + std::to_string(im.floor) + ")");
   static constexpr const char* axis[] = {"x", "y", "z"};
   for (int k = 0; k < 3; ++k) {
     if (!std::isfinite(im.camera[k])) fail(std::string("camera ") + axis[k] + " is not finite");
@@ -106,8 +110,8 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     const std::string where = detail::capture_entry_name(i, im.file);
     auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
     for (const auto& [key, v] : o.items())
-      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure")
-        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\")");
+      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure" && key != "floor")
+        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\", \"floor\")");
     for (const char* key : {"file", "camera", "light", "intensity"})
       if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
     if (!o.at("file").is_string()) fail(std::string("\"file\" must be a string, got ") + json_kind_name(o.at("file")));
@@ -140,6 +144,7 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
       im.mask = mask.get<std::string>();
     }
     if (o.contains("exposure")) im.exposure = to_float(o.at("exposure"), "exposure");
+    if (o.contains("floor")) im.floor = to_float(o.at("floor"), "floor");
     detail::check_capture_image(im, i, path);
     result.images.push_back(std::move(im));
   }
@@ -168,6 +173,7 @@ inline std::string capture_to_json(const capture& c, const std::filesystem::path
     entry["intensity"] = grey ? detail::float_to_json(im.intensity[0]) : vec(im.intensity);
     if (!im.mask.empty()) entry["mask"] = im.mask;
     if (im.exposure != 1.0f) entry["exposure"] = detail::float_to_json(im.exposure);
+    if (im.floor != 0.0f) entry["floor"] = detail::float_to_json(im.floor);
     images.push_back(std::move(entry));
   }
   json root = json::object();

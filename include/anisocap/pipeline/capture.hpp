@@ -251,7 +251,11 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
     apply_exposure(cap, photos, result.exposure_scale);
   }
   const int W = photos[0].width(), H = photos[0].height();
-  const loss_targets targets = make_loss_targets(photos, masks);
+  // Each image's floor in the loss's units: the file's level times its exposure factor (which
+  // `photos` already carry) and the capture's exposure scale.
+  std::vector<float> floors;
+  for (const capture_image& im : cap.images) floors.push_back(float(double(im.floor) * im.exposure * result.exposure_scale));
+  const loss_targets targets = make_loss_targets(photos, masks, floors);
   auto image_loss = [&](const material_maps& m, brdf_features features) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
   };

@@ -22,6 +22,10 @@ struct capture_image {
   /// out of the image loss (empty: every pixel is used).
   std::string mask;
   float exposure = 1.0f;   ///< factor the photograph's linear values are multiplied by on loading
+  /// Level, in the file's own linear values, below which they are not measurements (a JPEG's
+  /// darkest codes); the image loss takes photograph and render as at least floor x exposure
+  /// (render/renderer.hpp, loss_targets). 0: none.
+  float floor = 0.0f;
 };
 
 /// The configurations of all photographs of one material.

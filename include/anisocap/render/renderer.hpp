@@ -354,6 +354,12 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
 /// photograph weighs the same however much of it is masked: its terms carry the weight
 /// m(p) T / U_i, with T the texels and U_i the sum of m over the whole image. A crop keeps the whole
 /// image's weights, so crops' losses add up, by area, to the whole image's.
+///
+/// Floors: an image's floor f >= 0 is the level below which its values are not measurements (a
+/// JPEG's darkest codes, where compression has smoothed the sensor noise clipped at black and
+/// left it biased upwards). Both the photograph and the render count as max(value, f): a pixel
+/// whose photograph and render both lie below f adds nothing, and a render below f gets no
+/// gradient. f = 0 is the plain loss.
 struct loss_targets {
   std::vector<image> log_images;  ///< one 3-channel planar image per capture image
   /// Empty: every pixel is used with weight 1. Otherwise one 1-channel image per capture image of
@@ -361,6 +367,8 @@ struct loss_targets {
   std::vector<image> masks;
   /// Per capture image, T / U_i (1 without masks); empty means 1 for every image.
   std::vector<double> weights;
+  /// Per capture image, its floor in the photographs' units (see above); empty means 0 for every image.
+  std::vector<float> floors;
   int width = 0, height = 0;
 };
 
@@ -378,6 +386,7 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
     out.height = height;
   }
   out.weights = from.weights;
+  out.floors = from.floors;
   auto copy_window = [&](const image& src, image& dst, int c) {
     for (int y = 0; y < height; ++y)
       std::copy_n(src.plane(c) + std::size_t(y0 + y) * from.width + x0, width, dst.plane(c) + std::size_t(y) * width);
@@ -389,16 +398,27 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
 
 /// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels) and
 /// their masks (empty: every pixel used; else one 1-channel image per photograph of its size,
-/// 0 = left out, a value in (0, 1) = used with that weight, above 1 = 1). Throws std::invalid_argument on a NaN or infinite pixel where the mask uses it,
-/// on masks of the wrong number or size, and on an image whose every pixel is masked; negative
-/// values count as 0. Masked pixels get the target log(0.01) (their value never enters the loss).
-inline loss_targets make_loss_targets(const std::vector<image>& photos, const std::vector<image>& masks = {}) {
+/// 0 = left out, a value in (0, 1) = used with that weight, above 1 = 1) and floors (empty: none;
+/// else one level >= 0 per photograph, in its units: see loss_targets). Throws
+/// std::invalid_argument on a NaN or infinite pixel where the mask uses it, on masks or floors of
+/// the wrong number or size, on a negative or non-finite floor, and on an image whose every pixel
+/// is masked; negative values count as 0. Masked pixels get the target log(0.01) (their value
+/// never enters the loss).
+inline loss_targets make_loss_targets(const std::vector<image>& photos, const std::vector<image>& masks = {},
+                                      const std::vector<float>& floors = {}) {
   loss_targets t;
   if (photos.empty()) throw std::invalid_argument("make_loss_targets: no images");
   t.width = photos[0].width();
   t.height = photos[0].height();
   if (!masks.empty() && masks.size() != photos.size())
     throw std::invalid_argument("make_loss_targets: " + std::to_string(masks.size()) + " masks for " + std::to_string(photos.size()) + " images");
+  if (!floors.empty() && floors.size() != photos.size())
+    throw std::invalid_argument("make_loss_targets: " + std::to_string(floors.size()) + " floors for " + std::to_string(photos.size()) + " images");
+  for (std::size_t i = 0; i < floors.size(); ++i)
+    if (!(floors[i] >= 0.0f && std::isfinite(floors[i])))
+      throw std::invalid_argument("make_loss_targets: the floor of image " + std::to_string(i) + " must be finite and >= 0 (got " +
+                                  std::to_string(floors[i]) + ")");
+  if (std::any_of(floors.begin(), floors.end(), [](float f) { return f > 0.0f; })) t.floors = floors;
   for (std::size_t i = 0; i < photos.size(); ++i) {
     const image& p = photos[i];
     if (p.width() != t.width || p.height() != t.height || p.channels() != 3)
@@ -425,6 +445,7 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
       t.masks.push_back(std::move(stored));
     }
     t.weights.push_back(weight);
+    const float floor = t.floors.empty() ? 0.0f : t.floors[i];
     image l(p.width(), p.height(), 3);
     for (int c = 0; c < 3; ++c)
       for (std::size_t k = 0; k < p.pixel_count(); ++k) {
@@ -437,7 +458,7 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
           throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a non-finite value (" +
                                       std::to_string(v) + ") at pixel (" + std::to_string(k % std::size_t(p.width())) + ", " +
                                       std::to_string(k / std::size_t(p.width())) + "), channel " + std::to_string(c));
-        l.plane(c)[k] = std::log(std::max(v, 0.0f) + loss_epsilon);
+        l.plane(c)[k] = std::log(std::max(v, floor) + loss_epsilon);
       }
     t.log_images.push_back(std::move(l));
   }
@@ -532,7 +553,8 @@ std::vector<image> render(const material_maps& maps, const capture& cap, const t
 /// is not null, dL/d(maps) written into it (same size as maps; planes a feature disables get 0).
 /// No rendered image is materialised. Returns the loss
 ///   sum_i mean_{p, c} |log(R_i(p)_c + 0.01) - log(B_i(p)_c + 0.01)|,
-/// the mean over the pixels each image's mask uses (loss_targets: masked pixels add exact zeros).
+/// the mean over the pixels each image's mask uses (loss_targets: masked pixels add exact zeros),
+/// R and B taken as max(R, f_i) and max(B, f_i) where image i has a floor f_i.
 /// `groups` (optional) skips unchanged texel groups and reports per-group losses (texel_groups).
 /// With `options.double_precision`, a float V dispatches to the double kernel.
 template <brdf_features F = all_features, class V = simd::batch<float>>
@@ -557,8 +579,9 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
   if (targets.width != maps.width() || targets.height != maps.height())
     throw std::invalid_argument("loss_and_gradient: target images and maps differ in size");
   if ((!targets.masks.empty() && targets.masks.size() != cap.images.size()) ||
-      (!targets.weights.empty() && targets.weights.size() != cap.images.size()))
-    throw std::invalid_argument("loss_and_gradient: the targets' masks or weights do not match the configurations");
+      (!targets.weights.empty() && targets.weights.size() != cap.images.size()) ||
+      (!targets.floors.empty() && targets.floors.size() != cap.images.size()))
+    throw std::invalid_argument("loss_and_gradient: the targets' masks, weights or floors do not match the configurations");
   if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
     throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
   if (groups && groups->active && !groups->loss)
@@ -610,20 +633,27 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
         used = m != V(0);
         weight = simd::select(used, weight * m, V(0));
       }
+      const bool floored = !targets.floors.empty() && targets.floors[k] > 0.0f;
+      const V floor(S(floored ? targets.floors[k] : 0.0f));
       V w_spec(0), w_geom(0);  // sum_c dL/dR_c * specular_c / ... (see below)
       for (int c = 0; c < 3; ++c) {
         const V intensity(configs[k].intensity[c]);
         const V kd = t.diffuse[c] * V(inv_pi);
         const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
-        const V radiance = (kd + spec) * geometry * intensity; // R_c
+        V radiance = (kd + spec) * geometry * intensity;       // R_c
+        V below_floor_weight = weight;                         // 0 where the render lies under the floor
+        if (floored) {
+          below_floor_weight = simd::select(radiance < floor, V(0), weight);
+          radiance = simd::max(radiance, floor);
+        }
         const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
         V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
         // A masked lane's difference is 0 whatever its target: it adds +0 to the loss and to the
         // gradient (weight 0, sign +), so no value of a masked target can reach the results.
         if (masked) diff = simd::select(used, diff, V(0));
         loss_acc += simd::abs(diff) * weight;
-        // dL/dR_c = sign(diff) / (R_c + eps) * weight.
-        const V dl = simd::select(diff >= V(0), weight, -weight) * simd::reciprocal(radiance + V(loss_epsilon));
+        // dL/dR_c = sign(diff) / (R_c + eps) * weight, 0 below the floor (max(R, f) is flat there).
+        const V dl = simd::select(diff >= V(0), below_floor_weight, -below_floor_weight) * simd::reciprocal(radiance + V(loss_epsilon));
         const V dl_gi = dl * geometry * intensity;
         g_diffuse[c] += dl_gi * V(inv_pi);
         g_specular[c] += dl_gi * s.lobe;
