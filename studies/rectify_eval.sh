@@ -9,7 +9,7 @@
 # CAPTURE (the capture options) and RECTIFY (extra rectify options) override the defaults;
 # FORMAT (jpeg, png or exr; default jpeg) is the photographs' format: png is the JPEG's 8-bit
 # quantisation without its compression, exr linear float clipped to [0, 1] but not quantised (rectified with --saturation 1);
-# LIGHTS ("separate flash") picks the lights. REDRAW=K adds, for the separate light, the capture
+# LIGHTS ("separate flash") picks the lights. REDRAW=K adds the capture
 # of another draw of the same sensor noise (`photograph --noise-seed K`, its direct/ captured into
 # redrawn-result): the capture's own spread, which rectify_table.py shows beside the others. A
 # capture whose report.json exists is skipped, so the study resumes where it stopped.
@@ -50,7 +50,7 @@ for seed in $seeds; do
       capture direct "$dir/direct/capture.json"
       capture clipped "$dir/direct-clipped/capture.json"
       capture rectified "$dir/rectified/capture.json"
-      if [[ -n ${REDRAW:-} && $light == separate ]]; then
+      if [[ -n ${REDRAW:-} ]]; then
         [[ -f $dir/redrawn/direct/capture.json ]] || { rm -rf "$dir/redrawn"; photograph "$dir/redrawn" --noise-seed "$REDRAW"; }
         capture redrawn "$dir/redrawn/direct/capture.json"
       fi

@@ -4,6 +4,7 @@
 
 #include "../render/render_reference.hpp"
 #include "anisocap/render/evaluate.hpp"
+#include "anisocap/pipeline/capture.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/refine.hpp"
@@ -69,4 +70,40 @@ TEST_CASE("a capture scaled by 1e-4 or 1e4 refines to the same maps after exposu
     CHECK(close(e.lobes, reference.lobes));
     CHECK(close(e.fresnel, reference.fresnel));
   }
+}
+
+TEST_CASE("floors are in the files' values: the capture scales them by each image's exposure factor and the normalisation") {
+  const int w = 16, h = 12;
+  const material_maps truth = random_maps(w, h, 73), start = random_maps(w, h, 74);
+  capture cap = set_alpha(8, 6, w, h);
+  const std::vector<image> files = render(truth, cap);  // the files' values
+  std::vector<image> photos = files;                    // as load_capture_photos hands them over
+  for (std::size_t k = 0; k < cap.images.size(); ++k) {
+    cap.images[k].exposure = k % 2 ? 2.0f : 0.5f;
+    cap.images[k].floor = 0.02f * float(k + 1);
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t i = 0; i < photos[k].pixel_count(); ++i) photos[k].plane(c)[i] *= cap.images[k].exposure;
+  }
+  capture_options o;
+  o.stages = pipeline_stages::parse("refine");
+  o.refine.steps = 0;
+  o.kernel = kernel_options::parse("full");
+  no_networks none;
+  const capture_result r = capture_material(cap, photos, none, none, o, &start);
+  // What the pipeline must have fitted: the normalised capture with floors f x exposure x scale.
+  capture c = cap;
+  std::vector<image> p = photos;
+  const double scale = exposure_scale(c);
+  apply_exposure(c, p, scale);
+  auto loss_with = [&](auto floor_of) {
+    std::vector<float> floors;
+    for (const capture_image& im : cap.images) floors.push_back(floor_of(im));
+    return loss_and_gradient<all_features>(start, c, make_loss_targets(p, {}, floors), nullptr);
+  };
+  const double expected = loss_with([&](const capture_image& im) { return float(im.floor * im.exposure * scale); });
+  CHECK(r.stages.front().loss == doctest::Approx(expected).epsilon(1e-6));
+  // Floors taken as they stand in capture.json, or without the normalisation, are another loss.
+  CHECK(std::abs(loss_with([&](const capture_image& im) { return float(im.floor * scale); }) - expected) > 1e-4 * expected);
+  CHECK(std::abs(loss_with([&](const capture_image& im) { return float(im.floor * im.exposure); }) - expected) > 1e-4 * expected);
+  CHECK(std::abs(loss_with([](const capture_image&) { return 0.0f; }) - expected) > 1e-4 * expected);
 }

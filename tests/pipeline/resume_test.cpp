@@ -120,6 +120,9 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   capture moved = cap;
   moved.images[1].light[0] += 0.01f;
   CHECK(resume_error(moved, photos, o).find("capture (") != std::string::npos);
+  capture floored = cap;  // another loss floor is another image loss
+  floored.images[3].floor = 0.002f;
+  CHECK(resume_error(floored, photos, o).find("capture (") != std::string::npos);
 
   capture_options faster = o;
   faster.finetune.learning_rate *= 2;

@@ -157,7 +157,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   }
   f.add("photographs", pixels.hex());
   content_hash configurations;
-  for (const capture_image& i : cap.images) configurations.value(i.camera).value(i.light).value(i.intensity);
+  for (const capture_image& i : cap.images) configurations.value(i.camera).value(i.light).value(i.intensity).value(i.floor).value(i.exposure);
   f.add("capture", configurations.hex());
   if (start) {
     content_hash maps;
