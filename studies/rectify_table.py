@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The table of studies/rectify_eval.sh: mean per-parameter MSE and novel-view loss over materials
 of three captures of the same photographs: direct (the texture-space capture, linear and
-unclipped), redrawn (the same with another draw of the sensor noise, studies/rectify_noise_draw.sh:
+unclipped), redrawn (the same with another draw of the sensor noise, rectify_eval.sh REDRAW=K:
 the capture's own spread), clipped (the same clipped at white with its clipped texels masked, as
 the 8-bit photographs are) and rectified (perspective photos -> rectify -> capture); then rectified
 over direct (the goal), over clipped (what rectification itself costs) and over redrawn. Runs
