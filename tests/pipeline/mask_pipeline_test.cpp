@@ -5,7 +5,6 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <cstring>
 #include <random>
 
 #include "../networks/tiny_presets.hpp"
@@ -27,12 +26,6 @@ capture_result run(const capture& cap, const std::vector<image>& photos, const s
   o.finetune.crop.cells = crop_cells;
   o.refine.steps = 6;
   return capture_material(cap, photos, estimator, autoencoder, o, nullptr, masks);
-}
-
-bool same_bits(const material_maps& a, const material_maps& b) {
-  for (int k = 0; k < parameter_count; ++k)
-    if (std::memcmp(a.plane(k), b.plane(k), a.texel_count() * sizeof(float)) != 0) return false;
-  return true;
 }
 
 }  // namespace

@@ -8,13 +8,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <random>
 #include <vector>
 
 #include "anisocap/render/renderer.hpp"
+#include "loss_gradient_check.hpp"
 #include "render_reference.hpp"
-#include "support/gradient_check.hpp"
 #include "support/two_threads.hpp"
 
 using namespace anisocap;
@@ -49,12 +48,6 @@ std::vector<image> fractional_masks(int w, int h, std::size_t n, std::uint64_t s
     masks.push_back(std::move(m));
   }
   return masks;
-}
-
-bool same_bits(const material_maps& a, const material_maps& b) {
-  for (int k = 0; k < parameter_count; ++k)
-    if (std::memcmp(a.plane(k), b.plane(k), a.texel_count() * sizeof(float)) != 0) return false;
-  return true;
 }
 
 struct scene {
@@ -182,42 +175,13 @@ TEST_CASE("masks: a texel masked in every image gets an exactly zero gradient") 
   CHECK(any_nonzero_elsewhere);
 }
 
-/// Checks the double-precision loss gradient of s.maps under s.masks (taken as they are: 0/1 or
-/// fractional weights) against central differences, plane by plane.
-static void check_masked_gradient(const scene& s) {
-  const loss_targets t = make_loss_targets(s.photos, s.masks);
-  render_options dbl;
-  dbl.double_precision = true;
-  material_maps g(s.w, s.h);
-  loss_and_gradient(s.maps, s.cap, t, &g, {}, dbl);
-  material_maps m = s.maps;
-  for (int k = 0; k < parameter_count; ++k) {
-    float* x = m.plane(k);
-    const std::size_t n = m.texel_count();
-    std::vector<double> analytic(g.plane(k), g.plane(k) + n);
-    double scale = 1e-9;
-    for (double a : analytic) scale = std::max(scale, std::abs(a));
-    // Central differences on float maps: a step that float resolves, the loss in double.
-    const double step = 1.0 / 16384;  // small enough to stay clear of the kinks of the absolute values
-    std::vector<double> xd(x, x + n);
-    auto loss = [&] {
-      for (std::size_t i = 0; i < n; ++i) x[i] = float(xd[i]);
-      return loss_and_gradient(m, s.cap, t, nullptr, {}, dbl);
-    };
-    const auto r = check_gradient<double>(loss, xd.data(), n, analytic.data(), step);
-    for (std::size_t i = 0; i < n; ++i) x[i] = s.maps.plane(k)[i];
-    INFO("plane " << k << " worst texel " << r.worst_index << " max abs error " << r.max_abs_error << " scale " << scale);
-    CHECK(r.max_abs_error < 2e-3 * scale + 1e-7);
-  }
-}
-
 TEST_CASE("masks: the gradient matches central differences") {
   scene s;
   s.w = 7, s.h = 5;
   s.maps = random_maps(7, 5, 51);
   s.photos = render(random_maps(7, 5, 53), s.cap);
   s.masks = random_masks(7, 5, 4, 0.4, 54);
-  check_masked_gradient(s);
+  check_loss_gradient(s.maps, s.cap, make_loss_targets(s.photos, s.masks));
 }
 
 TEST_CASE("masks: crops keep the whole image's weights, so crop losses add up to the whole loss") {
@@ -314,5 +278,5 @@ TEST_CASE("fractional masks: the gradient matches central differences") {
   s.maps = random_maps(7, 5, 71);
   s.photos = render(random_maps(7, 5, 73), s.cap);
   s.masks = fractional_masks(7, 5, 4, 74);
-  check_masked_gradient(s);
+  check_loss_gradient(s.maps, s.cap, make_loss_targets(s.photos, s.masks));
 }

@@ -3,6 +3,7 @@
 // gradients from dual numbers: the reference the fast renderer is tested against.
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -121,6 +122,13 @@ double reference_loss(const material_maps& m, const capture& cap, const loss_tar
       }
     }
   return loss;
+}
+
+/// Whether two maps of one size hold the same bits in every parameter plane (padding aside).
+inline bool same_bits(const material_maps& a, const material_maps& b) {
+  for (int k = 0; k < parameter_count; ++k)
+    if (std::memcmp(a.plane(k), b.plane(k), a.texel_count() * sizeof(float)) != 0) return false;
+  return true;
 }
 
 }  // namespace anisocap::testing
