@@ -62,6 +62,12 @@ inline void add_rectify_command(CLI::App& app) {
       };
       const rectified_capture r = rectify(d, s->photos.parent_path(), o, markers);
       write_rectified_capture(r, s->out);
+      for (std::size_t i = 0; i < r.photos.size(); ++i)
+        if (r.photos[i].underresolved_fraction > 0.2)
+          std::fprintf(stderr,
+                       "rectify: note: %s does not resolve %.0f%% of the texels (under one photo pixel across): a closer or "
+                       "higher-resolution photo, or a lower --resolution, gives sharper maps\n",
+                       d.photos[i].file.c_str(), 100 * r.photos[i].underresolved_fraction);
       std::fprintf(stderr, "rectify: %zu images of %dx%d texels (%.3g mm per texel), masks and capture.json in %s\n"
                    "next: anisocap capture %s\n", r.photos.size(), r.width, r.height,
                    std::max(d.width_mm, d.height_mm) / std::max(r.width, r.height), s->out.c_str(), (s->out / "capture.json").c_str());

@@ -161,7 +161,7 @@ TEST_CASE("the footprint leaves out its margin: texels with sharp borders rectif
   CHECK(with_margin < 0.06);
 }
 
-TEST_CASE("confidence: 1 where a texel spans enough photo pixels, (d / full)^2 where it spans fewer; the mask file carries it") {
+TEST_CASE("confidence: 1 where a texel spans enough photo pixels, (d / full)^2 where it spans fewer; the mask file carries it; the share under one pixel") {
   const int w = 40, h = 32;
   image photo(960, 480, 3);
   for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.25f);
@@ -176,10 +176,11 @@ TEST_CASE("confidence: 1 where a texel spans enough photo pixels, (d / full)^2 w
   const resampling_options o;
   const rectified_photo r = rectify_photo(photo, image(), camera, pose, w, h, 100, o);
   // The texel's extent in pixels along each axis, from the projections of its edges' midpoints.
-  auto span = [&](int x, int y) {
-    auto at = [&](double u, double v) { return project(camera, pose, texture_to_sample(u, v, w, h, 100)); };
+  auto span_through = [&](const pinhole_camera& lens, int x, int y) {
+    auto at = [&](double u, double v) { return project(lens, pose, texture_to_sample(u, v, w, h, 100)); };
     return std::min((at(x + 1.0, y + 0.5) - at(x, y + 0.5)).norm(), (at(x + 0.5, y + 1.0) - at(x + 0.5, y)).norm());
   };
+  auto span = [&](int x, int y) { return span_through(camera, x, y); };
   REQUIRE(r.outside_fraction == 0);
   CHECK(span(20, 0) < 1.5);
   CHECK(span(20, h - 1) > o.full_confidence_px);
@@ -192,6 +193,19 @@ TEST_CASE("confidence: 1 where a texel spans enough photo pixels, (d / full)^2 w
   }
   CHECK(r.confidence.at(0, 20, 0) < 0.4);
   CHECK(r.confidence.at(0, 20, h - 1) == 1.0f);
+  // The under-resolved share counts the texels that span less than a pixel: none from the front,
+  // the far rows through a wider lens from the same place.
+  CHECK(frontal.underresolved_fraction == 0);
+  const pinhole_camera wide{400, {479.5, 239.5}};
+  const rectified_photo far = rectify_photo(photo, image(), wide, pose, w, h, 100, o);
+  REQUIRE(far.outside_fraction == 0);
+  std::size_t under = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) under += span_through(wide, x, y) < 1.0;
+  REQUIRE(under > 0);
+  REQUIRE(under < std::size_t(w) * h);
+  // (one texel either way: the library projects through the homography, the test through the pose)
+  CHECK(std::abs(far.underresolved_fraction * (w * h) - double(under)) <= 1.0);
   // Written as the mask's weights (8-bit codes) and read back by the capture's reader.
   rectified_capture capture_out;
   capture_out.width = w;

@@ -98,6 +98,11 @@ struct rectified_photo {
   planar_pose pose;        ///< sample -> camera
   double outside_fraction = 0;  ///< texels not fully inside the photo
   double clipped_fraction = 0;  ///< texels covering clipped pixels
+  /// Texels inside the photo that span less than one photo pixel along their narrower side (the
+  /// far rows of a grazing view): the photo does not resolve them, so their values are blurred
+  /// and their confidence low. A share of a few tens of per cent asks for a closer or sharper photo,
+  /// or a lower resolution.
+  double underresolved_fraction = 0;
 };
 
 /// All photographs in texture space and the capture that describes them.
@@ -174,10 +179,10 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
     const Eigen::Vector3d q = h * Eigen::Vector3d(s.x(), s.y(), 1.0);
     return Eigen::Vector2d(q.x() / q.z(), q.y() / q.z());
   };
-  std::size_t outside = 0, clipped_count = 0;
+  std::size_t outside = 0, clipped_count = 0, underresolved = 0;
   const bool median = resampling.statistic != footprint_statistic::mean;
   const bool always_median = resampling.statistic == footprint_statistic::median;
-#pragma omp parallel for schedule(dynamic, 4) reduction(+ : outside, clipped_count)
+#pragma omp parallel for schedule(dynamic, 4) reduction(+ : outside, clipped_count, underresolved)
   for (int y = 0; y < height; ++y) {
     std::vector<float> values[3];  // the median's samples per channel, reused along the row
     for (int x = 0; x < width; ++x) {
@@ -238,6 +243,7 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
       const bool use = inside && !clip;
       if (!inside) ++outside;
       else if (clip) ++clipped_count;
+      if (inside && std::min(pu, pv) < 1.0) ++underresolved;
       out.mask.plane(0)[index] = use ? 1.0f : 0.0f;
       out.confidence.plane(0)[index] = use ? float(confidence) : 0.0f;
       for (int c = 0; c < 3; ++c) out.radiance.plane(c)[index] = !inside ? 0.0f : float((use ? sum[c] : raw[c]) / (su * sv));
@@ -246,6 +252,7 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
   const double texels = double(width) * height;
   out.outside_fraction = double(outside) / texels;
   out.clipped_fraction = double(clipped_count) / texels;
+  out.underresolved_fraction = double(underresolved) / texels;
   return out;
 }
 
@@ -329,9 +336,11 @@ inline rectified_capture rectify(const photos_description& description, const st
     result.configurations.images.push_back(im);
     if (options.progress) {
       char line[256];
-      std::snprintf(line, sizeof line, "%s: camera (%.3f, %.3f, %.3f), light (%.3f, %.3f, %.3f), %.1f%% outside the photo, %.1f%% clipped",
+      std::snprintf(line, sizeof line,
+                    "%s: camera (%.3f, %.3f, %.3f), light (%.3f, %.3f, %.3f), %.1f%% outside the photo, %.1f%% clipped, "
+                    "%.1f%% under one photo pixel",
                     e.file.c_str(), camera.x(), camera.y(), camera.z(), light.x(), light.y(), light.z(), 100 * r.outside_fraction,
-                    100 * r.clipped_fraction);
+                    100 * r.clipped_fraction, 100 * r.underresolved_fraction);
       options.progress(i + 1, all.size(), line);
     }
     result.photos.push_back(std::move(r));

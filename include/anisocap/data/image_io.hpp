@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/srgb.hpp"
 
 namespace anisocap {
 
@@ -49,18 +50,6 @@ class io_error : public std::runtime_error {
   std::filesystem::path path_;
   std::string problem_;
 };
-
-// ---- sRGB transfer function --------------------------------------------------------------------
-
-/// sRGB-encoded value in [0,1] to linear (IEC 61966-2-1, the piecewise curve, not gamma 2.2).
-inline double srgb_to_linear(double encoded) noexcept {
-  return encoded <= 0.04045 ? encoded / 12.92 : std::pow((encoded + 0.055) / 1.055, 2.4);
-}
-
-/// Linear value in [0,1] to sRGB encoding (inverse of srgb_to_linear).
-inline double linear_to_srgb(double linear) noexcept {
-  return linear <= 0.0031308 ? linear * 12.92 : 1.055 * std::pow(linear, 1.0 / 2.4) - 0.055;
-}
 
 // ---- whole files and atomic writes -------------------------------------------------------------
 

@@ -31,6 +31,7 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/random.hpp"
+#include "anisocap/core/srgb.hpp"
 
 namespace anisocap {
 
@@ -295,10 +296,6 @@ inline constexpr struct {
     {"titanium", 0.54, 0.50, 0.45},  {"chrome", 0.55, 0.56, 0.55},
 };
 inline constexpr int metal_palette_size = int(sizeof(metal_palette) / sizeof(metal_palette[0]));
-
-inline double srgb_to_linear(double c) {
-  return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
-}
 
 inline rgb palette_colour(int index) {
   const auto& c = fabric_palette[index];
