@@ -25,7 +25,13 @@ struct train_settings {
 
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   training::train_options& o = s.options;
-  cmd->add_option("--preset", s.preset, "network widths: compact or paper")->check(CLI::IsMember({"compact", "paper"}));
+  if (autoencoder)
+    cmd->add_option("--preset", s.preset, "network widths: compact or paper")->check(CLI::IsMember({"compact", "paper"}));
+  else
+    cmd->add_option("--preset", s.preset,
+                    "network widths: compact, paper, or compact-doubled-angle (compact, the rotation read from a doubled-angle "
+                    "vector; experimental)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle"}));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
@@ -47,16 +53,19 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   }
 }
 
-/// Runs `train(options, net)` on a network of the chosen preset (Paper or Compact, built from the
-/// run seed) while holding the output folder's lock; a run refused before writing anything leaves
-/// no folder behind.
-template <class Paper, class Compact, class Train>
+/// Runs `train(options, net)` on a network of the chosen preset (Paper, Compact or Variant ("compact-
+/// doubled-angle", the estimator only), built from the run seed) while holding the output folder's
+/// lock; a run refused before writing anything leaves no folder behind.
+template <class Paper, class Compact, class Variant = Compact, class Train>
 void train_in_locked_folder(const train_settings& s, Train train) {
   const training::train_options& o = s.options;
   output_lock lock(o.out_dir);  // one run per output folder
   try {
     if (s.preset == "paper") {
       auto net = std::make_unique<Paper>(o.seed);
+      train(o, *net);
+    } else if (s.preset == "compact-doubled-angle") {
+      auto net = std::make_unique<Variant>(o.seed);
       train(o, *net);
     } else {
       auto net = std::make_unique<Compact>(o.seed);
@@ -86,10 +95,11 @@ inline std::string row(const char* name, const parameter_errors& e) {
   return line;
 }
 
-/// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation materials.
-inline void evaluate_networks(const network_eval_settings& s) {
+/// eval-networks with an estimator of the given preset.
+template <class EstimatorPreset>
+void evaluate_networks_with(const network_eval_settings& s) {
   const std::vector<material_kind> families = material_kinds_from_names(s.families);
-  estimation_network<estimator_compact> estimator;
+  estimation_network<EstimatorPreset> estimator;
   auto_encoder<autoencoder_compact> autoencoder;
   nn::load_weights(s.estimator, estimator);
   nn::load_weights(s.autoencoder, autoencoder);
@@ -151,6 +161,19 @@ inline void evaluate_networks(const network_eval_settings& s) {
   }
 }
 
+/// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
+/// materials; the estimator's preset (compact or compact-doubled-angle) is read from its file.
+inline void evaluate_networks(const network_eval_settings& s) {
+  const nn::safetensors_file file = nn::read_safetensors(s.estimator);
+  std::string preset = "compact";
+  for (const auto& [key, value] : file.metadata)
+    if (key == "preset") preset = value;
+  if (preset == "compact-doubled-angle")
+    evaluate_networks_with<estimator_compact_doubled_angle>(s);
+  else
+    evaluate_networks_with<estimator_compact>(s);
+}
+
 }  // namespace train_detail
 
 /// Registers `anisocap train-estimator`, `train-autoencoder` and `eval-networks`.
@@ -160,7 +183,8 @@ inline void add_train_commands(CLI::App& app) {
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
-    train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>>(
+    train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>,
+                           estimation_network<estimator_compact_doubled_angle>>(
         *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();

@@ -9,6 +9,7 @@
 #include "anisocap/core/random.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
+#include "anisocap/nn/safetensors.hpp"
 #include "tiny_presets.hpp"
 
 using namespace anisocap;
@@ -92,4 +93,34 @@ TEST_CASE("estimator: two sets in one batch give what each gives alone; forward 
   for (std::size_t i = 0; i < y1.value.size(); ++i) REQUIRE(y1.value.data()[i] == doctest::Approx(y.value.pixel(1, 0, 0)[i]).epsilon(1e-5));
   auto bad = t.make_variable<3>(1, 96, 64, false);
   CHECK_THROWS_AS(net.forward(t, bad, 1), std::invalid_argument);
+}
+
+TEST_CASE("estimator, doubled-angle preset: maps in range, alpha starts at 0, starts from a tanh-preset file but for its last layer") {
+  using Doubled = estimation_network<testing::estimator_tiny_doubled_angle>;
+  Doubled net(3);
+  const material_maps m = net.estimate(random_photos(3, 50, 40, 7));
+  CHECK(in_range(m));
+  // The fresh head's (c, s) is (1, ~0): alpha near 0 everywhere.
+  float largest = 0;
+  for (std::size_t i = 0; i < m.texel_count(); ++i) largest = std::max(largest, std::abs(m.plane(rotation)[i]));
+  CHECK(largest < 0.2f);
+
+  // A file of the tanh preset loads into every layer but the last of track 2 (3 outputs there, 4 here).
+  Net plain(11);
+  const auto file = std::filesystem::temp_directory_path() / "anisocap_doubled_angle_init.safetensors";
+  nn::save_weights(file, plain);
+  CHECK_THROWS_AS(nn::load_weights(file, net), std::runtime_error);
+  const float before_c = net.head2.c2.bias.value[2];
+  const std::vector<std::string> fresh = nn::load_matching_weights(file, net);
+  std::vector<std::string> last_layer;
+  net.head2.c2.for_each_parameter([&](auto& p) { last_layer.push_back(p.name); });
+  CHECK(fresh == last_layer);
+  CHECK(net.head2.c2.bias.value[2] == before_c);  // kept its initial value
+  for (std::size_t i = 0; i < net.enc2.weight.size(); ++i) REQUIRE(net.enc2.weight.value[i] == plain.enc2.weight.value[i]);
+  for (std::size_t i = 0; i < net.head2.c1.weight.size(); ++i) REQUIRE(net.head2.c1.weight.value[i] == plain.head2.c1.weight.value[i]);
+  // A file that shares no tensor with the network is refused.
+  nn::linear<4, 4> other("unrelated", 2);
+  nn::save_weights(file, other);
+  CHECK_THROWS_WITH_AS(nn::load_matching_weights(file, net), doctest::Contains("no tensor matches"), std::runtime_error);
+  std::filesystem::remove(file);
 }

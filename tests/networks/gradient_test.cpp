@@ -56,6 +56,80 @@ TEST_CASE("estimator gradient: end to end in double against central differences"
   check_parameter(net.head1.global.weight, loss, 2);
 }
 
+TEST_CASE("estimator gradient: the doubled-angle head end to end in double against central differences") {
+  estimation_network<anisocap::testing::estimator_tiny_doubled_angle, double> net(8);
+  REQUIRE(net.head2.c2.bias.size() == 4);
+  ad::tape t;
+  random_generator rng(22);
+  tensor<3, double> input(3, 64, 64);
+  for (std::size_t i = 0; i < input.size(); ++i) input.data()[i] = rng.uniform() * 2 - 1;
+  tensor<parameter_count, double> weights(1, 64, 64);
+  for (std::size_t i = 0; i < weights.size(); ++i) weights.data()[i] = rng.uniform() * 2 - 1;
+  // Bring (c, s) away from (1, 0) so that the angle's gradient is not trivially small.
+  net.head2.c2.bias.value[2] = 0.3;
+  net.head2.c2.bias.value[3] = -0.4;
+  auto loss = [&] {
+    ad::tape u;
+    ad::tape::no_grad_guard guard(u);
+    auto y = net.forward(u, u.leaf(input), 3);
+    double s = 0;
+    for (std::size_t i = 0; i < y.value.size(); ++i) s += y.value.data()[i] * weights.data()[i];
+    return s;
+  };
+  auto y = net.forward(t, t.leaf(input), 3);
+  std::copy_n(weights.data(), weights.size(), y.grad.data());
+  t.backward();
+  check_parameter(net.head2.c2.bias, loss, 4);
+  check_parameter(net.head2.c2.weight, loss, 8);
+  check_parameter(net.head2.c1.weight, loss, 3);
+  check_parameter(net.track2.up5.weight, loss, 3);
+}
+
+TEST_CASE("doubled angle: alpha / (pi/2) = atan2(s, c) / pi, continuous across alpha = +-pi/2, gradient against central differences") {
+  ad::tape t;
+  auto x = t.make_variable<4, double>(1, 1, 5, true);
+  const double raw[5][4] = {{0.2, -0.5, 1, 0}, {0, 0, 0, 1}, {-1, 2, -1, 1e-6}, {3, 1, -1, -1e-6}, {-0.7, 0.1, -0.4, 0.9}};
+  for (int i = 0; i < 5; ++i) std::copy_n(raw[i], 4, x.value.pixel(0, 0, i));
+  auto y = network_detail::normals_and_doubled_angle(t, x);
+  const double pi = 3.14159265358979323846;
+  CHECK(y.value.pixel(0, 0, 0)[0] == doctest::Approx(std::tanh(0.2)));
+  CHECK(y.value.pixel(0, 0, 0)[2] == doctest::Approx(0.0));        // (1, 0): alpha 0
+  CHECK(y.value.pixel(0, 0, 1)[2] == doctest::Approx(0.5));        // (0, 1): 2 alpha = pi/2
+  CHECK(y.value.pixel(0, 0, 2)[2] == doctest::Approx(1).epsilon(1e-5));   // (-1, +0): alpha -> +pi/2
+  CHECK(y.value.pixel(0, 0, 3)[2] == doctest::Approx(-1).epsilon(1e-5));  // (-1, -0): alpha -> -pi/2, the same lobe
+  // Neighbouring raw outputs give alphas that differ by pi: the same rotation modulo pi.
+  const double a2 = y.value.pixel(0, 0, 2)[2] * pi / 2, a3 = y.value.pixel(0, 0, 3)[2] * pi / 2;
+  CHECK(std::abs(std::remainder(a2 - a3, pi)) < 1e-5);
+  CHECK(y.value.pixel(0, 0, 4)[2] == doctest::Approx(std::atan2(0.9, -0.4) / pi));
+  random_generator rng(5);
+  std::vector<double> w(y.value.size());
+  for (auto& v : w) v = rng.uniform() * 2 - 1;
+  std::copy(w.begin(), w.end(), y.grad.data());
+  t.backward();
+  // Pixels 0, 1 and 4 (away from the cut at c < 0, s = 0, where atan2 jumps by 2 pi).
+  for (int i : {0, 1, 4}) {
+    for (int k = 0; k < 4; ++k) {
+      double* v = x.value.pixel(0, 0, i) + k;
+      const double h = 1e-6, keep = *v;
+      auto f = [&] {
+        ad::tape u;
+        ad::tape::no_grad_guard guard(u);
+        auto z = network_detail::normals_and_doubled_angle(u, u.leaf(x.value));
+        double s = 0;
+        for (std::size_t j = 0; j < z.value.size(); ++j) s += z.value.data()[j] * w[j];
+        return s;
+      };
+      *v = keep + h;
+      const double up = f();
+      *v = keep - h;
+      const double down = f();
+      *v = keep;
+      INFO("pixel " << i << " channel " << k);
+      CHECK(x.grad.pixel(0, 0, i)[k] == doctest::Approx((up - down) / (2 * h)).epsilon(1e-6));
+    }
+  }
+}
+
 TEST_CASE("auto-encoder gradient: end to end in double, and a frozen encoder gets no gradient") {
   auto_encoder<anisocap::testing::autoencoder_tiny, double> net(8);
   random_generator rng(22);

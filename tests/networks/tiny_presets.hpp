@@ -12,6 +12,12 @@ struct estimator_tiny {
   static constexpr const char* name = "tiny";
 };
 
+/// The tiny estimator with the doubled-angle rotation output (like compact-doubled-angle).
+struct estimator_tiny_doubled_angle : estimator_tiny {
+  static constexpr bool doubled_angle = true;
+  static constexpr const char* name = "tiny-doubled-angle";
+};
+
 /// An auto-encoder with 4 to 8 channels.
 struct autoencoder_tiny {
   static constexpr std::array<int, 5> encoder{4, 4, 8, 8, 8};

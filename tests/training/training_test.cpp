@@ -57,6 +57,35 @@ TEST_CASE("training: estimator stopped after k/2 steps and resumed equals k step
   fs::remove_all(b);
 }
 
+TEST_CASE("training: --init starts a doubled-angle estimator from a tanh estimator's weights, and refuses an auto-encoder's") {
+  const fs::path a = fresh_folder("networks_init_source"), b = fresh_folder("networks_init_variant"),
+                 c = fresh_folder("networks_init_wrong");
+  estimation_network<testing::estimator_tiny> source(3);
+  training::train_estimator(tiny_options(a, 64), source);
+  std::vector<std::string> log;
+  auto o = tiny_options(b, 64);
+  o.init_weights = a / "estimator.safetensors";
+  o.steps = 1;
+  o.log = [&](const std::string& line) { log.push_back(line); };
+  estimation_network<testing::estimator_tiny_doubled_angle> variant(4);
+  training::train_estimator(o, variant);
+  CHECK(std::any_of(log.begin(), log.end(), [](const std::string& line) {
+    return line.find("initialised afresh: track2.reduce2.weight, track2.reduce2.bias") != std::string::npos;
+  }));
+  // The layers before the last one start from the file (one step of Adam moves each weight by at
+  // most about the learning rate).
+  for (std::size_t i = 0; i < variant.enc1.weight.size(); ++i)
+    REQUIRE(std::abs(variant.enc1.weight.value[i] - source.enc1.weight.value[i]) < 2e-3f);
+  auto_encoder<testing::autoencoder_tiny> ae(5);
+  training::train_autoencoder(tiny_options(c, 64), ae);
+  auto wrong = tiny_options(fresh_folder("networks_init_wrong_target"), 64);
+  wrong.init_weights = c / "autoencoder.safetensors";
+  estimation_network<testing::estimator_tiny> target(6);
+  CHECK_THROWS_WITH_AS(training::train_estimator(wrong, target), doctest::Contains("not estimator weights"), std::runtime_error);
+  CHECK_FALSE(fs::exists(wrong.out_dir));
+  for (const auto& d : {a, b, c}) fs::remove_all(d);
+}
+
 TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statistics included)") {
   const fs::path a = fresh_folder("networks_ae_straight"), b = fresh_folder("networks_ae_resumed");
   auto_encoder<testing::autoencoder_tiny> straight(3);

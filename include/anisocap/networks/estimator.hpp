@@ -26,6 +26,24 @@ struct estimator_compact {
   static constexpr const char* name = "compact";                         ///< preset name in files
 };
 
+/// The compact widths with the rotation read from a doubled-angle vector (c, s) = direction of
+/// 2 alpha instead of a tanh output for alpha / (pi/2) (network_detail::normals_and_doubled_angle):
+/// the last reducing convolution of track 2 has 4 outputs (n_x, n_y, c, s). The network values,
+/// losses and weight names are otherwise those of `estimator_compact`.
+struct estimator_compact_doubled_angle : estimator_compact {
+  static constexpr bool doubled_angle = true;                         ///< rotation as a doubled-angle vector
+  static constexpr const char* name = "compact-doubled-angle";        ///< preset name in files
+};
+
+/// Whether a preset reads the rotation from a doubled-angle vector (presets without the member: no).
+template <class P>
+consteval bool has_doubled_angle() {
+  if constexpr (requires { P::doubled_angle; })
+    return P::doubled_angle;
+  else
+    return false;
+}
+
 namespace network_detail {
 
 /// One decoder track of the estimator: 6 transposed convolutions from the bottleneck (H/64) to
@@ -88,10 +106,15 @@ class decoder_track {
 };
 
 /// The three reducing convolutions after the max-pool over images: 3x3 D -> D (plus the pooled
-/// global vector as a bias), 3x3 D -> D, 1x1 D -> Out, then tanh (lands in network space).
-template <int G, int D, int Out, class T>
+/// global vector as a bias), 3x3 D -> D, 1x1 D -> Out, then tanh (lands in network space); with
+/// DoubledAngle (Out = 4 only), normals_and_doubled_angle instead of tanh, to 3 channels.
+template <int G, int D, int Out, class T, bool DoubledAngle = false>
 class reducing_head {
+  static_assert(!DoubledAngle || Out == 4, "the doubled-angle head has 4 raw outputs: n_x, n_y, c, s");
+
  public:
+  /// Channels of the head's output in network space.
+  static constexpr int channels = DoubledAngle ? Out - 1 : Out;
   nn::conv2d<D, D, 3, 1, 1, T> c0;  ///< reducing convolution 0
   nn::conv2d<D, D, 3, 1, 1, T> c1;  ///< reducing convolution 1
   nn::conv2d<D, Out, 1, 1, 0, T> c2;  ///< reducing convolution 2
@@ -101,12 +124,15 @@ class reducing_head {
   reducing_head(const std::string& p, std::uint64_t seed)
       : c0(p + "reduce0"), c1(p + "reduce1"), c2(p + "reduce2"), global(p + "reduce_global", seed) {}
 
-  /// Out channels in (-1, 1).
-  ad::variable<Out, T> operator()(ad::tape& t, const ad::variable<D, T>& x, const ad::variable<G, T>& g) {
+  /// `channels` channels in [-1, 1].
+  ad::variable<channels, T> operator()(ad::tape& t, const ad::variable<D, T>& x, const ad::variable<G, T>& g) {
     auto h = nn::add_channel_bias(t, c0(t, x), global(t, g));
     h = nn::leaky_relu(t, h, T(leaky_slope));
     h = nn::leaky_relu(t, c1(t, h), T(leaky_slope));
-    return nn::tanh(t, c2(t, h));
+    if constexpr (DoubledAngle)
+      return normals_and_doubled_angle(t, c2(t, h));
+    else
+      return nn::tanh(t, c2(t, h));
   }
 
   /// Visits every trainable parameter.
@@ -160,7 +186,8 @@ class estimation_network {
   network_detail::decoder_track<Preset, Preset::track1, T> track1;  ///< decoder track 1
   network_detail::decoder_track<Preset, Preset::track2, T> track2;  ///< decoder track 2
   network_detail::reducing_head<E[5], Preset::track1[5], 9, T> head1;  ///< reducing convolutions of track 1
-  network_detail::reducing_head<E[5], Preset::track2[5], 3, T> head2;  ///< reducing convolutions of track 2
+  /// Reducing convolutions of track 2 (n_s.xy and alpha; 4 raw outputs with a doubled-angle preset).
+  network_detail::reducing_head<E[5], Preset::track2[5], has_doubled_angle<Preset>() ? 4 : 3, T, has_doubled_angle<Preset>()> head2;
 
   /// A network with seeded He-uniform weights (the same on every machine for the same seed).
   explicit estimation_network(std::uint64_t seed = 1)
@@ -281,6 +308,8 @@ class estimation_network {
     // a saturated normal (|n_xy| at the disc's edge) gets almost no gradient and stays there.
     nn::uniform_init(h.c2.weight, 0.1 * std::sqrt(6.0 / (h.c2.weight.shape[2] + h.c2.weight.shape[3])), seed);
     nn::constant_init(h.c2.bias, T(0));
+    // A doubled-angle head starts at (c, s) = (1, ~0): alpha 0, and a vector of unit length.
+    if (Head::channels == 3 && h.c2.bias.size() == 4) h.c2.bias.value[2] = T(1);
   }
 };
 

@@ -50,6 +50,47 @@ ad::variable<C, T> crop(ad::tape& t, const ad::variable<C, T>& x, int height, in
   return y;
 }
 
+/// The doubled-angle output of the estimator's normal-and-rotation track: from 4 raw channels
+/// (z_x, z_y, c, s) to its 3 network-space channels (tanh z_x, tanh z_y, atan2(s, c) / pi), recorded
+/// on the tape. (c, s) is the direction of 2 alpha, so the rotation, pi-periodic, is a continuous
+/// function of the raw outputs: alpha near +pi/2 and near -pi/2 (the same lobe) are neighbouring
+/// vectors, where a tanh output for alpha / (pi/2) has to jump from +1 to -1. The network value
+/// atan2(s, c) / pi is alpha / (pi/2) in (-1, 1] (network_space.hpp). At (c, s) = (0, 0) the angle
+/// is 0 and its gradient is taken as 0.
+template <class T>
+ad::variable<3, T> normals_and_doubled_angle(ad::tape& t, const ad::variable<4, T>& x) {
+  auto y = t.make_variable<3, T>(x.value.batch(), x.value.height(), x.value.width(), x.requires_grad);
+  const double pi = 3.14159265358979323846;
+  for (int b = 0; b < x.value.batch(); ++b)
+    for (int r = 0; r < x.value.height(); ++r)
+      for (int c = 0; c < x.value.width(); ++c) {
+        const T* in = x.value.pixel(b, r, c);
+        T* out = y.value.pixel(b, r, c);
+        out[0] = T(std::tanh(double(in[0])));
+        out[1] = T(std::tanh(double(in[1])));
+        out[2] = T(std::atan2(double(in[3]), double(in[2])) / pi);
+      }
+  if (y.requires_grad)
+    t.record([x = x, y, pi]() mutable {
+      for (int b = 0; b < x.value.batch(); ++b)
+        for (int r = 0; r < x.value.height(); ++r)
+          for (int c = 0; c < x.value.width(); ++c) {
+            const T* in = x.value.pixel(b, r, c);
+            const T* out = y.value.pixel(b, r, c);
+            const T* gy = y.grad.pixel(b, r, c);
+            T* gx = x.grad.pixel(b, r, c);
+            gx[0] += gy[0] * (T(1) - out[0] * out[0]);
+            gx[1] += gy[1] * (T(1) - out[1] * out[1]);
+            const double cv = in[2], sv = in[3], r2 = cv * cv + sv * sv;
+            if (r2 > 0) {  // d atan2(s, c) = (c ds - s dc) / (c^2 + s^2)
+              gx[2] += T(-double(gy[2]) * sv / (pi * r2));
+              gx[3] += T(double(gy[2]) * cv / (pi * r2));
+            }
+          }
+    });
+  return y;
+}
+
 /// He-uniform weights (leaky ReLU) and zero biases for a convolution, from the layer's name.
 template <class Conv>
 void init_conv(Conv& c, int fan_in, std::uint64_t seed) {

@@ -357,4 +357,42 @@ void load_weights(const std::filesystem::path& file, Network& net) {
   });
 }
 
+/// Loads the parameters (and buffers) whose tensor the file has with the same name, dtype and
+/// shape, and returns the names of the others, which keep their values: a fresh training run of a
+/// variant network (another output head) starts from a related network's weights this way. Every
+/// tensor that loads is checked first, as load_weights does. Throws when no tensor matches (the
+/// file is not of this kind of network at all).
+template <class Network>
+std::vector<std::string> load_matching_weights(const std::filesystem::path& file, Network& net) {
+  const safetensors_file contents = read_safetensors(file);
+  std::vector<std::string> skipped;
+  std::size_t matched = 0;
+  auto matches = [&](auto& p) {
+    using T = std::remove_cvref_t<decltype(p.value[0])>;
+    const auto* e = contents.find(p.name);
+    return e && e->dtype == safetensors_dtype<T>() && e->shape == std::vector<std::int64_t>(p.shape.begin(), p.shape.end());
+  };
+  detail::visit_weights(net, [&](auto& p) {
+    if (!matches(p)) {
+      skipped.push_back(p.name);
+      return;
+    }
+    ++matched;
+    using T = std::remove_cvref_t<decltype(p.value[0])>;
+    const auto bytes = contents.bytes(*contents.find(p.name));
+    for (std::size_t i = 0; i < bytes.size() / sizeof(T); ++i) {
+      T v;
+      std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
+      if (!std::isfinite(double(v))) detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
+    }
+  });
+  if (matched == 0) detail::safetensors_fail(file, "no tensor matches this network's parameters by name and shape");
+  detail::visit_weights(net, [&](auto& p) {
+    if (!matches(p)) return;
+    const auto bytes = contents.bytes(*contents.find(p.name));
+    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
+  });
+  return skipped;
+}
+
 }  // namespace anisocap::nn

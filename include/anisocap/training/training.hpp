@@ -184,7 +184,7 @@ struct train_options {
   long validate_every = 250;          ///< steps between validations (and one at the end)
   int validation_count = 8;           ///< validation materials
   bool resume = false;                ///< continue from out_dir/checkpoint.json
-  std::filesystem::path init_weights; ///< non-empty: a fresh run starts from these weights (not from random ones)
+  std::filesystem::path init_weights; ///< non-empty: a fresh run starts from these weights (nn::load_matching_weights: tensors the file lacks in this shape stay as initialised, and are logged)
   double smoothness_weight = 0.1;     ///< auto-encoder: weight of the latent smoothness term
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
@@ -467,8 +467,16 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     o.log(kind + ": resumed at step " + std::to_string(step));
   } else {
     if (!o.init_weights.empty()) {
-      nn::load_weights(o.init_weights, net);
-      o.log(kind + ": starting from the weights in " + o.init_weights.string());
+      // Both networks name their encoder layers alike: the file's "network" entry (save_network's)
+      // keeps an auto-encoder's weights out of an estimator and the reverse.
+      for (const auto& [key, value] : nn::read_safetensors(o.init_weights).metadata)
+        if (key == "network" && value != kind)
+          throw std::runtime_error(o.init_weights.string() + ": holds " + value + " weights, not " + kind + " weights (--init)");
+      const std::vector<std::string> fresh = nn::load_matching_weights(o.init_weights, net);
+      std::string note;
+      for (const auto& name : fresh) note += (note.empty() ? "" : ", ") + name;
+      o.log(kind + ": starting from the weights in " + o.init_weights.string() +
+            (fresh.empty() ? "" : " (not in the file with this shape, initialised afresh: " + note + ")"));
     }
     std::filesystem::create_directories(o.out_dir);
     std::filesystem::remove(csv);
