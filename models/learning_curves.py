@@ -17,13 +17,15 @@ FIRST_STEP the step a resumed run started at (its CSV counts steps from the orig
         estimator:$H/estimator_run5_resumed.csv:2:46890:5.97:1.93:9175 \
         estimator:$H/estimator_run6_resumed.csv:2:58456:7.90:0.34:14958 \
         estimator:$H/estimator_run7_resumed.csv:2:63796:8.24:2.93:17628 \
+        estimator:$H/estimator_run8_resumed.csv:2:140266:11.17:1.94:55863 \
         autoencoder:$H/autoencoder_run1.csv:4:0:0:1.05 \
         autoencoder:$H/autoencoder_run2.csv:4:51344:1.05:1.34 \
         autoencoder:$H/autoencoder_run3_training_mix.csv:4:84012:2.39:1.35 \
         autoencoder:$H/autoencoder_run4_lobe_l1.csv:4:105876:3.74:2.58 \
         autoencoder:$H/autoencoder_run5_resumed.csv:4:164356:6.32:1.93:14620 \
         autoencoder:$H/autoencoder_run6_resumed.csv:4:198264:8.25:0.34:23097 \
-        autoencoder:$H/autoencoder_run7_resumed.csv:4:213136:8.59:2.93:26815
+        autoencoder:$H/autoencoder_run7_resumed.csv:4:213136:8.59:2.93:26815 \
+        autoencoder:$H/autoencoder_run8_resumed.csv:4:429860:11.52:1.94:80996
 
 Runs 3 and 4 validate on materials drawn from the training mix (the same seeds, other families),
 so their rows are not comparable one for one with runs 1 and 2: the step at 23 000 (estimator) and
