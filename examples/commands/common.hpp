@@ -242,6 +242,14 @@ struct model_choice {
   bool present() const { return fs::exists(estimator()) && fs::exists(autoencoder()); }
 };
 
+/// The "preset" entry of a weight file's metadata (save_network writes it), "" when it has none.
+/// A compact folder's estimator may be of the compact-doubled-angle variant (the same widths).
+inline std::string weights_preset(const fs::path& file) {
+  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
+    if (key == "preset") return value;
+  return "";
+}
+
 inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--preset", m.preset, "network preset whose weights to use")->check(CLI::IsMember({"compact", "paper"}));
   c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");
@@ -305,6 +313,8 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     return capture_material(cap, photos, estimator, autoencoder, o, start, masks);
   };
   if (models.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
+  if (weights_preset(models.estimator()) == estimator_compact_doubled_angle::name)
+    return run.template operator()<estimator_compact_doubled_angle, autoencoder_compact>();
   return run.template operator()<estimator_compact, autoencoder_compact>();
 }
 

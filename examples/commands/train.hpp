@@ -79,8 +79,8 @@ void train_in_locked_folder(const train_settings& s, Train train) {
 
 /// Settings of eval-networks.
 struct network_eval_settings {
-  std::string estimator = "models/compact/estimator.safetensors";
-  std::string autoencoder = "models/compact/autoencoder.safetensors";
+  std::string estimator = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "estimator.safetensors").string();
+  std::string autoencoder = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "autoencoder.safetensors").string();
   int count = 30;
   int size = 256;
   std::string markdown;
@@ -164,11 +164,7 @@ void evaluate_networks_with(const network_eval_settings& s) {
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
 /// materials; the estimator's preset (compact or compact-doubled-angle) is read from its file.
 inline void evaluate_networks(const network_eval_settings& s) {
-  const nn::safetensors_file file = nn::read_safetensors(s.estimator);
-  std::string preset = "compact";
-  for (const auto& [key, value] : file.metadata)
-    if (key == "preset") preset = value;
-  if (preset == "compact-doubled-angle")
+  if (weights_preset(s.estimator) == estimator_compact_doubled_angle::name)
     evaluate_networks_with<estimator_compact_doubled_angle>(s);
   else
     evaluate_networks_with<estimator_compact>(s);
