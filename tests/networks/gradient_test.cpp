@@ -2,6 +2,8 @@
 // few weights of every kind of layer against central differences.
 #include <doctest/doctest.h>
 
+#include <functional>
+#include <memory>
 #include <vector>
 
 #include "anisocap/core/random.hpp"
@@ -22,27 +24,35 @@ void check_parameter(nn::basic_parameter<double>& p, const std::function<double(
   const auto r = anisocap::testing::check_gradient<double>(loss, p.value.data(), n, analytic.data(), 1e-6);
   CHECK(r.max_rel_error < 1e-5);
 }
+
+/// Runs the estimator forward on `images` random 64 x 64 images (sets of `per_set`) and backward
+/// from the loss sum(w * y) with random w (seeded), leaving the gradients in the parameters, and
+/// returns that loss as a function of the current weights for central differences.
+template <class Net>
+std::function<double()> backward_of_weighted_output(Net& net, int images, int per_set, std::uint64_t seed) {
+  random_generator rng(seed);
+  auto input = std::make_shared<tensor<3, double>>(images, 64, 64);
+  for (std::size_t i = 0; i < input->size(); ++i) input->data()[i] = rng.uniform() * 2 - 1;
+  auto weights = std::make_shared<tensor<parameter_count, double>>(images / per_set, 64, 64);
+  for (std::size_t i = 0; i < weights->size(); ++i) weights->data()[i] = rng.uniform() * 2 - 1;
+  ad::tape t;
+  auto y = net.forward(t, t.leaf(*input), per_set);
+  std::copy_n(weights->data(), weights->size(), y.grad.data());
+  t.backward();
+  return [&net, input, weights, per_set] {
+    ad::tape u;
+    ad::tape::no_grad_guard guard(u);
+    auto z = net.forward(u, u.leaf(*input), per_set);
+    double s = 0;
+    for (std::size_t i = 0; i < z.value.size(); ++i) s += z.value.data()[i] * weights->data()[i];
+    return s;
+  };
+}
 }  // namespace
 
 TEST_CASE("estimator gradient: end to end in double against central differences") {
   estimation_network<anisocap::testing::estimator_tiny, double> net(7);
-  ad::tape t;
-  random_generator rng(21);
-  tensor<3, double> input(4, 64, 64);
-  for (std::size_t i = 0; i < input.size(); ++i) input.data()[i] = rng.uniform() * 2 - 1;
-  tensor<parameter_count, double> weights(2, 64, 64);
-  for (std::size_t i = 0; i < weights.size(); ++i) weights.data()[i] = rng.uniform() * 2 - 1;
-  auto loss = [&] {
-    ad::tape u;
-    ad::tape::no_grad_guard guard(u);
-    auto y = net.forward(u, u.leaf(input), 2);
-    double s = 0;
-    for (std::size_t i = 0; i < y.value.size(); ++i) s += y.value.data()[i] * weights.data()[i];
-    return s;
-  };
-  auto y = net.forward(t, t.leaf(input), 2);
-  std::copy_n(weights.data(), weights.size(), y.grad.data());
-  t.backward();
+  const auto loss = backward_of_weighted_output(net, 4, 2, 21);
   check_parameter(net.enc0.weight, loss, 3);
   check_parameter(net.enc3.weight, loss, 3);
   check_parameter(net.norm2.weight, loss, 2);
@@ -59,26 +69,10 @@ TEST_CASE("estimator gradient: end to end in double against central differences"
 TEST_CASE("estimator gradient: the doubled-angle head end to end in double against central differences") {
   estimation_network<anisocap::testing::estimator_tiny_doubled_angle, double> net(8);
   REQUIRE(net.head2.c2.bias.size() == 4);
-  ad::tape t;
-  random_generator rng(22);
-  tensor<3, double> input(3, 64, 64);
-  for (std::size_t i = 0; i < input.size(); ++i) input.data()[i] = rng.uniform() * 2 - 1;
-  tensor<parameter_count, double> weights(1, 64, 64);
-  for (std::size_t i = 0; i < weights.size(); ++i) weights.data()[i] = rng.uniform() * 2 - 1;
   // Bring (c, s) away from (1, 0) so that the angle's gradient is not trivially small.
   net.head2.c2.bias.value[2] = 0.3;
   net.head2.c2.bias.value[3] = -0.4;
-  auto loss = [&] {
-    ad::tape u;
-    ad::tape::no_grad_guard guard(u);
-    auto y = net.forward(u, u.leaf(input), 3);
-    double s = 0;
-    for (std::size_t i = 0; i < y.value.size(); ++i) s += y.value.data()[i] * weights.data()[i];
-    return s;
-  };
-  auto y = net.forward(t, t.leaf(input), 3);
-  std::copy_n(weights.data(), weights.size(), y.grad.data());
-  t.backward();
+  const auto loss = backward_of_weighted_output(net, 3, 3, 22);
   check_parameter(net.head2.c2.bias, loss, 4);
   check_parameter(net.head2.c2.weight, loss, 8);
   check_parameter(net.head2.c1.weight, loss, 3);
