@@ -46,6 +46,8 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--prefetch", o.prefetch, "build the next step's samples on a second thread during each step (true or false)");
   add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
+  cmd->add_option("--render-weight", o.render_weight,
+                  "weight of the render loss against the L1 term in the training loss (validation always uses 1)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
     cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");

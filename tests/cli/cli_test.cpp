@@ -420,6 +420,7 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"train-estimator --out out --steps -1", "--steps"},
       {"train-autoencoder --out out --batch 0", "--batch"},
       {"train-estimator --out out --lr nan", "--lr"},
+      {"train-autoencoder --out out --render-weight -0.5", "--render-weight"},
   };
   for (const auto& c : cases) {
     CAPTURE(c.args);

@@ -121,6 +121,20 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   CHECK(l.l1 > 0.01);
   CHECK(l.render > 0.01);
   CHECK(l.total == doctest::Approx(l.l1 + l.render));
+  // The render loss's weight scales its value in the total and its part of the gradient, nothing else.
+  tensor<parameter_count> grad0(1, 32, 32), grad3(1, 32, 32);
+  const auto l0 = training::map_losses(off, s, &grad0, 0.0);
+  const auto l3 = training::map_losses(off, s, &grad3, 3.0);
+  CHECK(l0.total == doctest::Approx(l.l1));
+  CHECK(l3.total == doctest::Approx(l.l1 + 3 * l.render));
+  CHECK(l0.render == doctest::Approx(l.render));
+  double render_part = 0;  // |grad(1) - grad(0)|: the render loss's own gradient
+  for (std::size_t i = 0; i < grad.size(); ++i) {
+    const double r = double(grad.data()[i]) - grad0.data()[i];
+    render_part += std::abs(r);
+    CHECK(grad3.data()[i] == doctest::Approx(grad0.data()[i] + 3 * r).epsilon(1e-4).scale(1e-6));
+  }
+  CHECK(render_part > 0);
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
@@ -244,7 +258,7 @@ bool any_line_contains(const std::vector<std::string>& lines, const std::string&
 
 }  // namespace
 
-TEST_CASE("training: a resume with another network, preset, seed, size or batch is refused, naming checkpoint.json and the saved value") {
+TEST_CASE("training: a resume with another network, preset, seed, size, batch or render weight is refused, naming checkpoint.json and the saved value") {
   const fs::path dir = fresh_folder("networks_resume_settings");
   {
     auto_encoder<testing::autoencoder_tiny> net(3);
@@ -272,6 +286,9 @@ TEST_CASE("training: a resume with another network, preset, seed, size or batch 
   o = resume();
   o.size = 64;
   refused([&] { training::train_autoencoder(o, net); }, "trained with size 32, not 64; resume it with --size 32");
+  o = resume();
+  o.render_weight = 0.25;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with render_weight 1, not 0.25; resume it with --render-weight 1");
   auto_encoder<autoencoder_tiny_renamed> renamed(3);
   o = resume();
   refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");
@@ -346,13 +363,18 @@ TEST_CASE("training: a resume keeps the saved learning rate, or logs, records an
 }
 
 TEST_CASE("training: checkpoints as earlier versions wrote them resume with their own settings") {
-  // The seed written as 4.0, the rate as 3e-04, and (older still) no "materials": the original mix.
+  // The seed written as 4.0, the rate as 3e-04, and (older still) no "materials" (the original mix)
+  // and no "render_weight" (1).
   const json saved = parse_json(R"({"network": "estimator", "preset": "compact", "seed": 4.0, "size": 128, "batch": 2,
                                     "learning_rate": 3e-04, "step": 11952, "optimizer_steps": 11952, "file": "c.safetensors"})",
                                 "checkpoint.json");
   json given = {{"network", "estimator"}, {"preset", "compact"}, {"seed", 4.0}, {"size", 128}, {"batch", 2},
-                {"learning_rate", 3e-4}, {"materials", "original"}};
+                {"learning_rate", 3e-4}, {"materials", "original"}, {"render_weight", 1.0}};
   CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
+  given["render_weight"] = 0.1;
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
+                       doctest::Contains("resume it with --render-weight 1"), std::runtime_error);
+  given["render_weight"] = 1.0;
   given["materials"] = "training";
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
                        doctest::Contains("resume it with --materials original"), std::runtime_error);

@@ -132,12 +132,13 @@ inline double lobe_l1(const float* p, const float* q, float* g, float step) {
   return cost[f];
 }
 
-/// L1 in network space plus the render loss, equal weights (docs/method.md section 5), of network
-/// outputs u (one entry per sample); when grad is given, adds d(loss)/du (the loss is the batch
-/// mean). The L1 of the lobe widths and the rotation is lobe_l1's, which respects the lobe's
-/// symmetries; the other channels take |u - u_true|.
+/// L1 in network space plus `render_weight` times the render loss (docs/method.md section 5: equal
+/// weights, render_weight 1), of network outputs u (one entry per sample); when grad is given, adds
+/// d(loss)/du (the loss is the batch mean). The L1 of the lobe widths and the rotation is
+/// lobe_l1's, which respects the lobe's symmetries; the other channels take |u - u_true|.
+/// terms.render is the unweighted render loss.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
-                             tensor<parameter_count>* grad) {
+                             tensor<parameter_count>* grad, double render_weight = 1.0) {
   loss_terms terms;
   const int B = u.batch();
   if (B != int(samples.size())) throw std::invalid_argument("map_losses: batch and sample count differ");
@@ -165,9 +166,9 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     if (grad) grad_maps = material_maps(maps.width(), maps.height());
     const double r = loss_and_gradient(maps, s.loss_configurations, s.targets, grad ? &grad_maps : nullptr);
     terms.render += r / B;
-    if (grad) network_space::add_network_gradient(u, b, grad_maps, 1.0 / B, *grad);
+    if (grad) network_space::add_network_gradient(u, b, grad_maps, render_weight / B, *grad);
   }
-  terms.total = terms.l1 + terms.render;
+  terms.total = terms.l1 + render_weight * terms.render;
   return terms;
 }
 
@@ -186,6 +187,9 @@ struct train_options {
   bool resume = false;                ///< continue from out_dir/checkpoint.json
   std::filesystem::path init_weights; ///< non-empty: a fresh run starts from these weights (nn::load_matching_weights: tensors the file lacks in this shape stay as initialised, and are logged)
   double smoothness_weight = 0.1;     ///< auto-encoder: weight of the latent smoothness term
+  /// Weight of the render loss against the L1 term in the training loss (map_losses); validation
+  /// losses always use 1, so runs with different weights compare row for row.
+  double render_weight = 1.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
@@ -203,6 +207,8 @@ struct train_options {
       throw std::invalid_argument("--checkpoint-minutes, --validate-every and --validation-count must be positive");
     if (!(smoothness_weight >= 0) || !std::isfinite(smoothness_weight) || !(latent_noise >= 0) || !std::isfinite(latent_noise))
       throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
+    if (!(render_weight >= 0) || !std::isfinite(render_weight))
+      throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
   }
 
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
@@ -396,18 +402,20 @@ inline std::string setting_text(const json& value) {
 
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
-/// (`saved`) in the network, preset, seed, size, batch or materials: such a run would silently
-/// continue as another one. Entries a checkpoint lacks (older ones have no "materials": the
-/// original mix) are not compared.
+/// (`saved`) in the network, preset, seed, size, batch, materials or render-loss weight: such a run
+/// would silently continue as another one. Older checkpoints lack "materials" (the original mix)
+/// and "render_weight" (1); other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
                              setting_text(given.at("network")) + "; resume it with train-" + setting_text(saved.at("network")));
   static const std::pair<const char*, const char*> options[] = {
-      {"preset", "--preset"}, {"seed", "--seed"}, {"size", "--size"}, {"batch", "--batch"}, {"materials", "--materials"}};
+      {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
+      {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"}};
   for (const auto& [key, option] : options) {
     json value = saved.contains(key) ? saved.at(key) : json();
     if (value.is_null() && std::string_view(key) == "materials") value = "original";
+    if (value.is_null() && std::string_view(key) == "render_weight") value = 1.0;
     if (value.is_null()) continue;
     if (value.is_number() != given.at(key).is_number() || (!value.is_number() && !value.is_string()))
       throw std::runtime_error(file.string() + ": malformed \"" + key + "\"");
@@ -441,6 +449,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["batch"] = o.batch;
   info["learning_rate"] = opt.learning_rate();
   info["materials"] = material_mix_name(o.mix);
+  info["render_weight"] = o.render_weight;
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
     const auto description = o.out_dir / "checkpoint.json";
@@ -539,11 +548,12 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 }  // namespace detail
 
 /// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
-/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 + render loss) and
-/// its gradient, backward, one Adam step. `t` is cleared first (reuse it across steps to keep its
+/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 + render_weight x
+/// render loss) and its gradient, backward, one Adam step. `t` is cleared first (reuse it across steps to keep its
 /// memory). Returns the batch's loss terms before the step.
 template <class Preset>
-loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples) {
+loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
+                          double render_weight = 1.0) {
   const int B = int(samples.size()), N = int(samples[0].photos.size());
   const int H = samples[0].truth.height(), W = samples[0].truth.width();
   t.clear();
@@ -551,14 +561,15 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
   for (int b = 0; b < B; ++b)
     for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
   auto y = net.forward(t, x, N);
-  const loss_terms l = map_losses(y.value, samples, &y.grad);
+  const loss_terms l = map_losses(y.value, samples, &y.grad, render_weight);
   t.backward();
   opt.step();
   return l;
 }
 
 /// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
-/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses, and with
+/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses (render loss weighted
+/// by o.render_weight), and with
 /// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
 /// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
 /// step. `t` is cleared first. Returns the batch's loss terms before the step.
@@ -573,7 +584,7 @@ loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& op
   net.set_training(true);
   auto z = net.encode(t, x);
   auto y = net.decode(t, z);
-  loss_terms l = map_losses(y.value, samples, &y.grad);
+  loss_terms l = map_losses(y.value, samples, &y.grad, o.render_weight);
   if (o.smoothness_weight > 0) {
     auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
     nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
@@ -605,7 +616,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples).total; };
+  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight).total; };
   auto validate_fn = [&] {
     return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
   };
