@@ -27,6 +27,10 @@ FIRST_STEP the step a resumed run started at (its CSV counts steps from the orig
         autoencoder:$H/autoencoder_run7_resumed.csv:4:213136:8.59:2.93:26815 \
         autoencoder:$H/autoencoder_run8_resumed.csv:4:429860:11.52:1.94:80996
 
+With --compare, each KIND is one run of an experiment and is drawn as one line in every
+parameter's panel against materials seen, so runs from the same start can be read side by side
+(models/rotation_experiments.png; its command is in models/README.md, "The rotation").
+
 Runs 3 and 4 validate on materials drawn from the training mix (the same seeds, other families),
 so their rows are not comparable one for one with runs 1 and 2: the step at 23 000 (estimator) and
 84 000 (auto-encoder) materials is that change.
@@ -65,7 +69,7 @@ def read_run(spec):
         step = float(r["step"]) - first_step
         points.append({"samples": samples_before + step * batch,
                        "hours": hours_before + hours * step / last_step,
-                       **{p: float(r[p]) for p in PARAMETERS + ["val_loss"]},
+                       **{p: float(r[p]) for p in PARAMETERS + ["val_loss", "val_l1", "val_render"] if p in r},
                        **{p: float(r[p]) for p, _ in OPTIONAL if r.get(p) not in (None, "", "nan")}})
     return kind, points
 
@@ -74,6 +78,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="KIND:CSV:BATCH:SAMPLES_BEFORE:HOURS_BEFORE:HOURS_OF_RUN")
     ap.add_argument("-o", "--output", required=True, help="PNG to write")
+    ap.add_argument("--compare", action="store_true",
+                    help="one panel per parameter, one line per KIND (runs of one experiment)")
     args = ap.parse_args()
     import matplotlib
     matplotlib.use("Agg")
@@ -83,6 +89,9 @@ def main():
     for spec in args.runs:
         kind, points = read_run(spec)
         curves.setdefault(kind, []).extend(points)
+    if args.compare:
+        compare(curves, args.output, plt)
+        return
     kinds = sorted(curves)
     fig, axes = plt.subplots(len(kinds), 2, figsize=(12, 4.2 * len(kinds)), squeeze=False)
     for row, kind in enumerate(kinds):
@@ -104,6 +113,28 @@ def main():
     fig.tight_layout()
     fig.savefig(args.output, dpi=90)
     print(f"wrote {args.output}")
+
+
+def compare(curves, output, plt):
+    """One panel per parameter (and the validation L1 and render loss), one line per run."""
+    panels = list(zip(PARAMETERS, LABELS)) + OPTIONAL + [("val_l1", "validation L1 (network space)"),
+                                                         ("val_render", "validation render loss")]
+    fig, axes = plt.subplots(2, (len(panels) + 1) // 2, figsize=(4.2 * ((len(panels) + 1) // 2), 7.5), squeeze=False)
+    for ax, (p, label) in zip(axes.flat, panels):
+        for kind, points in sorted(curves.items()):
+            have = sorted((q for q in points if p in q), key=lambda q: q["samples"])
+            ax.plot([q["samples"] for q in have], [q[p] for q in have], label=kind, lw=1.1)
+        ax.set_title(label, fontsize=10)
+        ax.set_xlabel("materials seen", fontsize=8)
+        ax.grid(True, alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("validation MSE (original ranges) on the 8 training-time validation materials", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(output, dpi=90)
+    print(f"wrote {output}")
 
 
 if __name__ == "__main__":

@@ -243,11 +243,22 @@ struct model_choice {
 };
 
 /// The "preset" entry of a weight file's metadata (save_network writes it), "" when it has none.
-/// A compact folder's estimator may be of the compact-doubled-angle variant (the same widths).
+/// A compact folder's estimator may be of a compact variant (with_compact_estimator_preset).
 inline std::string weights_preset(const fs::path& file) {
   for (const auto& [key, value] : nn::read_safetensors(file).metadata)
     if (key == "preset") return value;
   return "";
+}
+
+/// Calls f.template operator()<P>() with the estimator preset P that a compact folder's estimator
+/// file names in its metadata: compact, or one of its experimental variants (compact-doubled-angle,
+/// compact-orientation), which share the compact auto-encoder.
+template <class F>
+decltype(auto) with_compact_estimator_preset(const fs::path& file, F&& f) {
+  const std::string preset = weights_preset(file);
+  if (preset == estimator_compact_doubled_angle::name) return f.template operator()<estimator_compact_doubled_angle>();
+  if (preset == estimator_compact_orientation::name) return f.template operator()<estimator_compact_orientation>();
+  return f.template operator()<estimator_compact>();
 }
 
 inline void add_model_options(CLI::App* c, model_choice& m) {
@@ -313,9 +324,8 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     return capture_material(cap, photos, estimator, autoencoder, o, start, masks);
   };
   if (models.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
-  if (weights_preset(models.estimator()) == estimator_compact_doubled_angle::name)
-    return run.template operator()<estimator_compact_doubled_angle, autoencoder_compact>();
-  return run.template operator()<estimator_compact, autoencoder_compact>();
+  return with_compact_estimator_preset(models.estimator(),
+                                      [&]<class P>() { return run.template operator()<P, autoencoder_compact>(); });
 }
 
 }  // namespace anisocap::commands

@@ -29,9 +29,10 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
     cmd->add_option("--preset", s.preset, "network widths: compact or paper")->check(CLI::IsMember({"compact", "paper"}));
   else
     cmd->add_option("--preset", s.preset,
-                    "network widths: compact, paper, or compact-doubled-angle (compact, the rotation read from a doubled-angle "
-                    "vector; experimental)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle"}));
+                    "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
+                    "read from a doubled-angle vector) and compact-orientation (each photo's structure-tensor orientation as 3 "
+                    "more input channels)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation"}));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
@@ -55,24 +56,22 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   }
 }
 
-/// Runs `train(options, net)` on a network of the chosen preset (Paper, Compact or Variant ("compact-
-/// doubled-angle", the estimator only), built from the run seed) while holding the output folder's
-/// lock; a run refused before writing anything leaves no folder behind.
-template <class Paper, class Compact, class Variant = Compact, class Train>
+/// Runs `train(options, net)` on a network of the chosen preset (Paper, Compact or one of the
+/// Variants, estimator presets named by their preset's name), built from the run seed, while
+/// holding the output folder's lock; a run refused before writing anything leaves no folder behind.
+template <class Paper, class Compact, class... Variants, class Train>
 void train_in_locked_folder(const train_settings& s, Train train) {
   const training::train_options& o = s.options;
   output_lock lock(o.out_dir);  // one run per output folder
   try {
-    if (s.preset == "paper") {
-      auto net = std::make_unique<Paper>(o.seed);
+    auto run = [&]<class Net>() {
+      auto net = std::make_unique<Net>(o.seed);
       train(o, *net);
-    } else if (s.preset == "compact-doubled-angle") {
-      auto net = std::make_unique<Variant>(o.seed);
-      train(o, *net);
-    } else {
-      auto net = std::make_unique<Compact>(o.seed);
-      train(o, *net);
-    }
+    };
+    if (s.preset == "paper")
+      run.template operator()<Paper>();
+    else if (!((s.preset == Variants::preset::name ? (run.template operator()<Variants>(), true) : false) || ...))
+      run.template operator()<Compact>();
   } catch (...) {
     lock.release_empty();
     throw;
@@ -164,12 +163,9 @@ void evaluate_networks_with(const network_eval_settings& s) {
 }
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
-/// materials; the estimator's preset (compact or compact-doubled-angle) is read from its file.
+/// materials; the estimator's preset (compact or a compact variant) is read from its file.
 inline void evaluate_networks(const network_eval_settings& s) {
-  if (weights_preset(s.estimator) == estimator_compact_doubled_angle::name)
-    evaluate_networks_with<estimator_compact_doubled_angle>(s);
-  else
-    evaluate_networks_with<estimator_compact>(s);
+  with_compact_estimator_preset(s.estimator, [&]<class P>() { evaluate_networks_with<P>(s); });
 }
 
 }  // namespace train_detail
@@ -182,7 +178,7 @@ inline void add_train_commands(CLI::App& app) {
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
     train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>,
-                           estimation_network<estimator_compact_doubled_angle>>(
+                           estimation_network<estimator_compact_doubled_angle>, estimation_network<estimator_compact_orientation>>(
         *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();

@@ -722,26 +722,33 @@ TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph
   CHECK_FALSE(fs::exists(t.path / "bad"));
 }
 
-TEST_CASE("compact-doubled-angle: train-estimator --init from the shipped estimator, then capture and eval-networks read the variant from its file") {
+TEST_CASE("compact variants: train-estimator --init from the shipped estimator, then capture and eval-networks read the variant from its file") {
   temp_dir t;
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
-  auto r = run("train-estimator --preset compact-doubled-angle --out da --steps 1 --size 64 --batch 1 --validate-every 1000 "
-               "--validation-count 1 --init " + (models / "estimator.safetensors").string(), t.path);
-  INFO(r.output);
-  REQUIRE(r.status == 0);
-  CHECK(r.output.find("initialised afresh: track2.reduce2.weight, track2.reduce2.bias") != std::string::npos);
-  // The variant's file in a compact models folder: capture builds the doubled-angle estimator for it.
-  fs::create_directories(t.path / "da_models/compact");
-  fs::copy_file(t.path / "da/estimator.safetensors", t.path / "da_models/compact/estimator.safetensors");
-  fs::copy_file(models / "autoencoder.safetensors", t.path / "da_models/compact/autoencoder.safetensors");
   REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 4 --seed 3", t.path).status == 0);
-  r = run("capture syn/capture.json -o out --stages all --models da_models --finetune-steps 1 --steps 1", t.path);
-  INFO(r.output);
-  CHECK(r.status == 0);
-  CHECK(fs::exists(t.path / "out"));
-  // eval-networks too (its auto-encoder: the shipped one, found from any folder).
-  r = run("eval-networks --count 1 --size 64 --estimator da/estimator.safetensors", t.path);
-  INFO(r.output);
-  CHECK(r.status == 0);
-  CHECK(r.output.find("mean-map baseline") != std::string::npos);
+  struct variant { std::string preset, fresh; };
+  for (const variant& v : {variant{"compact-doubled-angle", "initialised afresh: track2.reduce2.weight, track2.reduce2.bias"},
+                           variant{"compact-orientation", "initialised afresh: enc0.weight)"}}) {
+    CAPTURE(v.preset);
+    const std::string out = "run_" + v.preset, folder = "models_" + v.preset;
+    auto r = run("train-estimator --preset " + v.preset + " --out " + out + " --steps 1 --size 64 --batch 1 --validate-every 1000 "
+                 "--validation-count 1 --init " + (models / "estimator.safetensors").string(), t.path);
+    INFO(r.output);
+    REQUIRE(r.status == 0);
+    CHECK(r.output.find(v.fresh) != std::string::npos);
+    // The variant's file in a compact models folder: capture builds that variant for it (the
+    // plain compact estimator would refuse the file's shapes).
+    fs::create_directories(t.path / folder / "compact");
+    fs::copy_file(t.path / out / "estimator.safetensors", t.path / folder / "compact/estimator.safetensors");
+    fs::copy_file(models / "autoencoder.safetensors", t.path / folder / "compact/autoencoder.safetensors");
+    r = run("capture syn/capture.json -o out_" + v.preset + " --stages all --models " + folder + " --finetune-steps 1 --steps 1", t.path);
+    INFO(r.output);
+    CHECK(r.status == 0);
+    CHECK(fs::exists(t.path / ("out_" + v.preset)));
+    // eval-networks too (its auto-encoder: the shipped one, found from any folder).
+    r = run("eval-networks --count 1 --size 64 --estimator " + out + "/estimator.safetensors", t.path);
+    INFO(r.output);
+    CHECK(r.status == 0);
+    CHECK(r.output.find("mean-map baseline") != std::string::npos);
+  }
 }

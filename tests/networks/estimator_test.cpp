@@ -124,3 +124,37 @@ TEST_CASE("estimator, doubled-angle preset: maps in range, alpha starts at 0, st
   CHECK_THROWS_WITH_AS(nn::load_matching_weights(file, net), doctest::Contains("no tensor matches"), std::runtime_error);
   std::filesystem::remove(file);
 }
+
+TEST_CASE("estimator, orientation preset: 6 input channels, maps of any size in range, starts from a 3-channel file but for its first layer") {
+  using Oriented = estimation_network<testing::estimator_tiny_orientation>;
+  static_assert(Oriented::inputs == 6 && Net::inputs == 3);
+  Oriented net(3);
+  for (auto [w, h] : {std::pair{37, 21}, std::pair{70, 129}, std::pair{20, 20}}) {  // 20 -> 64: the repeated-mirror path
+    const material_maps m = net.estimate(random_photos(3, w, h, 40));
+    CHECK(m.width() == w);
+    CHECK(m.height() == h);
+    CHECK(in_range(m));
+  }
+  // The orientation channels reach the network: the same photo with channels 3-5 zeroed gives other maps.
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  auto x = t.make_variable<6>(1, 64, 64, false);
+  network_space::photo_to_network(random_photos(1, 64, 64, 41)[0], x.value, 0);
+  const auto y = net.forward(t, x, 1).value;
+  for (int py = 0; py < 64; ++py)
+    for (int px = 0; px < 64; ++px)
+      for (int c = 3; c < 6; ++c) x.value.pixel(0, py, px)[c] = 0;
+  const auto z = net.forward(t, x, 1).value;
+  double diff = 0;
+  for (std::size_t i = 0; i < y.size(); ++i) diff += std::abs(y.data()[i] - z.data()[i]);
+  CHECK(diff > 0);
+  // A file of the 3-channel preset loads into every tensor but the first layer's weights.
+  const auto file = std::filesystem::temp_directory_path() / "anisocap_estimator_orientation_init.safetensors";
+  Net plain(8);
+  nn::save_weights(file, plain);
+  const std::vector<std::string> fresh = nn::load_matching_weights(file, net);
+  CHECK(fresh == std::vector<std::string>{"enc0.weight"});
+  CHECK(net.enc0.bias.value[0] == plain.enc0.bias.value[0]);
+  std::filesystem::remove(file);
+}
+

@@ -87,3 +87,35 @@ TEST_CASE("network space: the chain rule matches finite differences, inside and 
     CHECK(double(grad.data()[i]) == doctest::Approx(numeric).epsilon(2e-2).scale(1.0));
   }
 }
+
+TEST_CASE("network space: the orientation channels give the direction of the strongest change, doubled") {
+  // Stripes whose brightness changes along the angle phi: (c3, c4) = (cos 2 phi, sin 2 phi) away
+  // from the border, near 1 in length (one direction only); a flat image: (0, 0) and contrast -1.
+  for (double phi : {0.0, 0.3, std::numbers::pi / 4, 1.2, std::numbers::pi / 2, -0.7}) {
+    CAPTURE(phi);
+    image im(48, 40, 3);
+    for (int y = 0; y < 40; ++y)
+      for (int x = 0; x < 48; ++x)
+        for (int c = 0; c < 3; ++c) im.at(c, x, y) = float(0.5 + 0.3 * std::sin(0.35 * (x * std::cos(phi) + y * std::sin(phi))));
+    tensor<6> out(2, 40, 48);
+    ns::photo_to_network(im, out, 1);
+    for (auto [x, y] : {std::pair{24, 20}, std::pair{10, 30}}) {
+      const float* p = out.pixel(1, y, x);
+      CHECK(p[0] == doctest::Approx(ns::input_value(im.at(0, x, y))).epsilon(1e-5));
+      CHECK(std::abs(p[3] - std::cos(2 * phi)) < 0.03);
+      CHECK(std::abs(p[4] - std::sin(2 * phi)) < 0.03);
+      CHECK(p[5] > -0.5);
+    }
+    for (std::size_t i = 0; i < std::size_t(40 * 48 * 6); ++i) CHECK(out.data()[i] == 0.0f);  // entry 0 untouched
+  }
+  image flat(16, 16, 3);
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < 16; ++y)
+      for (int x = 0; x < 16; ++x) flat.at(c, x, y) = 0.25f;
+  tensor<6> out(1, 16, 16);
+  ns::photo_to_network(flat, out, 0);
+  CHECK(out.pixel(0, 8, 8)[3] == 0.0f);
+  CHECK(out.pixel(0, 8, 8)[4] == 0.0f);
+  CHECK(out.pixel(0, 8, 8)[5] == doctest::Approx(-1.0));
+}
+

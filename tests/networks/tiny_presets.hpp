@@ -18,6 +18,12 @@ struct estimator_tiny_doubled_angle : estimator_tiny {
   static constexpr const char* name = "tiny-doubled-angle";
 };
 
+/// The tiny estimator with the orientation input channels (like compact-orientation).
+struct estimator_tiny_orientation : estimator_tiny {
+  static constexpr int input_channels = 6;
+  static constexpr const char* name = "tiny-orientation";
+};
+
 /// An auto-encoder with 4 to 8 channels.
 struct autoencoder_tiny {
   static constexpr std::array<int, 5> encoder{4, 4, 8, 8, 8};

@@ -35,6 +35,24 @@ struct estimator_compact_doubled_angle : estimator_compact {
   static constexpr const char* name = "compact-doubled-angle";        ///< preset name in files
 };
 
+/// The compact widths with three more input channels per photograph: the image's local
+/// orientation and contrast from its structure tensor (network_space::orientation_channels), so the
+/// rotation's evidence reaches the network without having to be learnt from pixels. Only the first
+/// encoder layer's weights differ from `estimator_compact`'s (experimental; models/README.md).
+struct estimator_compact_orientation : estimator_compact {
+  static constexpr int input_channels = 6;                         ///< RGB and 3 orientation channels
+  static constexpr const char* name = "compact-orientation";       ///< preset name in files
+};
+
+/// Input channels per photograph of a preset (presets without the member: 3, RGB).
+template <class P>
+consteval int input_channels() {
+  if constexpr (requires { P::input_channels; })
+    return P::input_channels;
+  else
+    return 3;
+}
+
 /// Whether a preset reads the rotation from a doubled-angle vector (presets without the member: no).
 template <class P>
 consteval bool has_doubled_angle() {
@@ -159,7 +177,9 @@ class estimation_network {
   /// Side lengths forward() accepts are multiples of this.
   static constexpr int size_multiple = 64;
 
-  nn::conv2d<3, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
+  /// Channels per input photograph (3, or 6 with the orientation channels).
+  static constexpr int inputs = input_channels<Preset>();
+  nn::conv2d<inputs, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
   nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;  ///< encoder layer 1 (4x4, stride 2)
   nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;  ///< encoder layer 2 (4x4, stride 2)
   nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;  ///< encoder layer 3 (4x4, stride 2)
@@ -198,7 +218,7 @@ class estimation_network {
         bias3("global_bias3", seed), bias4("global_bias4", seed), bias5("global_bias5", seed),
         track1("track1.", seed), track2("track2.", seed), head1("track1.", seed), head2("track2.", seed) {
     using network_detail::init_conv;
-    init_conv(enc0, 16 * 3, seed);
+    init_conv(enc0, 16 * inputs, seed);
     init_conv(enc1, 16 * E[0], seed);
     init_conv(enc2, 16 * E[1], seed);
     init_conv(enc3, 16 * E[2], seed);
@@ -211,9 +231,9 @@ class estimation_network {
   }
 
   /// Network-space maps (sets x H x W x 12) from the images x (sets * images_per_set entries,
-  /// H x W x 3 in eq. 7 space, H and W multiples of 64; the images of set s are entries
-  /// s * images_per_set ... s * images_per_set + images_per_set - 1).
-  ad::variable<parameter_count, T> forward(ad::tape& t, const ad::variable<3, T>& x, int images_per_set) {
+  /// H x W x `inputs` as network_space::photo_to_network writes them, H and W multiples of 64; the
+  /// images of set s are entries s * images_per_set ... s * images_per_set + images_per_set - 1).
+  ad::variable<parameter_count, T> forward(ad::tape& t, const ad::variable<inputs, T>& x, int images_per_set) {
     if (x.value.height() % size_multiple != 0 || x.value.width() % size_multiple != 0 || x.value.height() == 0 ||
         x.value.width() == 0)
       throw std::invalid_argument("estimation_network::forward: image size " + std::to_string(x.value.height()) + "x" +
@@ -252,7 +272,7 @@ class estimation_network {
     const int Hp = padded_size(H), Wp = padded_size(W);
     ad::tape t;
     ad::tape::no_grad_guard guard(t);
-    auto x = t.make_variable<3, T>(int(photos.size()), Hp, Wp, false);
+    auto x = t.make_variable<inputs, T>(int(photos.size()), Hp, Wp, false);
     for (std::size_t i = 0; i < photos.size(); ++i) padded_photo(photos[i], x.value, int(i));
     auto y = forward(t, x, int(photos.size()));
     auto c = network_detail::crop(t, y, H, W);
@@ -272,7 +292,7 @@ class estimation_network {
 
  private:
   /// photo_to_network, mirroring repeatedly when the padded size is more than twice the image's.
-  static void padded_photo(const image& photo, tensor<3, T>& out, int b) {
+  static void padded_photo(const image& photo, tensor<inputs, T>& out, int b) {
     if (out.width() <= 2 * photo.width() && out.height() <= 2 * photo.height()) {
       network_space::photo_to_network(photo, out, b);
       return;
@@ -286,6 +306,7 @@ class estimation_network {
       for (int x = 0; x < out.width(); ++x)
         for (int c = 0; c < 3; ++c)
           out.pixel(b, y, x)[c] = T(network_space::input_value(photo.at(c, fold(x, photo.width()), fold(y, photo.height()))));
+    if constexpr (inputs == 6) network_space::orientation_channels(out, b);
   }
   template <class Track>
   static void init_track(Track& tr, std::uint64_t seed) {

@@ -15,6 +15,7 @@
 ///   follows the scaling.
 /// - alpha: u = alpha / (pi / 2); the encoder wraps alpha into [-pi/2, pi/2] first (alpha is
 ///   pi-periodic, docs/method.md section 1).
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
@@ -137,11 +138,75 @@ inline double input_value(double radiance) {
   return 2 * (std::log(std::max(radiance, 0.0) + 0.01) - l0) / range - 1;
 }
 
-/// Writes photograph `photo` (3-channel planar) in eq. 7 space into entry b of `out`, whose size
-/// may exceed the photograph's: the extra rows and columns mirror the image (reflection without
-/// repeating the edge), so a network that needs sizes in multiples of 64 sees no hard border.
-template <class T>
-void photo_to_network(const image& photo, tensor<3, T>& out, int b) {
+/// Input channels 3, 4 and 5 of entry b of `out` (an estimator preset with 6 input channels,
+/// `estimator_compact_orientation`), computed from its channels 0-2 (eq. 7 space, as written by
+/// photo_to_network): the local orientation of the image as the structure tensor J of the
+/// channels' mean v, J = sum over a 7 x 7 window of (v_x^2, v_x v_y, v_y^2) with central
+/// differences (edges clamped):
+///
+///     c3 = (J_xx - J_yy) / (J_xx + J_yy + 1e-6),   c4 = 2 J_xy / (J_xx + J_yy + 1e-6)
+///     c5 = 2 (log(J_xx + J_yy + 1e-4) - log 1e-4) / (-log 1e-4) - 1
+///
+/// (c3, c4) is the direction of twice the angle of the strongest change, scaled by how much
+/// stronger it is than the change across it (0 where the image has no orientation); c5 the
+/// window's contrast, -1 where it is flat. Streaks such as a brushed metal's make them the
+/// brushing direction, which convolutions learnt from the photographs alone did not pick up
+/// (studies/README.md, "Can the estimator learn the rotation?").
+template <int C, class T>
+void orientation_channels(tensor<C, T>& out, int b) {
+  static_assert(C == 6, "orientation_channels: the tensor needs 3 photo channels and 3 orientation channels");
+  const int H = out.height(), W = out.width();
+  const std::size_t n = std::size_t(H) * W;
+  std::vector<double> v(n), j[3];
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const T* p = out.pixel(b, y, x);
+      v[std::size_t(y) * W + x] = (double(p[0]) + p[1] + p[2]) / 3;
+    }
+  for (auto& k : j) k.assign(n, 0.0);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      auto at = [&](int xx, int yy) { return v[std::size_t(std::clamp(yy, 0, H - 1)) * W + std::clamp(xx, 0, W - 1)]; };
+      const double gx = (at(x + 1, y) - at(x - 1, y)) / 2, gy = (at(x, y + 1) - at(x, y - 1)) / 2;
+      const std::size_t i = std::size_t(y) * W + x;
+      j[0][i] = gx * gx, j[1][i] = gx * gy, j[2][i] = gy * gy;
+    }
+  // Box sums over 7 x 7 windows, rows then columns, edges clamped.
+  constexpr int r = 3;
+  std::vector<double> row(n);
+  for (auto& k : j) {
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        double sum = 0;
+        for (int d = -r; d <= r; ++d) sum += k[std::size_t(y) * W + std::clamp(x + d, 0, W - 1)];
+        row[std::size_t(y) * W + x] = sum;
+      }
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        double sum = 0;
+        for (int d = -r; d <= r; ++d) sum += row[std::size_t(std::clamp(y + d, 0, H - 1)) * W + x];
+        k[std::size_t(y) * W + x] = sum;
+      }
+  }
+  static const double floor = 1e-4, log_floor = std::log(1e-4);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const std::size_t i = std::size_t(y) * W + x;
+      const double trace = j[0][i] + j[2][i];
+      T* p = out.pixel(b, y, x);
+      p[3] = T((j[0][i] - j[2][i]) / (trace + 1e-6));
+      p[4] = T(2 * j[1][i] / (trace + 1e-6));
+      p[5] = T(2 * (std::log(trace + floor) - log_floor) / -log_floor - 1);
+    }
+}
+
+/// Writes photograph `photo` (3-channel planar) in eq. 7 space into channels 0-2 of entry b of
+/// `out`, whose size may exceed the photograph's: the extra rows and columns mirror the image
+/// (reflection without repeating the edge), so a network that needs sizes in multiples of 64 sees
+/// no hard border. With 6 channels, channels 3-5 are its orientation_channels.
+template <int C, class T>
+void photo_to_network(const image& photo, tensor<C, T>& out, int b) {
+  static_assert(C == 3 || C == 6, "photo_to_network: 3 channels, or 6 with the orientation channels");
   const int W = photo.width(), H = photo.height();
   if (photo.channels() != 3) throw std::invalid_argument("photo_to_network: the image must have 3 channels");
   if (out.width() < W || out.height() < H || out.width() > 2 * W || out.height() > 2 * H)
@@ -153,6 +218,7 @@ void photo_to_network(const image& photo, tensor<3, T>& out, int b) {
       T* p = out.pixel(b, y, x);
       for (int c = 0; c < 3; ++c) p[c] = T(input_value(photo.at(c, sx, sy)));
     }
+  if constexpr (C == 6) orientation_channels(out, b);
 }
 
 }  // namespace anisocap::network_space

@@ -312,7 +312,7 @@ tensor<parameter_count> estimator_output(Net& net, const sample& s) {
   ad::tape t;
   ad::tape::no_grad_guard guard(t);
   const int H = s.truth.height(), W = s.truth.width();
-  auto x = t.make_variable<3>(int(s.photos.size()), H, W, false);
+  auto x = t.make_variable<Net::inputs>(int(s.photos.size()), H, W, false);
   for (std::size_t i = 0; i < s.photos.size(); ++i) network_space::photo_to_network(s.photos[i], x.value, int(i));
   auto y = net.forward(t, x, int(s.photos.size()));
   tensor<parameter_count> out(1, H, W);
@@ -557,7 +557,7 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
   const int B = int(samples.size()), N = int(samples[0].photos.size());
   const int H = samples[0].truth.height(), W = samples[0].truth.width();
   t.clear();
-  auto x = t.make_variable<3>(B * N, H, W, false);
+  auto x = t.make_variable<estimation_network<Preset>::inputs>(B * N, H, W, false);
   for (int b = 0; b < B; ++b)
     for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
   auto y = net.forward(t, x, N);
