@@ -15,20 +15,22 @@ namespace anisocap::nn {
 
 namespace detail {
 
-/// Dot product of n values on SIMD batches.
-template <class T>
-inline T dot(const T* a, const T* b, std::size_t n) {
+/// Dot product of N values on SIMD batches. N is a compile-time length (a layer's channel count),
+/// so the scalar tail exists only when N is not a whole number of registers.
+template <std::size_t N, class T>
+inline T dot(const T* a, const T* b) {
   using B = simd::batch<T>;
   constexpr std::size_t W = B::size;
+  constexpr std::size_t whole = N - N % W;
   B acc(T(0));
-  std::size_t i = 0;
-  for (; i + W <= n; i += W) acc = xsimd::fma(B::load_unaligned(a + i), B::load_unaligned(b + i), acc);
+  for (std::size_t i = 0; i < whole; i += W) acc = xsimd::fma(B::load_unaligned(a + i), B::load_unaligned(b + i), acc);
   // Lanes summed through memory (xsimd's AVX-512 hadd trips a GCC 12 false -Wmaybe-uninitialized).
   alignas(simd::alignment) T lanes[W];
   acc.store_aligned(lanes);
   T s = T(0);
   for (std::size_t l = 0; l < W; ++l) s += lanes[l];
-  for (; i < n; ++i) s += a[i] * b[i];
+  if constexpr (whole < N)
+    for (std::size_t i = whole; i < N; ++i) s += a[i] * b[i];
   return s;
 }
 
@@ -66,7 +68,7 @@ class linear {
       for (int i = 0; i < W; ++i) {
         const T* in = x.value.pixel(bi, r, i);
         T* out = y.value.pixel(bi, r, i);
-        for (int o = 0; o < Cout; ++o) out[o] = b[o] + detail::dot(w + std::size_t(o) * Cin, in, Cin);
+        for (int o = 0; o < Cout; ++o) out[o] = b[o] + detail::dot<std::size_t(Cin)>(w + std::size_t(o) * Cin, in);
       }
     });
     if (y.requires_grad) {
