@@ -161,7 +161,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   for (const auto& st : result.stages) {
     report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
                                 {"loss", st.loss}, {"seconds", st.seconds}, {"evaluated_fraction", st.evaluated_fraction},
-                                {"restarts", st.restarts}});
+                                {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction}});
     stage_seconds += st.seconds;
   }
   report["refine"] = {{"steps", o.refine.steps}, {"learning_rate", o.refine.learning_rate},

@@ -292,6 +292,10 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option("--steps", o.refine.steps, "refine steps (1000 when the networks do not run)")->check(finite_number(false));
   c->add_option("--lr", o.refine.learning_rate, "refine learning rate, Adam in unconstrained parameters (0.03 when the networks do not run)")->check(finite_number(true));
   c->add_option("--refine-stop", o.refine.min_relative_improvement, "stop refining when 50 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option("--second-start", o.second_start_lobe_width,
+                "refine also from the same maps with both lobe widths at least this, and keep per 64-texel group the fit with the "
+                "lower loss (0: one start; docs/method.md section 8.4)")
+      ->check(CLI::Range(0.0, 1.0));
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
        "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },

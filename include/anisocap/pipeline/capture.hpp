@@ -87,6 +87,9 @@ struct capture_options {
   estimate_options estimate{};
   finetune_options finetune{};
   refine_options refine = refine_options::after_networks();
+  /// When > 0, refine also from a second start with both lobe widths at least this, and keep per
+  /// texel group the fit with the lower loss (refine_two_starts). 0: one start.
+  float second_start_lobe_width = 0.0f;
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
   /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
@@ -118,6 +121,7 @@ struct stage_report {
   double seconds = 0;
   double evaluated_fraction = 1.0;  ///< refine: fraction of texel-steps evaluated (freezing)
   int restarts = 0;                 ///< fine-tune: times the divergence guard went back and halved the rate
+  double replaced_fraction = 0;     ///< refine with a second start: share of texel groups taken from it
 };
 
 /// The result: the map set and a report per stage.
@@ -242,6 +246,8 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
   if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_material: the estimate and encode stages need networks");
   if (start && o.stages.estimate) throw std::invalid_argument("capture_material: start maps replace the estimate stage");
   o.refine.validate();
+  if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
+    throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
   if (o.stages.finetune) o.finetune.validate();
   capture_result result;
   capture cap = given_cap;
@@ -322,8 +328,18 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
     refine_options ro = o.refine;
     ro.render = o.render;
     if (!ro.progress) ro.progress = reporter("refine");
-    const refine_result rr = with_features(result.features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
-    result.stages.push_back({"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction});
+    if (o.second_start_lobe_width > 0) {
+      const two_start_result tr = with_features(result.features, [&]<brdf_features F>() {
+        return refine_two_starts<F>(maps, cap, targets, o.second_start_lobe_width, ro);
+      });
+      stage_report r{"refine", true, false, tr.first.steps + tr.second.steps, tr.final_loss, tr.seconds,
+                     0.5 * (tr.first.evaluated_fraction + tr.second.evaluated_fraction)};
+      r.replaced_fraction = tr.replaced_fraction;
+      result.stages.push_back(r);
+    } else {
+      const refine_result rr = with_features(result.features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
+      result.stages.push_back({"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction});
+    }
   }
   result.loss = image_loss(maps, all_features);
   result.maps = std::move(maps);

@@ -9,6 +9,7 @@
 ///   lobe widths:   sigma = exp(log(s0) * (1 - sigmoid(u)))          in (s0, 1), s0 = min_lobe_width (log-space)
 ///   normal x, y:   (nx, ny) = (ux, uy) / sqrt(1 + ux^2 + uy^2)       open unit disc, n_z > 0
 ///   rotation:      alpha = u, wrapped into [-pi/2, pi/2) on output  (alpha is pi-periodic)
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -212,6 +213,69 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   detail::maps_from_unconstrained(u, maps, jac);
   restrict_to_features(maps, F);
   if (result.steps > 0) result.evaluated_fraction = double(evaluated_groups) / (double(group_count) * result.steps);
+  result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
+  result.seconds = seconds_since(start);
+  return result;
+}
+
+/// `maps` with both lobe widths raised to at least `width` (every other plane unchanged): refine's
+/// wide-lobe second start (refine_two_starts). A narrow lobe whose highlight falls where no
+/// photograph looks gets no gradient towards it; a wide one sees it.
+inline material_maps with_lobes_at_least(const material_maps& maps, float width) {
+  if (!(width > 0 && width <= 1)) throw std::invalid_argument("with_lobes_at_least: the lobe width must be in (0, 1]");
+  material_maps wide = maps;
+  for (int k : {lobe_x, lobe_y})
+    for (std::size_t i = 0; i < wide.texel_count(); ++i) wide.plane(k)[i] = std::max(wide.plane(k)[i], width);
+  return wide;
+}
+
+/// Replaces `kept`'s texels by `candidate`'s in every texel group (texel_groups, 64 texels in
+/// row-major order) where the candidate's image loss is lower. The loss is a sum of independent
+/// per-texel terms, so the result's loss is exactly the sum of the two sets' per-group minima: never
+/// above either set's. Returns the number of groups replaced. Both sets must have the same size.
+template <brdf_features F = all_features>
+std::size_t keep_lower_loss_groups(material_maps& kept, const material_maps& candidate, const capture& cap, const loss_targets& targets,
+                                   const tile_placement& placement = {}, const render_options& render = {}) {
+  if (kept.width() != candidate.width() || kept.height() != candidate.height())
+    throw std::invalid_argument("keep_lower_loss_groups: the two map sets differ in size");
+  const std::size_t groups = texel_groups::count(kept);
+  std::vector<double> kept_loss(groups), candidate_loss(groups);
+  const texel_groups kept_groups{nullptr, kept_loss.data()}, candidate_groups{nullptr, candidate_loss.data()};
+  loss_and_gradient<F>(kept, cap, targets, nullptr, placement, render, &kept_groups);
+  loss_and_gradient<F>(candidate, cap, targets, nullptr, placement, render, &candidate_groups);
+  std::size_t replaced = 0;
+  for (std::size_t g = 0; g < groups; ++g) {
+    if (!(candidate_loss[g] < kept_loss[g])) continue;
+    const std::size_t begin = g * texel_group_size, end = std::min(kept.texel_count(), begin + texel_group_size);
+    for (int k = 0; k < parameter_count; ++k) std::copy(candidate.plane(k) + begin, candidate.plane(k) + end, kept.plane(k) + begin);
+    ++replaced;
+  }
+  return replaced;
+}
+
+/// What `refine_two_starts` did.
+struct two_start_result {
+  refine_result first;             ///< refine from the given maps
+  refine_result second;            ///< refine from the same maps with wide lobes
+  double replaced_fraction = 0;    ///< share of texel groups taken from the second start
+  double final_loss = 0;           ///< loss of the returned maps (at most min(first, second))
+  double seconds = 0;
+};
+
+/// Refines `maps` from two starts, the maps as given and the same with both lobe widths at least
+/// `lobe_width` (with_lobes_at_least), with the same options, and keeps per texel group whichever
+/// fit has the lower loss (keep_lower_loss_groups). Costs two refines; the answer's loss is never
+/// above the single start's. docs/method.md section 8.4 says when the second start pays.
+template <brdf_features F = all_features>
+two_start_result refine_two_starts(material_maps& maps, const capture& cap, const loss_targets& targets, float lobe_width,
+                                   const refine_options& options = {}) {
+  const auto start = std::chrono::steady_clock::now();
+  two_start_result result;
+  material_maps wide = with_lobes_at_least(maps, lobe_width);
+  result.first = refine<F>(maps, cap, targets, options);
+  result.second = refine<F>(wide, cap, targets, options);
+  const std::size_t replaced = keep_lower_loss_groups<F>(maps, wide, cap, targets, options.placement, options.render);
+  result.replaced_fraction = double(replaced) / double(texel_groups::count(maps));
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
   result.seconds = seconds_since(start);
   return result;
