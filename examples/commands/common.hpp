@@ -275,12 +275,16 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
          if (name == "paper") {
            o.finetune = finetune_options::paper();
            o.refine = refine_options::paper();
+         } else if (name == "thorough") {
+           o.finetune = finetune_options::thorough();
+           o.refine = capture_options::thorough().refine;
          }
        },
        "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "
-       "error; studies/README.md \"Run time against error\"); paper: fine-tune 5000 at 7.5e-4, refine 500 at 1e-4 (~5x longer). "
-       "Options given beside it override its values")
-      ->check(CLI::IsMember({"fast", "paper"}))
+       "error; studies/README.md \"Run time against error\"); thorough: fine-tune 2000 at 8e-3, refine 1000 at 3e-3 (~2.2x longer, "
+       "every parameter's error and the novel-view loss lower, by 20% on the family comparison, metals most: studies/README.md \"Longer fine-tunes, longer refines and a second start\"); paper: fine-tune 5000 at 7.5e-4, refine 500 at 1e-4 "
+       "(~5x longer). Options given beside it override its values")
+      ->check(CLI::IsMember({"fast", "thorough", "paper"}))
       ->default_str("fast");
   c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
   c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));

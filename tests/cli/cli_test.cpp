@@ -141,6 +141,36 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   for (std::size_t i = 0; i < a.pixel_count(); ++i) REQUIRE(a.plane(1)[i] == b.plane(1)[i]);
 }
 
+TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside it override its values") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 5 --seed 6", t.path).status == 0);
+  auto report = [&](const char* folder) {
+    std::ifstream in(t.path / folder / "report.json");
+    return nlohmann::json::parse(in);
+  };
+  auto finetune_stage_steps = [](const nlohmann::json& r) {
+    for (const auto& st : r["stages"])
+      if (st["name"] == "finetune") return st["steps"].get<int>();
+    return -1;
+  };
+  auto r = run("capture syn/capture.json -o thorough --stages all --schedule thorough --no-view", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const nlohmann::json a = report("thorough");
+  CHECK(a["finetune"]["steps"] == 2000);
+  CHECK(finetune_stage_steps(a) == 2000);
+  CHECK(a["finetune"]["warmup"] == 200);
+  CHECK(a["refine"]["steps"] == 1000);
+  r = run("capture syn/capture.json -o short --stages all --schedule thorough --finetune-steps 7 --steps 2 --no-view", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(finetune_stage_steps(report("short")) == 7);
+  CHECK(report("short")["refine"]["steps"] == 2);
+  r = run("capture syn/capture.json -o bad --schedule slow", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("slow") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "bad"));
+}
+
 TEST_CASE("synthesize --shot-noise: inputs are the exact renders plus non-negative noise of the stated size") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 24 --height 20 --images 4 --seed 3 --shot-noise 0.05", t.path).status == 0);

@@ -82,6 +82,14 @@ struct finetune_options {
   /// needed). For monitoring and for studies that read many step counts off one run.
   std::function<void(int updates, double loss, const std::function<material_maps()>& maps)> observer;
 
+  /// The thorough schedule's fine-tune (capture_options::thorough): the fast one run for 2000
+  /// steps. On metals the fine-tune is still descending at 800 (studies/README.md "Longer
+  /// fine-tunes, longer refines and a second start").
+  static finetune_options thorough() {
+    finetune_options o;
+    o.steps = 2000;
+    return o;
+  }
   /// The paper's schedule (section 5): 5000 steps at 7.5e-4, no warm-up.
   static finetune_options paper() {
     finetune_options o;
