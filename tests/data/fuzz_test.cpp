@@ -116,8 +116,8 @@ TEST_CASE("corrupted safetensors headers and capture.json structure give clean e
   REQUIRE(header + 8 < bytes.size());
 
   anisocap::capture cap;
-  cap.images.push_back({"input_00.exr", {0.1f, 0.2f, 1.0f}, {0.3f, -0.4f, 2.0f}, {1, 2, 3}});
-  cap.images.push_back({"input_01.png", {0.0f, 0.5f, 0.5f}, {0.0f, -0.5f, 0.5f}, {4, 4, 4}});
+  cap.images.push_back({"input_00.exr", {0.1f, 0.2f, 1.0f}, {0.3f, -0.4f, 2.0f}, {1, 2, 3}, "", 1.0f, 0.0f});
+  cap.images.push_back({"input_01.png", {0.0f, 0.5f, 0.5f}, {0.0f, -0.5f, 0.5f}, {4, 4, 4}, "", 1.0f, 0.0f});
   anisocap::write_capture(cap, dir / "capture.json");
   const auto description = anisocap::read_file_bytes(dir / "capture.json");
 

@@ -29,7 +29,7 @@ rgb ward(const ward_parameters<float>& p, const vec3& l, const vec3& v) {
 }  // namespace
 
 TEST_CASE("GGX distribution is normalised: integral of D(h) h_z over the hemisphere is 1") {
-  for (const auto [ax, ay] : {std::pair{0.3, 0.3}, std::pair{0.5, 0.1}, std::pair{0.8, 0.4}}) {
+  for (const auto& [ax, ay] : {std::pair{0.3, 0.3}, std::pair{0.5, 0.1}, std::pair{0.8, 0.4}}) {
     double sum = 0;
     const int nt = 800, np = 400;
     for (int i = 0; i < nt; ++i) {

@@ -48,9 +48,9 @@ TEST_CASE("viewer in headless Chromium matches the renderer" * doctest::skip()) 
     capture_image config;
   };
   const view_case cases[] = {
-      {3, 48, 40, {"a", {0.2f, -0.3f, 1.4f}, {-0.3f, 0.25f, 0.9f}, {2.0f, 2.2f, 2.5f}}},
-      {11, 40, 40, {"b", {-0.5f, 0.4f, 0.8f}, {0.45f, -0.35f, 0.6f}, {1.2f, 1.0f, 0.9f}}},
-      {26, 36, 44, {"c", {0.0f, 0.1f, 1.0f}, {0.05f, -0.1f, 1.2f}, {3.0f, 3.0f, 3.0f}}},
+      {3, 48, 40, {"a", {0.2f, -0.3f, 1.4f}, {-0.3f, 0.25f, 0.9f}, {2.0f, 2.2f, 2.5f}, "", 1.0f, 0.0f}},
+      {11, 40, 40, {"b", {-0.5f, 0.4f, 0.8f}, {0.45f, -0.35f, 0.6f}, {1.2f, 1.0f, 0.9f}, "", 1.0f, 0.0f}},
+      {26, 36, 44, {"c", {0.0f, 0.1f, 1.0f}, {0.05f, -0.1f, 1.2f}, {3.0f, 3.0f, 3.0f}, "", 1.0f, 0.0f}},
   };
   for (const view_case& vc : cases) {
     material_maps maps = generate_material(vc.seed, vc.width, vc.height);

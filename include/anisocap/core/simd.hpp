@@ -165,6 +165,25 @@ template <class T, class A>
 inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::min(a, b); }
 template <class T, class A>
 inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::max(a, b); }
+/// Double batches: the same operation as MINPD / MAXPD (a < b ? a : b, a > b ? a : b, the second
+/// operand where either is NaN) written as a compare and a blend, since GCC 12's AVX-512
+/// _mm512_min_pd / _mm512_max_pd fill an unused operand from _mm512_undefined_pd(), whose
+/// self-initialisation GCC 12 then reports as -Wuninitialized wherever the double kernels inline it.
+template <class A>
+inline xsimd::batch<double, A> min(const xsimd::batch<double, A>& a, const xsimd::batch<double, A>& b) { return xsimd::select(a < b, a, b); }
+template <class A>
+inline xsimd::batch<double, A> max(const xsimd::batch<double, A>& a, const xsimd::batch<double, A>& b) { return xsimd::select(a > b, a, b); }
+/// Double batches on AVX-512: the square root through the zero-masked intrinsic with every lane
+/// selected (the same values as _mm512_sqrt_pd, which GCC 12 builds on _mm512_undefined_pd(), see
+/// min/max above).
+template <class A>
+inline xsimd::batch<double, A> sqrt(const xsimd::batch<double, A>& x) {
+#if defined(__AVX512F__)
+  if constexpr (xsimd::batch<double, A>::size == 8) return xsimd::batch<double, A>(_mm512_maskz_sqrt_pd(__mmask8(0xFF), x));
+  else
+#endif
+    return xsimd::sqrt(x);
+}
 /// 1 / sqrt(x) for x > 0. Float batches: the hardware estimate (AVX-512 rsqrt14, AVX rsqrt: 14 or
 /// 12 bits) refined by one Newton step, within about 2 ulp of the correctly rounded value and a
 /// few times cheaper than a square root and a division. Scalars and doubles: 1 / sqrt(x).
