@@ -695,7 +695,7 @@ TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph
   // direct-clipped/ is direct/ clipped at white, its clipped texels masked out, as the JPEGs are.
   std::size_t clipped_texels = 0;
   for (int i = 0; i < 8; ++i) {
-    const std::string n = "0" + std::to_string(i);
+    const std::string n = std::string("0") + std::to_string(i);
     const anisocap::image direct = anisocap::read_image(t.path / ("shoot/direct/input_" + n + ".exr"));
     const anisocap::image clipped = anisocap::read_image(t.path / ("shoot/direct-clipped/input_" + n + ".exr"));
     const anisocap::image mask = anisocap::read_image(t.path / ("shoot/direct-clipped/mask_input_" + n + ".png"));

@@ -176,8 +176,8 @@ TEST_CASE("adam: parameters of every size, chunked over threads, update as in a 
   std::vector<nn::parameter> serial_p, parallel_p;
   nn::random_generator g(7);
   for (std::size_t k = 0; k < sizes.size(); ++k) {
-    serial_p.emplace_back("p" + std::to_string(k), std::vector<int>{sizes[k]});
-    parallel_p.emplace_back("p" + std::to_string(k), std::vector<int>{sizes[k]});
+    serial_p.emplace_back(std::string("p") + std::to_string(k), std::vector<int>{sizes[k]});
+    parallel_p.emplace_back(std::string("p") + std::to_string(k), std::vector<int>{sizes[k]});
     for (int i = 0; i < sizes[k]; ++i) serial_p[k].value[i] = parallel_p[k].value[i] = float(g.symmetric_uniform());
   }
   nn::adam serial(nn::learning_rate_schedule::constant(0.01)), parallel(nn::learning_rate_schedule::constant(0.01));
