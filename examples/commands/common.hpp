@@ -276,8 +276,9 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
            o.finetune = finetune_options::paper();
            o.refine = refine_options::paper();
          } else if (name == "thorough") {
-           o.finetune = finetune_options::thorough();
-           o.refine = capture_options::thorough().refine;
+           const capture_options thorough = capture_options::thorough();
+           o.finetune = thorough.finetune;
+           o.refine = thorough.refine;
          }
        },
        "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "

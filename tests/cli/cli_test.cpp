@@ -163,8 +163,9 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK(a["refine"]["steps"] == 1000);
   r = run("capture syn/capture.json -o short --stages all --schedule thorough --finetune-steps 7 --steps 2 --no-view", t.path);
   REQUIRE(r.status == 0);
-  CHECK(finetune_stage_steps(report("short")) == 7);
-  CHECK(report("short")["refine"]["steps"] == 2);
+  const nlohmann::json b = report("short");
+  CHECK(finetune_stage_steps(b) == 7);
+  CHECK(b["refine"]["steps"] == 2);
   r = run("capture syn/capture.json -o bad --schedule slow", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("slow") != std::string::npos);
