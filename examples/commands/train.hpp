@@ -47,6 +47,13 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--prefetch", o.prefetch, "build the next step's samples on a second thread during each step (true or false)");
   add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
+  cmd->add_option_function<std::string>(
+         "--emphasis", [&o](const std::string& list) { o.emphasis = material_kinds_from_names(list); },
+         "a curriculum: draw a share (--emphasis-share) of the training and validation materials from these families, "
+         "comma-separated (e.g. brushed,spun), the rest from --materials; never a held-out family")
+      ->check(family_list_check());
+  cmd->add_option("--emphasis-share", o.emphasis_share, "fraction of the materials drawn from the --emphasis families")
+      ->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--render-weight", o.render_weight,
                   "weight of the render loss against the L1 term in the training loss (validation always uses 1)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);

@@ -240,6 +240,72 @@ TEST_CASE("training materials: a run resumes only on the mix it started with") {
   fs::remove_all(dir);
 }
 
+TEST_CASE("training materials: an emphasis draws its share of the materials from its families, the rest from the mix") {
+  training::train_options o;
+  o.mix = material_mix::training;
+  // The fraction of metals (brushed or spun) and of brushed metal among 4000 training or validation seeds.
+  auto metal_fraction = [&](std::vector<material_kind> emphasis, double share, bool validation) {
+    o.emphasis = std::move(emphasis);
+    o.emphasis_share = share;
+    int metal = 0, brushed = 0;
+    for (int i = 0; i < 4000; ++i) {
+      const std::uint64_t seed = validation ? training::validation_seed(i) : training::training_seed(12, i / 2, i % 2);
+      const material_kind k = draw_procedural_parameters(seed, training::material_options_for_seed(o, seed)).kind;
+      CHECK_FALSE(is_held_out(k));
+      metal += is_metal(k);
+      brushed += k == material_kind::brushed_metal;
+    }
+    return std::pair{metal / 4000.0, brushed / 4000.0};
+  };
+  const std::vector<material_kind> metals = {material_kind::brushed_metal, material_kind::spun_metal};
+  for (bool validation : {false, true}) {
+    // Without an emphasis the mix alone: brushed and spun are 28 of the training mix's 85 weights.
+    const double mix_only = metal_fraction({}, 0.5, validation).first;
+    CHECK(mix_only == doctest::Approx(28.0 / 85).epsilon(0.15));
+    // share + (1 - share) * 28/85, the two metals alike.
+    const auto [half, brushed_half] = metal_fraction(metals, 0.5, validation);
+    CHECK(half == doctest::Approx(0.5 + 0.5 * 28.0 / 85).epsilon(0.06));
+    CHECK(brushed_half == doctest::Approx(half / 2).epsilon(0.15));
+    CHECK(metal_fraction(metals, 1.0, validation).first == 1.0);
+    // Share 0 draws exactly what the mix alone draws, seed by seed.
+    CHECK(metal_fraction(metals, 0.0, validation).first == mix_only);
+  }
+  // A held-out family, or a share outside [0, 1], is refused before anything is written.
+  const fs::path dir = fresh_folder("networks_emphasis_refused");
+  auto bad = tiny_options(dir, 32);
+  bad.emphasis = {material_kind::leather};
+  auto_encoder<testing::autoencoder_tiny> net(3);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(bad, net), doctest::Contains("held-out family 'leather'"), std::invalid_argument);
+  bad.emphasis = {material_kind::spun_metal};
+  bad.emphasis_share = 1.5;
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(bad, net), doctest::Contains("--emphasis-share"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(dir));
+}
+
+TEST_CASE("training materials: a run resumes only with the emphasis it started with") {
+  const fs::path dir = fresh_folder("networks_emphasis_resume");
+  {
+    auto_encoder<testing::autoencoder_tiny> net(3);
+    auto o = tiny_options(dir, 32);
+    o.emphasis = {material_kind::brushed_metal, material_kind::spun_metal};
+    o.emphasis_share = 0.5;
+    o.stop_after = 2;
+    training::train_autoencoder(o, net);
+  }
+  CHECK(training::read_checkpoint_description(dir).at("emphasis") == "brushed,spun");
+  auto_encoder<testing::autoencoder_tiny> net(3);
+  auto o = tiny_options(dir, 32);
+  o.resume = true;  // no emphasis
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with --emphasis brushed,spun"), std::runtime_error);
+  o.emphasis = {material_kind::brushed_metal, material_kind::spun_metal};
+  o.emphasis_share = 0.25;
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with --emphasis-share 0.5"), std::runtime_error);
+  o.emphasis_share = 0.5;
+  training::train_autoencoder(o, net);
+  CHECK(fs::exists(dir / "autoencoder.safetensors"));
+  fs::remove_all(dir);
+}
+
 namespace {
 
 std::string file_text(const fs::path& file) {
@@ -379,6 +445,13 @@ TEST_CASE("training: checkpoints as earlier versions wrote them resume with thei
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
                        doctest::Contains("resume it with --materials original"), std::runtime_error);
   given["materials"] = "original";
+  given["emphasis"] = "brushed";
+  given["emphasis_share"] = 0.5;
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
+                       doctest::Contains("resume it without --emphasis"), std::runtime_error);
+  given["emphasis"] = "";
+  given["emphasis_share"] = 0.0;
+  CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
   json wrong = saved;
   wrong["seed"] = "4";
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(wrong, given, "checkpoint.json"), doctest::Contains("malformed \"seed\""),

@@ -194,6 +194,11 @@ struct train_options {
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
+  /// Families drawn more often than `mix` draws them (a curriculum, `--emphasis`): a share
+  /// `emphasis_share` of the training and validation materials is drawn from these kinds, uniformly,
+  /// the rest from `mix` (material_options_for_seed). Empty: `mix` alone. Never a held-out family.
+  std::vector<material_kind> emphasis;
+  double emphasis_share = 0.5;  ///< fraction of the materials drawn from `emphasis`, in [0, 1]
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
@@ -209,6 +214,12 @@ struct train_options {
       throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
     if (!(render_weight >= 0) || !std::isfinite(render_weight))
       throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
+    if (!(emphasis_share >= 0 && emphasis_share <= 1))
+      throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
+    for (material_kind k : emphasis)
+      if (is_held_out(k))
+        throw std::invalid_argument(std::string("training: --emphasis names the held-out family '") + material_kind_name(k) +
+                                    "', which training never draws");
   }
 
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
@@ -219,12 +230,27 @@ struct train_options {
   }
 };
 
+/// The procedural options of the training or validation material of seed `seed` under o.mix and
+/// o.emphasis: with an emphasis, hash64(seed ^ salt) picks whether the material is one of the
+/// emphasised kinds (probability o.emphasis_share) and which one (uniformly); otherwise, and for the
+/// other materials, the kind is drawn from o.mix as without an emphasis.
+inline procedural_options material_options_for_seed(const train_options& o, std::uint64_t seed) {
+  procedural_options options = training_material_options(o.mix);
+  if (o.emphasis.empty()) return options;
+  const std::uint64_t h = hash64(seed ^ 0x656d706861736973ULL);
+  if (double(h >> 11) * 0x1.0p-53 < o.emphasis_share) options.kind = o.emphasis[hash64(h) % o.emphasis.size()];
+  return options;
+}
+
 /// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b).
 /// The entries are built in turn; each one's renders run on every OpenMP thread (building the
 /// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
 inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos) {
   std::vector<sample> samples;
-  for (int b = 0; b < o.batch; ++b) samples.push_back(make_sample(training_seed(o.seed, step, b), o.size, with_photos, o.mix));
+  for (int b = 0; b < o.batch; ++b) {
+    const std::uint64_t seed = training_seed(o.seed, step, b);
+    samples.push_back(make_sample(seed, o.size, with_photos, material_options_for_seed(o, seed)));
+  }
   return samples;
 }
 
@@ -334,15 +360,17 @@ tensor<parameter_count> autoencoder_output(Net& net, const sample& s) {
   return out;
 }
 
-/// Validation of either network on `count` validation materials of size x size.
+/// Validation of either network on `count` validation materials of size x size, the material of
+/// validation seed s drawn with `draw(s)` (default: the original mix).
 template <class Net, class Output>
 validation_result validate(Net& net, int count, int size, bool with_photos, Output output,
-                           material_mix mix = material_mix::original) {
+                           const std::function<procedural_options(std::uint64_t)>& draw = {}) {
   validation_result r;
   std::vector<material_errors> errors;
   for (int i = 0; i < count; ++i) {
     std::vector<sample> one;
-    one.push_back(make_sample(validation_seed(i), size, with_photos, mix));
+    const std::uint64_t seed = validation_seed(i);
+    one.push_back(make_sample(seed, size, with_photos, draw ? draw(seed) : training_material_options(material_mix::original)));
     const auto u = output(net, one[0]);
     const loss_terms l = map_losses(u, one, nullptr);
     r.loss.total += l.total / count;
@@ -402,27 +430,39 @@ inline std::string setting_text(const json& value) {
 
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
-/// (`saved`) in the network, preset, seed, size, batch, materials or render-loss weight: such a run
-/// would silently continue as another one. Older checkpoints lack "materials" (the original mix)
-/// and "render_weight" (1); other entries a checkpoint lacks are not compared.
+/// (`saved`) in the network, preset, seed, size, batch, materials, render-loss weight or emphasis:
+/// such a run would silently continue as another one. Older checkpoints lack "materials" (the
+/// original mix), "render_weight" (1), "emphasis" ("": none) and "emphasis_share" (0); other entries
+/// a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
                              setting_text(given.at("network")) + "; resume it with train-" + setting_text(saved.at("network")));
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
-      {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"}};
+      {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
+      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}};
+  // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
+  auto entry = [](const json& description, std::string_view key) {
+    if (description.contains(std::string(key))) return description.at(std::string(key));
+    if (key == "materials") return json("original");
+    if (key == "render_weight") return json(1.0);
+    if (key == "emphasis") return json("");
+    if (key == "emphasis_share") return json(0.0);
+    return json();
+  };
   for (const auto& [key, option] : options) {
-    json value = saved.contains(key) ? saved.at(key) : json();
-    if (value.is_null() && std::string_view(key) == "materials") value = "original";
-    if (value.is_null() && std::string_view(key) == "render_weight") value = 1.0;
+    const json value = entry(saved, key), now = entry(given, key);
     if (value.is_null()) continue;
-    if (value.is_number() != given.at(key).is_number() || (!value.is_number() && !value.is_string()))
+    if (value.is_number() != now.is_number() || (!value.is_number() && !value.is_string()))
       throw std::runtime_error(file.string() + ": malformed \"" + key + "\"");
-    const bool same = value.is_number() ? value.get<double>() == given.at(key).get<double>() : value == given.at(key);
-    if (!same)
-      throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + setting_text(value) + ", not " +
-                               setting_text(given.at(key)) + "; resume it with " + option + " " + setting_text(value));
+    const bool same = value.is_number() ? value.get<double>() == now.get<double>() : value == now;
+    if (!same) {
+      auto shown = [](const json& v) { return v == "" ? std::string("(none)") : setting_text(v); };
+      throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + shown(value) + ", not " + shown(now) +
+                               "; resume it " +
+                               (value == "" ? std::string("without ") + option : std::string("with ") + option + " " + setting_text(value)));
+    }
   }
 }
 
@@ -450,6 +490,10 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["learning_rate"] = opt.learning_rate();
   info["materials"] = material_mix_name(o.mix);
   info["render_weight"] = o.render_weight;
+  std::string emphasis;
+  for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
+  info["emphasis"] = emphasis;
+  info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
     const auto description = o.out_dir / "checkpoint.json";
@@ -618,7 +662,8 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   ad::tape t;
   auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight).total; };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); }, o.mix);
+    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); },
+                    [&o](std::uint64_t seed) { return material_options_for_seed(o, seed); });
   };
   detail::run(o, "estimator", net, opt, true, step_fn, validate_fn);
 }
@@ -635,7 +680,8 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   ad::tape t;
   auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); }, o.mix);
+    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); },
+                    [&o](std::uint64_t seed) { return material_options_for_seed(o, seed); });
   };
   detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
 }
