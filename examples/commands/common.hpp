@@ -261,6 +261,14 @@ decltype(auto) with_compact_estimator_preset(const fs::path& file, F&& f) {
   return f.template operator()<estimator_compact>();
 }
 
+/// Calls f.template operator()<P>() with the auto-encoder preset P that a compact folder's
+/// auto-encoder file names in its metadata: compact, or the experimental compact-wide.
+template <class F>
+decltype(auto) with_compact_autoencoder_preset(const fs::path& file, F&& f) {
+  if (weights_preset(file) == autoencoder_compact_wide::name) return f.template operator()<autoencoder_compact_wide>();
+  return f.template operator()<autoencoder_compact>();
+}
+
 inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--preset", m.preset, "network preset whose weights to use")->check(CLI::IsMember({"compact", "paper"}));
   c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");
@@ -333,8 +341,9 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     return capture_material(cap, photos, estimator, autoencoder, o, start, masks);
   };
   if (models.preset == "paper") return run.template operator()<estimator_paper, autoencoder_paper>();
-  return with_compact_estimator_preset(models.estimator(),
-                                      [&]<class P>() { return run.template operator()<P, autoencoder_compact>(); });
+  return with_compact_estimator_preset(models.estimator(), [&]<class P>() {
+    return with_compact_autoencoder_preset(models.autoencoder(), [&]<class A>() { return run.template operator()<P, A>(); });
+  });
 }
 
 }  // namespace anisocap::commands

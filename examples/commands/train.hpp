@@ -26,7 +26,8 @@ struct train_settings {
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   training::train_options& o = s.options;
   if (autoencoder)
-    cmd->add_option("--preset", s.preset, "network widths: compact or paper")->check(CLI::IsMember({"compact", "paper"}));
+    cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-wide"}));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
@@ -103,12 +104,12 @@ inline std::string row(const char* name, const parameter_errors& e) {
   return line;
 }
 
-/// eval-networks with an estimator of the given preset.
-template <class EstimatorPreset>
+/// eval-networks with an estimator and an auto-encoder of the given presets.
+template <class EstimatorPreset, class AutoEncoderPreset>
 void evaluate_networks_with(const network_eval_settings& s) {
   const std::vector<material_kind> families = material_kinds_from_names(s.families);
   estimation_network<EstimatorPreset> estimator;
-  auto_encoder<autoencoder_compact> autoencoder;
+  auto_encoder<AutoEncoderPreset> autoencoder;
   nn::load_weights(s.estimator, estimator);
   nn::load_weights(s.autoencoder, autoencoder);
   std::vector<training::sample> samples;
@@ -170,9 +171,11 @@ void evaluate_networks_with(const network_eval_settings& s) {
 }
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
-/// materials; the estimator's preset (compact or a compact variant) is read from its file.
+/// materials; the presets (compact or a compact variant) are read from the weight files.
 inline void evaluate_networks(const network_eval_settings& s) {
-  with_compact_estimator_preset(s.estimator, [&]<class P>() { evaluate_networks_with<P>(s); });
+  with_compact_estimator_preset(s.estimator, [&]<class P>() {
+    with_compact_autoencoder_preset(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
+  });
 }
 
 }  // namespace train_detail
@@ -193,7 +196,7 @@ inline void add_train_commands(CLI::App& app) {
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>>(
+    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>>(
         *ae, [](const training::train_options& o, auto& net) { training::train_autoencoder(o, net); });
   });
   auto ev = std::make_shared<network_eval_settings>();

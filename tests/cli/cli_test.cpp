@@ -452,6 +452,9 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"train-autoencoder --out out --batch 0", "--batch"},
       {"train-estimator --out out --lr nan", "--lr"},
       {"train-autoencoder --out out --render-weight -0.5", "--render-weight"},
+      {"train-estimator --out out --emphasis brushed,linen", "linen"},
+      {"train-estimator --out out --emphasis leather", "held-out family 'leather'"},
+      {"train-autoencoder --out out --emphasis spun --emphasis-share 1.5", "--emphasis-share"},
   };
   for (const auto& c : cases) {
     CAPTURE(c.args);
@@ -782,4 +785,34 @@ TEST_CASE("compact variants: train-estimator --init from the shipped estimator, 
     CHECK(r.status == 0);
     CHECK(r.output.find("mean-map baseline") != std::string::npos);
   }
+}
+
+TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped one, then capture and eval-networks read it from its file") {
+  temp_dir t;
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 4 --seed 3", t.path).status == 0);
+  auto r = run("train-autoencoder --preset compact-wide --out wide --steps 1 --size 32 --batch 2 --validate-every 1000 "
+               "--validation-count 1 --init " + (models / "autoencoder.safetensors").string(), t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  // The layers whose widths change start afresh; the others come from the compact file.
+  CHECK(r.output.find("initialised afresh: enc3.weight, enc3.bias, enc4.weight") != std::string::npos);
+  CHECK(r.output.find("enc2.weight") == std::string::npos);
+  std::string preset;
+  for (const auto& [key, value] : anisocap::nn::read_safetensors(t.path / "wide/autoencoder.safetensors").metadata)
+    if (key == "preset") preset = value;
+  CHECK(preset == "compact-wide");
+  // In a compact models folder: capture builds the wide auto-encoder for it (the compact one
+  // would refuse the file's shapes), and so does eval-networks.
+  fs::create_directories(t.path / "models_wide/compact");
+  fs::copy_file(t.path / "wide/autoencoder.safetensors", t.path / "models_wide/compact/autoencoder.safetensors");
+  fs::copy_file(models / "estimator.safetensors", t.path / "models_wide/compact/estimator.safetensors");
+  r = run("capture syn/capture.json -o out --stages all --models models_wide --finetune-steps 1 --steps 1", t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(fs::exists(t.path / "out"));
+  r = run("eval-networks --count 1 --size 64 --autoencoder wide/autoencoder.safetensors", t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("auto-encoder reconstruction") != std::string::npos);
 }
