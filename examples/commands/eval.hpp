@@ -147,6 +147,9 @@ inline void add_eval_command(CLI::App& app) {
   auto* c = app.add_subcommand("eval", "the paper's Table 1 on procedural validation materials (per N, set, stage)");
   c->add_option("-o,--out", e->out, "output folder for table.md and table.csv");
   c->add_option("--count", e->count, "validation materials");
+  c->add_option("--first-seed", e->first_seed,
+                "seed of the first material (material m has seed first-seed + m; with --families its kind stays the (m mod n)-th, so "
+                "--first-seed 900008 --count 1 --families brushed redoes material 8 of an 8-family run)");
   c->add_option("--min-size", e->min_size, "smallest side in texels");
   c->add_option("--max-size", e->max_size, "largest side in texels");
   c->add_option("--images", e->image_counts, "input counts N")->delimiter(',');

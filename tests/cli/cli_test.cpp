@@ -816,3 +816,32 @@ TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped 
   CHECK(r.status == 0);
   CHECK(r.output.find("auto-encoder reconstruction") != std::string::npos);
 }
+
+TEST_CASE("eval --first-seed redoes one material of a larger run") {
+  temp_dir t;
+  const std::string common = " --min-size 32 --max-size 32 --images 4 --sets alpha --finetune-steps 1 --steps 2 --materials extended";
+  REQUIRE(run("--threads 1 eval -o all --count 4 --families brushed,spun,foil,coated" + common, t.path).status == 0);
+  auto r = run("--threads 1 eval -o one --count 1 --first-seed 900003 --families coated" + common, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  // The row of material 3 (seed 900003, coated) without its index and seconds: the same material,
+  // photographs and errors.
+  auto row = [&](const fs::path& csv, const std::string& seed) {
+    std::ifstream in(t.path / csv / "table.csv");
+    for (std::string line; std::getline(in, line);) {
+      std::vector<std::string> fields;
+      std::stringstream cells(line);
+      for (std::string cell; std::getline(cells, cell, ',');) fields.push_back(cell);
+      if (fields.size() == 17 && fields[1] == seed && fields[6] == "refined") {
+        fields.erase(fields.begin() + 15);  // seconds
+        fields.erase(fields.begin());       // material index
+        return fields;
+      }
+    }
+    return std::vector<std::string>{};
+  };
+  const auto one = row("one", "900003");
+  REQUIRE(one.size() == 15);
+  CHECK(one.back() == "coated");
+  CHECK(one == row("all", "900003"));
+}
