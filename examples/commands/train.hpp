@@ -149,9 +149,9 @@ void evaluate_networks_with(const network_eval_settings& s) {
                    ", 5 inputs (training set); MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
                    "and over the anisotropic texels of the materials that have them)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
-  md += row("estimator (compact)", est);
+  md += row(("estimator (" + std::string(EstimatorPreset::name) + ")").c_str(), est);
   md += row("mean-map baseline", base);
-  md += row("auto-encoder reconstruction (compact)", ae);
+  md += row(("auto-encoder reconstruction (" + std::string(AutoEncoderPreset::name) + ")").c_str(), ae);
   md += "\nPer family (held out of training: leather, printed; the baseline is the mean map of all materials above)\n\n";
   md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|---|---|\n";
   const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all);
