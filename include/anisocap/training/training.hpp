@@ -360,17 +360,17 @@ tensor<parameter_count> autoencoder_output(Net& net, const sample& s) {
   return out;
 }
 
-/// Validation of either network on `count` validation materials of size x size, the material of
-/// validation seed s drawn with `draw(s)` (default: the original mix).
+/// Validation of either network on a run's o.validation_count validation materials of
+/// o.size x o.size, drawn as its training materials are (material_options_for_seed).
 template <class Net, class Output>
-validation_result validate(Net& net, int count, int size, bool with_photos, Output output,
-                           const std::function<procedural_options(std::uint64_t)>& draw = {}) {
+validation_result validate(Net& net, const train_options& o, bool with_photos, Output output) {
+  const int count = o.validation_count;
   validation_result r;
   std::vector<material_errors> errors;
   for (int i = 0; i < count; ++i) {
     std::vector<sample> one;
     const std::uint64_t seed = validation_seed(i);
-    one.push_back(make_sample(seed, size, with_photos, draw ? draw(seed) : training_material_options(material_mix::original)));
+    one.push_back(make_sample(seed, o.size, with_photos, material_options_for_seed(o, seed)));
     const auto u = output(net, one[0]);
     const loss_terms l = map_losses(u, one, nullptr);
     r.loss.total += l.total / count;
@@ -662,8 +662,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   ad::tape t;
   auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight).total; };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, true, [](auto& n, const sample& s) { return estimator_output(n, s); },
-                    [&o](std::uint64_t seed) { return material_options_for_seed(o, seed); });
+    return validate(net, o, true, [](auto& n, const sample& s) { return estimator_output(n, s); });
   };
   detail::run(o, "estimator", net, opt, true, step_fn, validate_fn);
 }
@@ -680,8 +679,7 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   ad::tape t;
   auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
   auto validate_fn = [&] {
-    return validate(net, o.validation_count, o.size, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); },
-                    [&o](std::uint64_t seed) { return material_options_for_seed(o, seed); });
+    return validate(net, o, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); });
   };
   detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
 }
