@@ -40,6 +40,14 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--batch", o.batch, "materials per step");
   cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder; on --resume, the run's saved rate, "
                   "and another rate is logged and recorded in checkpoint.json)");
+  cmd->add_option("--lr-decay-from", o.lr_decay_from,
+                  "optimiser step at which the learning rate starts to decay along half a cosine (with --lr-decay-to)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--lr-decay-to", o.lr_decay_to,
+                  "optimiser step at which the decay reaches --lr-end times the rate, kept after it (0: a constant rate; "
+                  "on --resume, the run's saved decay, and another one is logged and recorded in checkpoint.json)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--lr-end", o.lr_end, "the learning rate after the decay, as a fraction of --lr")->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");

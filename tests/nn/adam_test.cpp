@@ -71,6 +71,19 @@ TEST_CASE("adam: frozen parameters are skipped; schedules") {
   CHECK(w(8) == doctest::Approx(e(8)));
   CHECK(nn::learning_rate_schedule::constant(1.0).with_warmup(0)(0) == 1.0);
   CHECK_THROWS_AS(e.with_warmup(-1), std::invalid_argument);
+  // Cosine decay: constant up to step 10, half a cosine down to 0.1 x the rate at step 20, then kept.
+  auto c = nn::learning_rate_schedule::cosine_decay(2.0, 10, 20, 0.1);
+  CHECK(c(0) == 2.0);
+  CHECK(c(10) == 2.0);
+  CHECK(c(15) == doctest::Approx(2.0 * (0.1 + 0.9 * 0.5)));
+  CHECK(c(20) == doctest::Approx(0.2));
+  CHECK(c(1000) == doctest::Approx(0.2));
+  for (long k = 10; k < 20; ++k) CHECK(c(k + 1) < c(k));  // strictly falling inside the decay
+  CHECK(c(11) == doctest::Approx(2.0 * (0.1 + 0.9 * 0.5 * (1 + std::cos(3.14159265358979323846 / 10)))));
+  CHECK(nn::learning_rate_schedule::cosine_decay(1.0, 0, 4, 0.0)(4) == 0.0);
+  CHECK_THROWS_AS(nn::learning_rate_schedule::cosine_decay(1.0, 5, 5, 0.1), std::invalid_argument);
+  CHECK_THROWS_AS(nn::learning_rate_schedule::cosine_decay(1.0, -1, 5, 0.1), std::invalid_argument);
+  CHECK_THROWS_AS(nn::learning_rate_schedule::cosine_decay(1.0, 0, 5, 1.5), std::invalid_argument);
 }
 
 TEST_CASE("adam: a snapshot restores values, moments and counters exactly") {

@@ -428,6 +428,77 @@ TEST_CASE("training: a resume keeps the saved learning rate, or logs, records an
   fs::remove_all(lowered);
 }
 
+TEST_CASE("training: a learning-rate decay resumes exactly, is kept on resume, and can be added to a constant run") {
+  const fs::path straight = fresh_folder("networks_decay_straight"), resumed = fresh_folder("networks_decay_resumed"),
+                 added = fresh_folder("networks_decay_added"), constant = fresh_folder("networks_decay_constant");
+  auto decaying = [](const fs::path& dir) {
+    auto o = tiny_options(dir, 64);
+    o.lr_decay_from = 2;
+    o.lr_decay_to = 4;
+    o.lr_end = 0.1;
+    return o;
+  };
+  estimation_network<testing::estimator_tiny> reference(3);
+  training::train_estimator(decaying(straight), reference);
+  json description = training::read_checkpoint_description(straight);
+  REQUIRE(description.contains("lr_decay"));
+  CHECK(description.at("lr_decay") == json::array({2, 4, 0.1}));
+  CHECK(description.at("learning_rate").get<double>() == 1e-3);  // the base rate, not the decayed one
+  // Stopped after 2 steps and resumed without the decay options: the saved decay goes on, and the
+  // weights are the uninterrupted run's.
+  {
+    estimation_network<testing::estimator_tiny> killed(3);
+    auto o = decaying(resumed);
+    o.stop_after = 2;
+    training::train_estimator(o, killed);
+  }
+  estimation_network<testing::estimator_tiny> continued(99);
+  std::vector<std::string> log;
+  auto o = tiny_options(resumed, 64);
+  o.resume = true;
+  o.learning_rate = 0;
+  o.log = [&](const std::string& line) { log.push_back(line); };
+  training::train_estimator(o, continued);
+  const auto w = all_weights(reference), w_continued = all_weights(continued);
+  REQUIRE(w.size() == w_continued.size());
+  CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
+  CHECK_FALSE(any_line_contains(log, "decays"));
+  CHECK(training::read_checkpoint_description(resumed).at("lr_decay") == json::array({2, 4, 0.1}));
+  // The decay changes the result: a constant-rate run of the same seed ends elsewhere.
+  estimation_network<testing::estimator_tiny> flat(3);
+  training::train_estimator(tiny_options(constant, 64), flat);
+  const auto w_flat = all_weights(flat);
+  CHECK_FALSE(std::equal(w.begin(), w.end(), w_flat.begin()));
+  // A constant run resumed with a decay that starts where it stopped: logged, recorded, and the same
+  // weights as a run that had the decay from the start (the schedule is a function of the step).
+  {
+    estimation_network<testing::estimator_tiny> first_half(3);
+    auto half = tiny_options(added, 64);
+    half.stop_after = 2;
+    training::train_estimator(half, first_half);
+  }
+  estimation_network<testing::estimator_tiny> second_half(99);
+  log.clear();
+  auto more = decaying(added);
+  more.resume = true;
+  more.log = [&](const std::string& line) { log.push_back(line); };
+  training::train_estimator(more, second_half);
+  CHECK(any_line_contains(log, "estimator: learning rate decays from step 2 to 0.1 of itself at step 4"));
+  CHECK(training::read_checkpoint_description(added).at("lr_decay") == json::array({2, 4, 0.1}));
+  const auto w_added = all_weights(second_half);
+  CHECK(std::equal(w.begin(), w.end(), w_added.begin()));
+  // Impossible decays are refused before anything is written.
+  auto bad = decaying(fresh_folder("networks_decay_bad"));
+  bad.lr_decay_to = 2;
+  estimation_network<testing::estimator_tiny> unused(3);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-decay-to"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(bad.out_dir));
+  bad.lr_decay_to = 4;
+  bad.lr_end = 2;
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-end"), std::invalid_argument);
+  for (const fs::path& dir : {straight, resumed, added, constant}) fs::remove_all(dir);
+}
+
 TEST_CASE("training: checkpoints as earlier versions wrote them resume with their own settings") {
   // The seed written as 4.0, the rate as 3e-04, and (older still) no "materials" (the original mix)
   // and no "render_weight" (1).

@@ -1,9 +1,10 @@
 #pragma once
 /// @file
 /// Learning-rate schedules of the optimisers (nn/adam.hpp): constant, step and exponential decay,
-/// each with an optional linear warm-up.
+/// and a cosine decay between two steps, each with an optional linear warm-up.
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 namespace anisocap::nn {
 
@@ -21,6 +22,22 @@ class learning_rate_schedule {
   static learning_rate_schedule exponential_decay(double rate, double factor, long every = 1) {
     if (every <= 0) throw std::invalid_argument("learning_rate_schedule::exponential_decay: every must be positive");
     return {rate, every, factor, kind::exponential};
+  }
+
+  /// `rate` up to step `from`, then half a cosine down to `rate * final_factor` at step `to`, and
+  /// `rate * final_factor` after it (training runs: a constant rate, then a decay at the end).
+  /// Throws std::invalid_argument unless 0 <= from < to and final_factor is in [0, 1].
+  static learning_rate_schedule cosine_decay(double rate, long from, long to, double final_factor) {
+    if (!(from >= 0 && to > from))
+      throw std::invalid_argument("learning_rate_schedule::cosine_decay: the decay must end after it starts (0 <= from < to), got " +
+                                  std::to_string(from) + " and " + std::to_string(to));
+    if (!(final_factor >= 0 && final_factor <= 1))
+      throw std::invalid_argument("learning_rate_schedule::cosine_decay: the final factor must be in [0, 1], got " +
+                                  std::to_string(final_factor));
+    learning_rate_schedule s{rate, 1, final_factor, kind::cosine};
+    s.from_ = from;
+    s.to_ = to;
+    return s;
   }
 
   /// The same schedule with a linear warm-up: step s < `steps` gets (s + 1) / steps of its rate
@@ -52,12 +69,18 @@ class learning_rate_schedule {
       case kind::constant: return ramp * rate_;
       case kind::step: return ramp * rate_ * std::pow(factor_, double(step / every_));
       case kind::exponential: return ramp * rate_ * std::pow(factor_, double(step) / double(every_));
+      case kind::cosine: {
+        if (step <= from_) return ramp * rate_;
+        if (step >= to_) return ramp * rate_ * factor_;
+        const double t = double(step - from_) / double(to_ - from_);
+        return ramp * rate_ * (factor_ + (1 - factor_) * 0.5 * (1 + std::cos(3.14159265358979323846 * t)));
+      }
     }
     return rate_;
   }
 
  private:
-  enum class kind { constant, step, exponential };
+  enum class kind { constant, step, exponential, cosine };
   learning_rate_schedule(double rate, long every, double factor, kind k)
       : rate_(rate), every_(every), factor_(factor), kind_(k) {}
   double rate_;
@@ -65,6 +88,7 @@ class learning_rate_schedule {
   double factor_;
   kind kind_;
   long warmup_ = 0;
+  long from_ = 0, to_ = 0;  // cosine decay: first and last step of the decay
 };
 
 }  // namespace anisocap::nn

@@ -199,6 +199,14 @@ struct train_options {
   /// the rest from `mix` (material_options_for_seed). Empty: `mix` alone. Never a held-out family.
   std::vector<material_kind> emphasis;
   double emphasis_share = 0.5;  ///< fraction of the materials drawn from `emphasis`, in [0, 1]
+  /// A cosine decay of the learning rate at the end of a run (`--lr-decay-from/--lr-decay-to/--lr-end`):
+  /// with lr_decay_to > 0 the rate is constant up to optimiser step lr_decay_from, then falls along half
+  /// a cosine to lr_end times itself at step lr_decay_to, and stays there
+  /// (nn::learning_rate_schedule::cosine_decay). 0, 0: a constant rate. A resume keeps the saved
+  /// decay unless it is given another one (logged and recorded in checkpoint.json).
+  long lr_decay_from = 0;
+  long lr_decay_to = 0;               ///< last step of the decay; 0: no decay
+  double lr_end = 0.05;               ///< the rate after the decay, as a fraction of the learning rate
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
@@ -214,6 +222,13 @@ struct train_options {
       throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
     if (!(render_weight >= 0) || !std::isfinite(render_weight))
       throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
+    if (lr_decay_to != 0 || lr_decay_from != 0) {
+      if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
+        throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
+                                    std::to_string(lr_decay_from) + " and " + std::to_string(lr_decay_to));
+      if (!(lr_end >= 0 && lr_end <= 1))
+        throw std::invalid_argument("the final learning-rate fraction (--lr-end) must be between 0 and 1");
+    }
     if (!(emphasis_share >= 0 && emphasis_share <= 1))
       throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
     for (material_kind k : emphasis)
@@ -229,6 +244,12 @@ struct train_options {
     return o;
   }
 };
+
+/// The learning-rate schedule of a run at base rate `rate`: constant, or with o's cosine decay.
+inline nn::learning_rate_schedule training_schedule(double rate, const train_options& o) {
+  return o.lr_decay_to > 0 ? nn::learning_rate_schedule::cosine_decay(rate, o.lr_decay_from, o.lr_decay_to, o.lr_end)
+                           : nn::learning_rate_schedule::constant(rate);
+}
 
 /// The procedural options of the training or validation material of seed `seed` under o.mix and
 /// o.emphasis: with an emphasis, hash64(seed ^ salt) picks whether the material is one of the
@@ -494,6 +515,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
   info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
+  auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
+  if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
     const auto description = o.out_dir / "checkpoint.json";
@@ -505,16 +528,34 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
       if (!saved.at("learning_rate").is_number() || !(saved.at("learning_rate").get<double>() > 0))
         throw std::runtime_error(description.string() + ": malformed \"learning_rate\"");
       const double before = saved.at("learning_rate").get<double>();
-      if (o.learning_rate == 0) {
-        opt.schedule = nn::learning_rate_schedule::constant(before);
-      } else if (std::abs(o.learning_rate - before) > 1e-12 * before) {
+      if (o.learning_rate != 0 && std::abs(o.learning_rate - before) > 1e-12 * before) {
         char line[160];
         std::snprintf(line, sizeof line, "%s: learning rate %g -> %g from step %ld", kind.c_str(), before, o.learning_rate, step);
         o.log(line);
         if (!info.contains("learning_rate_changes")) info["learning_rate_changes"] = json::array();
         info["learning_rate_changes"].push_back({{"step", step}, {"from", before}, {"to", o.learning_rate}});
       }
-      info["learning_rate"] = opt.learning_rate();
+      // The base rate (the saved one unless another is given) and the decay (the saved one unless
+      // another is given).
+      train_options scheduled = o;
+      scheduled.learning_rate = o.learning_rate == 0 ? before : o.learning_rate;
+      if (o.lr_decay_to == 0 && saved.contains("lr_decay")) {
+        const json& d = saved.at("lr_decay");
+        if (!d.is_array() || d.size() != 3 || !d[0].is_number() || !d[1].is_number() || !d[2].is_number())
+          throw std::runtime_error(description.string() + ": malformed \"lr_decay\"");
+        scheduled.lr_decay_from = d[0].get<long>();
+        scheduled.lr_decay_to = d[1].get<long>();
+        scheduled.lr_end = d[2].get<double>();
+        scheduled.validate();
+      } else if (o.lr_decay_to > 0 && (!saved.contains("lr_decay") || saved.at("lr_decay") != decay_of(o))) {
+        char line[200];
+        std::snprintf(line, sizeof line, "%s: learning rate decays from step %ld to %.3g of itself at step %ld (from step %ld on)",
+                      kind.c_str(), o.lr_decay_from, o.lr_end, o.lr_decay_to, step);
+        o.log(line);
+      }
+      opt.schedule = training_schedule(scheduled.learning_rate, scheduled);
+      info["learning_rate"] = scheduled.learning_rate;
+      if (scheduled.lr_decay_to > 0) info["lr_decay"] = decay_of(scheduled);
     }
     truncate_csv(csv, step);
     o.log(kind + ": resumed at step " + std::to_string(step));
@@ -657,7 +698,8 @@ loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& op
 template <class Preset>
 void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   if (o.size <= 0 || o.size % 64 != 0) throw std::invalid_argument("train-estimator: --size must be a positive multiple of 64");
-  nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 5e-5));
+  o.validate();  // before the schedule is built from the options
+  nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 5e-5, o));
   opt.add_parameters(net);
   ad::tape t;
   auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight).total; };
@@ -674,7 +716,8 @@ template <class Preset>
 void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
   if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
-  nn::adam opt(nn::learning_rate_schedule::constant(o.learning_rate > 0 ? o.learning_rate : 1e-3));
+  o.validate();  // before the schedule is built from the options
+  nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 1e-3, o));
   opt.add_parameters(net);
   ad::tape t;
   auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
