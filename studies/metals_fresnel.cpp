@@ -63,17 +63,19 @@ struct sums {
   int n = 0;
 };
 
-int run(const study_options& o) {
+/// The study with an estimator of preset EstimatorPreset (used with --stages estimate,refine).
+template <class EstimatorPreset>
+int run_with(const study_options& o) {
   omp_set_num_threads(o.threads);
   const std::vector<material_kind> kinds = material_kinds_from_names(o.kinds);
   if (kinds.empty()) throw std::invalid_argument("--kinds: give at least one family");
   const pipeline_stages stages = pipeline_stages::parse(o.stages);
   if (stages.encode || stages.finetune) throw std::invalid_argument("--stages: this study runs refine or estimate,refine");
-  std::unique_ptr<estimation_network<estimator_compact>> estimator;
+  std::unique_ptr<estimation_network<EstimatorPreset>> estimator;
   std::unique_ptr<auto_encoder<autoencoder_compact>> autoencoder;
   if (stages.estimate) {
     if (o.size % 64 != 0) throw std::invalid_argument("--stages estimate needs --size a multiple of 64");
-    estimator = std::make_unique<estimation_network<estimator_compact>>();
+    estimator = std::make_unique<estimation_network<EstimatorPreset>>();
     autoencoder = std::make_unique<auto_encoder<autoencoder_compact>>();
     nn::load_weights(o.models + "/estimator.safetensors", *estimator);
   }
@@ -168,6 +170,17 @@ int run(const study_options& o) {
 
 }  // namespace
 
+/// run_with the preset that --models' estimator file names (compact, or an experimental variant).
+int run(const study_options& o) {
+  std::string preset = "compact";
+  if (pipeline_stages::parse(o.stages).estimate)
+    for (const auto& [key, value] : nn::read_safetensors(o.models + "/estimator.safetensors").metadata)
+      if (key == "preset") preset = value;
+  if (preset == estimator_compact_orientation::name) return run_with<estimator_compact_orientation>(o);
+  if (preset == estimator_compact_doubled_angle::name) return run_with<estimator_compact_doubled_angle>(o);
+  return run_with<estimator_compact>(o);
+}
+
 int main(int argc, char** argv) {
   CLI::App app{"metals: per-parameter and novel-view error against the number and height of Fresnel configurations"};
   study_options o;
@@ -185,7 +198,7 @@ int main(int argc, char** argv) {
   app.add_option("--csv", o.csv, "per-run rows")->capture_default_str();
   app.add_option("--stages", o.stages, "refine (from the first guess) or estimate,refine (compact estimator first)")
       ->capture_default_str();
-  app.add_option("--models", o.models, "folder of the compact estimator's weights")->capture_default_str();
+  app.add_option("--models", o.models, "folder of the compact estimator's weights (its preset is read from the file)")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   for (int f : o.fresnel)
     if (f < 0) {

@@ -40,6 +40,17 @@
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
+
+namespace {
+
+/// The "preset" entry of a weight file's metadata ("compact" when it has none).
+std::string preset_of(const std::filesystem::path& file) {
+  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
+    if (key == "preset") return value;
+  return "compact";
+}
+
+}  // namespace
 namespace fs = std::filesystem;
 
 #ifndef ANISOCAP_SWEEP_MODELS
@@ -124,15 +135,25 @@ int main(int argc, char** argv) {
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
   if (materials < 1 || size < 32 || max_finetune < 0) { std::fprintf(stderr, "sweep: bad option values\n"); return 2; }
-  estimation_network<estimator_compact> estimator;
-  auto_encoder<autoencoder_compact> autoencoder;
+  // The networks of the presets the weight files name (compact, or an experimental variant).
+  const fs::path estimator_file = models / "compact" / "estimator.safetensors", ae_file = models / "compact" / "autoencoder.safetensors";
+  std::string estimator_preset, autoencoder_preset;
   try {
-    nn::load_weights(models / "compact" / "estimator.safetensors", estimator);
+    estimator_preset = preset_of(estimator_file);
+    autoencoder_preset = preset_of(ae_file);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "sweep: %s\n", e.what());
     return 1;
   }
-  const fs::path ae_file = models / "compact" / "autoencoder.safetensors";
+  auto sweep = [&]<class EstimatorPreset, class AutoEncoderPreset>() -> int {
+  estimation_network<EstimatorPreset> estimator;
+  auto_encoder<AutoEncoderPreset> autoencoder;
+  try {
+    nn::load_weights(estimator_file, estimator);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sweep: %s\n", e.what());
+    return 1;
+  }
 
   std::erase_if(finetune_points, [&](int k) { return k > max_finetune || k % 100 != 0; });  // snapshots every 100 steps
   int rich_point = 0;  // the first non-zero fine-tune point gets every refine variant
@@ -280,4 +301,12 @@ int main(int argc, char** argv) {
   }
   std::fprintf(stderr, "sweep: wrote %s\n", out_file.c_str());
   return 0;
+  };
+  auto with_autoencoder = [&]<class EstimatorPreset>() {
+    return autoencoder_preset == autoencoder_compact_wide::name ? sweep.template operator()<EstimatorPreset, autoencoder_compact_wide>()
+                                                                 : sweep.template operator()<EstimatorPreset, autoencoder_compact>();
+  };
+  if (estimator_preset == estimator_compact_orientation::name) return with_autoencoder.template operator()<estimator_compact_orientation>();
+  if (estimator_preset == estimator_compact_doubled_angle::name) return with_autoencoder.template operator()<estimator_compact_doubled_angle>();
+  return with_autoencoder.template operator()<estimator_compact>();
 }
