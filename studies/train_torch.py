@@ -91,24 +91,18 @@ def write_safetensors(path, tensors, names, meta):
     os.replace(tmp, path)
 
 
-def to_torch_layout(module, value):
-    """C++ [K][K][Cin][Cout] convolutions to PyTorch's layouts; linears and vectors as they are."""
-    if value.ndim != 4:
-        return value
-    if isinstance(module, nn.ConvTranspose2d):
-        return value.transpose(2, 3, 0, 1)
-    if isinstance(module, nn.Conv2d):
-        return value.transpose(3, 2, 0, 1)
-    return value
+# Axis orders between the library's [K][K][Cin][Cout] and PyTorch's layouts (Conv2d [Cout][Cin][K][K],
+# ConvTranspose2d [Cin][Cout][K][K]): (to PyTorch, back to the library).
+AXES = {nn.ConvTranspose2d: ((2, 3, 0, 1), (2, 3, 0, 1)), nn.Conv2d: ((3, 2, 0, 1), (2, 3, 1, 0))}
 
 
-def to_cpp_layout(module, value):
+def layout(module, value, to_torch):
+    """A convolution weight in the other layout; linears and vectors are the same in both."""
     if value.ndim != 4:
         return value
-    if isinstance(module, nn.ConvTranspose2d):
-        return value.transpose(2, 3, 0, 1)
-    if isinstance(module, nn.Conv2d):
-        return value.transpose(2, 3, 1, 0)
+    for kind, (forward, backward) in AXES.items():
+        if isinstance(module, kind):
+            return value.transpose(forward if to_torch else backward)
     return value
 
 
@@ -122,7 +116,7 @@ def load_cpp(net, path):
     for name, value in tensors.items():
         if name not in state:
             raise SystemExit(f"{path}: {name} is not in the PyTorch port")
-        v = torch.from_numpy(np.ascontiguousarray(to_torch_layout(owner(net, name), value)))
+        v = torch.from_numpy(np.ascontiguousarray(layout(owner(net, name), value, True)))
         if tuple(v.shape) != tuple(state[name].shape):
             raise SystemExit(f"{path}: {name} has shape {tuple(value.shape)}, the port {tuple(state[name].shape)}")
         state[name].copy_(v)
@@ -134,7 +128,7 @@ def load_cpp(net, path):
 
 def save_cpp(net, path, names, meta):
     state = net.state_dict()
-    tensors = {n: to_cpp_layout(owner(net, n), state[n].detach().float().cpu().numpy()) for n in names}
+    tensors = {n: layout(owner(net, n), state[n].detach().float().cpu().numpy(), False) for n in names}
     write_safetensors(path, tensors, names, meta)
 
 
