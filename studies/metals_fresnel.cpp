@@ -172,13 +172,8 @@ int run_with(const study_options& o) {
 
 /// run_with the preset that --models' estimator file names (compact, or an experimental variant).
 int run(const study_options& o) {
-  std::string preset = "compact";
-  if (pipeline_stages::parse(o.stages).estimate)
-    for (const auto& [key, value] : nn::read_safetensors(o.models + "/estimator.safetensors").metadata)
-      if (key == "preset") preset = value;
-  if (preset == estimator_compact_orientation::name) return run_with<estimator_compact_orientation>(o);
-  if (preset == estimator_compact_doubled_angle::name) return run_with<estimator_compact_doubled_angle>(o);
-  return run_with<estimator_compact>(o);
+  if (!pipeline_stages::parse(o.stages).estimate) return run_with<estimator_compact>(o);
+  return with_compact_estimator_preset(o.models + "/estimator.safetensors", [&]<class P>() { return run_with<P>(o); });
 }
 
 int main(int argc, char** argv) {

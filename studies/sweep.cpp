@@ -34,6 +34,7 @@
 
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/procedural.hpp"
+#include "anisocap/networks/presets.hpp"
 #include "anisocap/nn/early_stopping.hpp"
 #include "anisocap/pipeline/capture.hpp"
 #include "anisocap/render/evaluate.hpp"
@@ -41,16 +42,6 @@
 
 using namespace anisocap;
 
-namespace {
-
-/// The "preset" entry of a weight file's metadata ("compact" when it has none).
-std::string preset_of(const std::filesystem::path& file) {
-  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
-    if (key == "preset") return value;
-  return "compact";
-}
-
-}  // namespace
 namespace fs = std::filesystem;
 
 #ifndef ANISOCAP_SWEEP_MODELS
@@ -137,14 +128,6 @@ int main(int argc, char** argv) {
   if (materials < 1 || size < 32 || max_finetune < 0) { std::fprintf(stderr, "sweep: bad option values\n"); return 2; }
   // The networks of the presets the weight files name (compact, or an experimental variant).
   const fs::path estimator_file = models / "compact" / "estimator.safetensors", ae_file = models / "compact" / "autoencoder.safetensors";
-  std::string estimator_preset, autoencoder_preset;
-  try {
-    estimator_preset = preset_of(estimator_file);
-    autoencoder_preset = preset_of(ae_file);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "sweep: %s\n", e.what());
-    return 1;
-  }
   auto sweep = [&]<class EstimatorPreset, class AutoEncoderPreset>() -> int {
   estimation_network<EstimatorPreset> estimator;
   auto_encoder<AutoEncoderPreset> autoencoder;
@@ -302,11 +285,12 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "sweep: wrote %s\n", out_file.c_str());
   return 0;
   };
-  auto with_autoencoder = [&]<class EstimatorPreset>() {
-    return autoencoder_preset == autoencoder_compact_wide::name ? sweep.template operator()<EstimatorPreset, autoencoder_compact_wide>()
-                                                                 : sweep.template operator()<EstimatorPreset, autoencoder_compact>();
-  };
-  if (estimator_preset == estimator_compact_orientation::name) return with_autoencoder.template operator()<estimator_compact_orientation>();
-  if (estimator_preset == estimator_compact_doubled_angle::name) return with_autoencoder.template operator()<estimator_compact_doubled_angle>();
-  return with_autoencoder.template operator()<estimator_compact>();
+  try {
+    return with_compact_estimator_preset(estimator_file, [&]<class EstimatorPreset>() {
+      return with_compact_autoencoder_preset(ae_file, [&]<class AutoEncoderPreset>() { return sweep.template operator()<EstimatorPreset, AutoEncoderPreset>(); });
+    });
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sweep: %s\n", e.what());
+    return 1;
+  }
 }

@@ -32,6 +32,7 @@
 #include <string>
 #include <vector>
 
+#include "anisocap/networks/presets.hpp"
 #include "anisocap/training/training.hpp"
 
 using namespace anisocap;
@@ -171,12 +172,6 @@ void write_tensor(const std::string& file, const tensor<C>& t) {
   f.write(reinterpret_cast<const char*>(t.data()), std::streamsize(t.size() * 4));
 }
 
-std::string preset_of(const std::string& file) {
-  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
-    if (key == "preset") return value;
-  return "compact";
-}
-
 template <class Net>
 void forward_estimator(const std::string& weights, const std::string& input, const std::string& out) {
   Net net;
@@ -214,14 +209,11 @@ void forward_autoencoder(const std::string& weights, const std::string& input, c
 int forward(int argc, char** argv) {
   const std::string network = option(argc, argv, "--network", ""), weights = option(argc, argv, "--weights", "");
   const std::string input = option(argc, argv, "--input", ""), out = option(argc, argv, "--out", "");
-  const std::string preset = preset_of(weights);
-  if (network == "estimator" && preset == "compact") forward_estimator<estimation_network<estimator_compact>>(weights, input, out);
-  else if (network == "estimator" && preset == "compact-orientation")
-    forward_estimator<estimation_network<estimator_compact_orientation>>(weights, input, out);
-  else if (network == "autoencoder" && preset == "compact") forward_autoencoder<auto_encoder<autoencoder_compact>>(weights, input, out);
-  else if (network == "autoencoder" && preset == "compact-wide")
-    forward_autoencoder<auto_encoder<autoencoder_compact_wide>>(weights, input, out);
-  else throw std::invalid_argument("forward: no " + network + " with preset " + preset);
+  if (network == "estimator")
+    with_compact_estimator_preset(weights, [&]<class P>() { forward_estimator<estimation_network<P>>(weights, input, out); });
+  else if (network == "autoencoder")
+    with_compact_autoencoder_preset(weights, [&]<class P>() { forward_autoencoder<auto_encoder<P>>(weights, input, out); });
+  else throw std::invalid_argument("forward: --network must be estimator or autoencoder, not \"" + network + "\"");
   return 0;
 }
 

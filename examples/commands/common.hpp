@@ -242,33 +242,6 @@ struct model_choice {
   bool present() const { return fs::exists(estimator()) && fs::exists(autoencoder()); }
 };
 
-/// The "preset" entry of a weight file's metadata (save_network writes it), "" when it has none.
-/// A compact folder's estimator may be of a compact variant (with_compact_estimator_preset).
-inline std::string weights_preset(const fs::path& file) {
-  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
-    if (key == "preset") return value;
-  return "";
-}
-
-/// Calls f.template operator()<P>() with the estimator preset P that a compact folder's estimator
-/// file names in its metadata: compact, or one of its experimental variants (compact-doubled-angle,
-/// compact-orientation), which share the compact auto-encoder.
-template <class F>
-decltype(auto) with_compact_estimator_preset(const fs::path& file, F&& f) {
-  const std::string preset = weights_preset(file);
-  if (preset == estimator_compact_doubled_angle::name) return f.template operator()<estimator_compact_doubled_angle>();
-  if (preset == estimator_compact_orientation::name) return f.template operator()<estimator_compact_orientation>();
-  return f.template operator()<estimator_compact>();
-}
-
-/// Calls f.template operator()<P>() with the auto-encoder preset P that a compact folder's
-/// auto-encoder file names in its metadata: compact, or the experimental compact-wide.
-template <class F>
-decltype(auto) with_compact_autoencoder_preset(const fs::path& file, F&& f) {
-  if (weights_preset(file) == autoencoder_compact_wide::name) return f.template operator()<autoencoder_compact_wide>();
-  return f.template operator()<autoencoder_compact>();
-}
-
 inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--preset", m.preset, "network preset whose weights to use")->check(CLI::IsMember({"compact", "paper"}));
   c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");

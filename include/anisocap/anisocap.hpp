@@ -58,6 +58,7 @@
 #include "anisocap/networks/estimator.hpp"
 #include "anisocap/networks/network_layers.hpp"
 #include "anisocap/networks/network_space.hpp"
+#include "anisocap/networks/presets.hpp"
 
 #include "anisocap/training/prefetch.hpp"
 #include "anisocap/training/training.hpp"
