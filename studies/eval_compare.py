@@ -1,12 +1,17 @@
 #!/usr/bin/env python3
-"""Set alpha against set beta, material by material, from `anisocap eval` table.csv files.
+"""Material-by-material comparisons of `anisocap eval` table.csv files.
 
 The eval's table gives means over materials; a handful of hard materials can dominate a mean (one
-spun metal whose F0 is off by 0.3 outweighs ten good fabrics). This script pairs the two sets on
-the same materials and prints, per parameter and stage, the means, the medians and how many
-materials each set wins, so a claim "alpha beats beta" can be read three ways.
+spun metal whose F0 is off by 0.3 outweighs ten good fabrics). This script pairs two sides on the
+same materials and prints, per parameter and stage, the means, the medians and how many materials
+each side wins, so a claim "A beats B" can be read three ways. The two sides are
+
+- set alpha against set beta, from the rows of all the tables given (the default), or
+- with --weights, the first table against the second (two evals of one protocol with different
+  weights, or different options), on the materials both have finished, for one --set.
 
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
+       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12]
 Standard library only.
 """
 import argparse
@@ -18,35 +23,62 @@ PARAMETERS = [("diffuse", "a_d"), ("specular", "a_s"), ("normal", "n_s"), ("lobe
               ("rotation", "alpha"), ("fresnel", "F0"), ("novel_view_loss", "novel view")]
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("tables", nargs="+")
-    parser.add_argument("--images", type=int, default=12, help="input count N to compare at")
-    args = parser.parse_args()
+def read_rows(path, images):
+    """{(seed, set, stage): row} of one table at input count `images`."""
     rows = {}
-    for path in args.tables:
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                if int(r["images"]) != args.images:
-                    continue
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            if int(r["images"]) == images:
                 rows[(r["seed"], r["set"], r["stage"])] = r
-    stages = sorted({k[2] for k in rows}, key=lambda s: s != "fine-tuned")
-    print(f"N = {args.images}: set alpha against set beta on the same materials\n")
-    print("| stage | parameter | materials | alpha mean | beta mean | alpha median | beta median | alpha wins | beta wins |")
+    return rows
+
+
+def print_comparison(side_a, side_b, name_a, name_b):
+    """side_x: {(seed, stage): row}; one Markdown row per stage and parameter on the shared seeds."""
+    stages = sorted({k[1] for k in side_a}, key=lambda s: s != "fine-tuned")
+    print(f"| stage | parameter | materials | {name_a} mean | {name_b} mean | {name_a} median | {name_b} median | "
+          f"{name_a} wins | {name_b} wins |")
     print("|---|---|---|---|---|---|---|---|---|")
     for stage in stages:
-        seeds = sorted({k[0] for k in rows if k[2] == stage and (k[0], "alpha", stage) in rows and (k[0], "beta", stage) in rows})
+        seeds = sorted(s for s, st in side_a if st == stage and (s, stage) in side_b)
         if not seeds:
             continue
         for key, name in PARAMETERS:
-            a = [float(rows[(s, "alpha", stage)][key]) for s in seeds]
-            b = [float(rows[(s, "beta", stage)][key]) for s in seeds]
+            a = [float(side_a[(s, stage)][key]) for s in seeds]
+            b = [float(side_b[(s, stage)][key]) for s in seeds]
             wins_a = sum(x < y for x, y in zip(a, b))
             wins_b = sum(y < x for x, y in zip(a, b))
             print(f"| {stage} | {name} | {len(seeds)} | {statistics.mean(a):.4g} | {statistics.mean(b):.4g} | "
                   f"{statistics.median(a):.4g} | {statistics.median(b):.4g} | {wins_a} | {wins_b} |")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("tables", nargs="+")
+    parser.add_argument("--images", type=int, default=12, help="input count N to compare at")
+    parser.add_argument("--weights", action="store_true", help="compare the first table against the second")
+    parser.add_argument("--set", default="alpha", help="the configuration set compared with --weights")
+    args = parser.parse_args()
+    if args.weights:
+        if len(args.tables) != 2:
+            sys.exit("--weights compares exactly two tables")
+        a, b = (read_rows(p, args.images) for p in args.tables)
+        side_a = {(s, st): r for (s, cs, st), r in a.items() if cs == args.set}
+        side_b = {(s, st): r for (s, cs, st), r in b.items() if cs == args.set}
+        if not side_a or not side_b:
+            sys.exit(f"no rows with images = {args.images} and set {args.set} in one of {', '.join(args.tables)}")
+        print(f"N = {args.images}, set {args.set}: {args.tables[0]} (first) against {args.tables[1]} (second) "
+              f"on the materials both have\n")
+        print_comparison(side_a, side_b, "first", "second")
+        return
+    rows = {}
+    for path in args.tables:
+        rows.update(read_rows(path, args.images))
     if not rows:
         sys.exit(f"no rows with images = {args.images} in {', '.join(args.tables)}")
+    print(f"N = {args.images}: set alpha against set beta on the same materials\n")
+    side = {name: {(s, st): r for (s, cs, st), r in rows.items() if cs == name} for name in ("alpha", "beta")}
+    print_comparison(side["alpha"], side["beta"], "alpha", "beta")
 
 
 if __name__ == "__main__":
