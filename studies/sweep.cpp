@@ -41,7 +41,6 @@
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
-
 namespace fs = std::filesystem;
 
 #ifndef ANISOCAP_SWEEP_MODELS
@@ -131,12 +130,7 @@ int main(int argc, char** argv) {
   auto sweep = [&]<class EstimatorPreset, class AutoEncoderPreset>() -> int {
   estimation_network<EstimatorPreset> estimator;
   auto_encoder<AutoEncoderPreset> autoencoder;
-  try {
-    nn::load_weights(estimator_file, estimator);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "sweep: %s\n", e.what());
-    return 1;
-  }
+  nn::load_weights(estimator_file, estimator);  // a bad file is reported by the catch around the dispatch below
 
   std::erase_if(finetune_points, [&](int k) { return k > max_finetune || k % 100 != 0; });  // snapshots every 100 steps
   int rich_point = 0;  // the first non-zero fine-tune point gets every refine variant
