@@ -54,18 +54,25 @@ std::string raw_file(const std::string& header, std::size_t data_bytes, std::uin
   return s + header + std::string(data_bytes, '\0');
 }
 
-/// The message of the safetensors_error that reading `bytes` as a file throws ("" if none).
+/// The message of the safetensors_error that reading `bytes` as a file throws ("" if none). Reading
+/// the header alone (read_safetensors_header) must fail with the same message: every check but the
+/// read of the data itself is the header's.
 std::string read_error(const std::string& bytes) {
   const fs::path p = scratch("corrupt.safetensors");
   write_all(p, bytes);
-  try {
-    nn::read_safetensors(p);
-  } catch (const nn::safetensors_error& e) {
-    std::string m = e.what();
-    CHECK(m.find(p.string()) == 0);  // every message starts with the file's name
-    return m;
-  }
-  return "";
+  auto message = [&](auto read) {
+    try {
+      read(p);
+    } catch (const nn::safetensors_error& e) {
+      std::string m = e.what();
+      CHECK(m.find(p.string()) == 0);  // every message starts with the file's name
+      return m;
+    }
+    return std::string();
+  };
+  const std::string whole = message([](const fs::path& f) { nn::read_safetensors(f); });
+  CHECK(message([](const fs::path& f) { nn::read_safetensors_header(f); }) == whole);
+  return whole;
 }
 
 struct small_network {
@@ -111,6 +118,17 @@ TEST_CASE("safetensors: round trip is bit-identical") {
   for (int i = 7; i >= 0; --i) n = n << 8 | (unsigned char)bytes[i];
   CHECK(n % 8 == 0);
   CHECK(8 + n + file.data().size() == bytes.size());
+  // The header alone says what the whole read says about the tensors and the metadata.
+  const nn::safetensors_header header = nn::read_safetensors_header(p);
+  CHECK(header.metadata == file.metadata);
+  CHECK(header.data_size == file.data().size());
+  REQUIRE(header.entries.size() == file.entries().size());
+  for (std::size_t i = 0; i < header.entries.size(); ++i) {
+    CHECK(header.entries[i].name == file.entries()[i].name);
+    CHECK(header.entries[i].shape == file.entries()[i].shape);
+    CHECK(header.entries[i].begin == file.entries()[i].begin);
+    CHECK(header.entries[i].end == file.entries()[i].end);
+  }
   const fs::path q = scratch("copy.safetensors");
   nn::write_safetensors(q, file);
   CHECK(read_all(q) == bytes);

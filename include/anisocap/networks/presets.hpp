@@ -18,10 +18,11 @@
 namespace anisocap {
 
 /// The "preset" entry of a weight file's metadata; "" when the file has none (weights written
-/// before the trainer recorded it are compact). Throws nn::safetensors_error for a missing or
-/// malformed file.
+/// before the trainer recorded it are compact). Reads the file's header only; throws
+/// nn::safetensors_error for a missing or malformed file (a header that does not fit the file's size
+/// included).
 inline std::string weights_preset(const std::filesystem::path& file) {
-  for (const auto& [key, value] : nn::read_safetensors(file).metadata)
+  for (const auto& [key, value] : nn::read_safetensors_header(file).metadata)
     if (key == "preset") return value;
   return "";
 }

@@ -159,12 +159,18 @@ inline std::string shape_string(const std::vector<std::int64_t>& shape) {
 
 }  // namespace detail
 
-/// Reads and validates a safetensors file. Throws safetensors_error "file: problem" for a missing
-/// or unreadable file, truncation, a header length beyond the file, bad JSON, an unknown dtype,
-/// offsets out of range or not tiling the data, or a byte count that disagrees with dtype and shape.
-inline safetensors_file read_safetensors(const std::filesystem::path& file) {
-  using detail::safetensors_fail;
-  std::ifstream in(file, std::ios::binary | std::ios::ate);
+/// A safetensors file's header: its tensors (names, dtypes, shapes and offsets into the data
+/// region), its metadata and the size of its data region, without the data.
+struct safetensors_header {
+  std::vector<safetensors_file::entry> entries;               ///< tensors in header order
+  std::vector<std::pair<std::string, std::string>> metadata;  ///< the `__metadata__` pairs, in file order
+  std::uint64_t data_size = 0;                                ///< bytes in the data region
+};
+
+namespace detail {
+
+/// Reads and validates the header of a safetensors file from `in` (opened at its end, binary).
+inline safetensors_header read_safetensors_header(const std::filesystem::path& file, std::ifstream& in) {
   if (!in) safetensors_fail(file, "cannot open the file");
   const std::uint64_t file_size = std::uint64_t(in.tellg());
   in.seekg(0);
@@ -180,9 +186,8 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
                                std::to_string(file_size - 8) + " bytes after it (truncated?)");
   std::string header(header_length, '\0');
   in.read(header.data(), std::streamsize(header_length));
-  std::vector<std::byte> data(file_size - 8 - header_length);
-  in.read(reinterpret_cast<char*>(data.data()), std::streamsize(data.size()));
   if (!in) safetensors_fail(file, "read error");
+  const std::uint64_t data_size = file_size - 8 - header_length;
 
   json root;
   try {
@@ -223,9 +228,9 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
     e.begin = detail::safetensors_integer(file, o.at("data_offsets")[0], where + ": data_offsets[0]");
     e.end = detail::safetensors_integer(file, o.at("data_offsets")[1], where + ": data_offsets[1]");
     if (e.begin > e.end) safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] are reversed");
-    if (e.end > data.size())
+    if (e.end > data_size)
       safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
-                                 "] out of range: the data region has " + std::to_string(data.size()) + " bytes (truncated?)");
+                                 "] out of range: the data region has " + std::to_string(data_size) + " bytes (truncated?)");
     // Overflow-safe count * element == end - begin.
     std::size_t count = 1;
     bool overflow = false;
@@ -250,9 +255,31 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
                                  std::to_string(position) + (e->begin < position ? " (overlapping tensors)" : " (a gap)"));
     position = e->end;
   }
-  if (position != data.size())
-    safetensors_fail(file, std::to_string(data.size() - position) + " bytes of data after the last tensor");
-  return safetensors_file(std::move(entries), std::move(data), std::move(metadata));
+  if (position != data_size)
+    safetensors_fail(file, std::to_string(data_size - position) + " bytes of data after the last tensor");
+  return {std::move(entries), std::move(metadata), data_size};
+}
+
+}  // namespace detail
+
+/// Reads and validates a safetensors file's header only (the tensors' names, dtypes, shapes and
+/// offsets, and the metadata), checking the offsets against the file's size: what
+/// read_safetensors checks, without reading the data. Throws safetensors_error as it does.
+inline safetensors_header read_safetensors_header(const std::filesystem::path& file) {
+  std::ifstream in(file, std::ios::binary | std::ios::ate);
+  return detail::read_safetensors_header(file, in);
+}
+
+/// Reads and validates a safetensors file. Throws safetensors_error "file: problem" for a missing
+/// or unreadable file, truncation, a header length beyond the file, bad JSON, an unknown dtype,
+/// offsets out of range or not tiling the data, or a byte count that disagrees with dtype and shape.
+inline safetensors_file read_safetensors(const std::filesystem::path& file) {
+  std::ifstream in(file, std::ios::binary | std::ios::ate);
+  safetensors_header header = detail::read_safetensors_header(file, in);
+  std::vector<std::byte> data(header.data_size);
+  in.read(reinterpret_cast<char*>(data.data()), std::streamsize(data.size()));
+  if (!in) detail::safetensors_fail(file, "read error");
+  return safetensors_file(std::move(header.entries), std::move(data), std::move(header.metadata));
 }
 
 /// Writes a safetensors file (metadata first, then the tensors in their order), through a temporary

@@ -563,7 +563,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
     if (!o.init_weights.empty()) {
       // Both networks name their encoder layers alike: the file's "network" entry (save_network's)
       // keeps an auto-encoder's weights out of an estimator and the reverse.
-      for (const auto& [key, value] : nn::read_safetensors(o.init_weights).metadata)
+      for (const auto& [key, value] : nn::read_safetensors_header(o.init_weights).metadata)
         if (key == "network" && value != kind)
           throw std::runtime_error(o.init_weights.string() + ": holds " + value + " weights, not " + kind + " weights (--init)");
       const std::vector<std::string> fresh = nn::load_matching_weights(o.init_weights, net);
