@@ -69,6 +69,11 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   if (autoencoder) {
     cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");
     cmd->add_option("--latent-noise", o.latent_noise, "standard deviation of the latent step delta");
+    cmd->add_option_function<std::string>(
+           "--trainable", [&o](const std::string& part) { o.encoder_only = part == "encoder"; },
+           "what the run trains: all (default) or encoder (the decoder of the --init weights stays as it is, "
+           "for the pipeline's fine-tune)")
+        ->check(CLI::IsMember({"all", "encoder"}));
   }
 }
 

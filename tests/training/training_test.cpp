@@ -107,6 +107,59 @@ TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statis
   fs::remove_all(b);
 }
 
+TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights, trains the encoder, resumes exactly") {
+  const fs::path src = fresh_folder("networks_enc_source"), a = fresh_folder("networks_enc_straight"),
+                 b = fresh_folder("networks_enc_resumed");
+  auto_encoder<testing::autoencoder_tiny> source(3);
+  training::train_autoencoder(tiny_options(src, 32), source);
+  auto options = [&](const fs::path& dir) {
+    auto o = tiny_options(dir, 32);
+    o.init_weights = src / "autoencoder.safetensors";
+    o.encoder_only = true;
+    o.seed = 8;
+    return o;
+  };
+  auto_encoder<testing::autoencoder_tiny> straight(11);
+  training::train_autoencoder(options(a), straight);
+  std::vector<float> decoder_before, decoder_after;
+  source.for_each_decoder_parameter([&](nn::basic_parameter<float>& p) { decoder_before.insert(decoder_before.end(), p.value.data(), p.value.data() + p.size()); });
+  straight.for_each_decoder_parameter([&](nn::basic_parameter<float>& p) { decoder_after.insert(decoder_after.end(), p.value.data(), p.value.data() + p.size()); });
+  REQUIRE(decoder_before.size() == decoder_after.size());
+  CHECK(decoder_before == decoder_after);  // bit for bit
+  int encoder_changed = 0;
+  for (std::size_t i = 0; i < straight.enc0.weight.size(); ++i) encoder_changed += straight.enc0.weight.value[i] != source.enc0.weight.value[i];
+  CHECK(encoder_changed > int(straight.enc0.weight.size()) / 2);
+  // The saved file holds the same decoder.
+  auto_encoder<testing::autoencoder_tiny> saved(12);
+  nn::load_weights(a / "autoencoder.safetensors", saved);
+  CHECK(saved.dec4.weight.value[0] == source.dec4.weight.value[0]);
+  // Stopped and resumed, the run ends with the straight run's weights (the decoder stays frozen).
+  {
+    auto_encoder<testing::autoencoder_tiny> killed(11);
+    auto o = options(b);
+    o.stop_after = 2;
+    training::train_autoencoder(o, killed);
+  }
+  auto_encoder<testing::autoencoder_tiny> resumed(13);
+  auto o = options(b);
+  o.resume = true;
+  o.encoder_only = false;  // a resume must keep what the run trains
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("--trainable encoder"), std::runtime_error);
+  o.encoder_only = true;
+  o.init_weights.clear();  // a resume needs no --init
+  training::train_autoencoder(o, resumed);
+  const auto wa = all_weights(straight), wb = all_weights(resumed);
+  REQUIRE(wa.size() == wb.size());
+  CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
+  // Without weights to start from there is no decoder worth keeping: refused, no folder.
+  auto fresh = tiny_options(fresh_folder("networks_enc_no_init"), 32);
+  fresh.encoder_only = true;
+  auto_encoder<testing::autoencoder_tiny> none(14);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(fresh, none), doctest::Contains("--init"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(fresh.out_dir));
+  for (const auto& d : {src, a, b}) fs::remove_all(d);
+}
+
 TEST_CASE("training: loss terms are zero for the truth and positive otherwise; seeds are disjoint") {
   std::vector<training::sample> s;
   s.push_back(training::make_sample(training::validation_seed(0), 32, true));

@@ -108,6 +108,13 @@ class auto_encoder {
     network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm);
   }
 
+  /// Freezes (or unfreezes) the decoder: no gradients are computed for its weights, while
+  /// gradients still flow through it to z (training the encoder against a fixed decoder).
+  void freeze_decoder(bool frozen = true) {
+    auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
+    network_detail::visit(f, dec0, dec1, dec2, dec3, dec4);
+  }
+
   /// Visits every trainable parameter.
   template <class F>
   void for_each_parameter(F&& f) {

@@ -191,6 +191,10 @@ struct train_options {
   /// losses always use 1, so runs with different weights compare row for row.
   double render_weight = 1.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
+  /// Auto-encoder: train the encoder (and its batch norm) only, against the decoder of the weights
+  /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
+  /// the weights it fine-tunes well from (docs/method.md section 7). Needs init_weights or resume.
+  bool encoder_only = false;
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
@@ -453,8 +457,8 @@ inline std::string setting_text(const json& value) {
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, render-loss weight or emphasis:
 /// such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight" (1), "emphasis" ("": none) and "emphasis_share" (0); other entries
-/// a checkpoint lacks are not compared.
+/// original mix), "render_weight" (1), "emphasis" ("": none), "emphasis_share" (0) and "trainable"
+/// ("all"); other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
@@ -462,7 +466,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
-      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}};
+      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}};
   // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
@@ -470,6 +474,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
     if (key == "render_weight") return json(1.0);
     if (key == "emphasis") return json("");
     if (key == "emphasis_share") return json(0.0);
+    if (key == "trainable") return json("all");
     return json();
   };
   for (const auto& [key, option] : options) {
@@ -515,6 +520,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
   info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
+  info["trainable"] = o.encoder_only ? "encoder" : "all";
   auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
   if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
   const auto csv = o.out_dir / "validation.csv";
@@ -711,14 +717,20 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
 
 /// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
 /// loss of D(E(m)) + smoothness_weight * mean |D(z) - D(z + delta)| with delta ~ N(0, latent_noise^2)
-/// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's).
+/// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's). With
+/// o.encoder_only the decoder is frozen (auto_encoder::freeze_decoder) and keeps the weights the run
+/// started from.
 template <class Preset>
 void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
   if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
   o.validate();  // before the schedule is built from the options
+  if (o.encoder_only && o.init_weights.empty() && !o.resume)
+    throw std::invalid_argument("train-autoencoder: --trainable encoder trains against the decoder of the weights it starts from: "
+                                "give them with --init (or --resume such a run)");
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 1e-3, o));
   opt.add_parameters(net);
+  net.freeze_decoder(o.encoder_only);
   ad::tape t;
   auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
   auto validate_fn = [&] {
