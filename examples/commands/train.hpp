@@ -21,6 +21,9 @@ namespace train_detail {
 struct train_settings {
   std::string preset = "compact";
   training::train_options options;
+  std::string inputs = "truth";  ///< auto-encoder: what the encoder reads, truth or estimates
+  /// Auto-encoder with estimates as inputs: the estimator weights that make them.
+  std::string input_estimator = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "estimator.safetensors").string();
 };
 
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
@@ -74,6 +77,12 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
            "what the run trains: all (default) or encoder (the decoder of the --init weights stays as it is, "
            "for the pipeline's fine-tune)")
         ->check(CLI::IsMember({"all", "encoder"}));
+    cmd->add_option("--inputs", s.inputs,
+                    "what the encoder reads: truth (the true maps, default) or estimates (the --input-estimator's estimates "
+                    "of the materials' photos, which is what the pipeline encodes); the loss compares with the truth either way")
+        ->check(CLI::IsMember({"truth", "estimates"}));
+    cmd->add_option("--input-estimator", s.input_estimator, "estimator weights for --inputs estimates (default: the shipped ones)")
+        ->check(CLI::ExistingFile);
   }
 }
 
@@ -143,19 +152,23 @@ void evaluate_networks_with(const network_eval_settings& s) {
       for (const auto& x : samples) sum += x.truth.plane(k)[j];
       mean.plane(k)[j] = float(sum / s.count);
     }
-  std::vector<material_errors> est_all, base_all, ae_all;
+  std::vector<material_errors> est_all, base_all, ae_all, start_all;
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const auto& x = samples[i];
     const auto u = training::estimator_output(estimator, x);
     const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), x.truth), b = compare_maps(mean, x.truth);
     const auto r = training::autoencoder_output(autoencoder, x);
     const parameter_errors a = compare_maps(network_space::network_to_maps(r, 0), x.truth);
+    // The fine-tune's start: the decoder's maps of the estimate's latent code (docs/method.md section 8.2).
+    const auto d = training::autoencoder_output(autoencoder, x, &u);
+    const parameter_errors st = compare_maps(network_space::network_to_maps(d, 0), x.truth);
     est_all.push_back({kinds[i], e});
     base_all.push_back({kinds[i], b});
     ae_all.push_back({kinds[i], a});
+    start_all.push_back({kinds[i], st});
   }
   const parameter_errors est = average_errors(est_all).mean, base = average_errors(base_all).mean,
-                         ae = average_errors(ae_all).mean;
+                         ae = average_errors(ae_all).mean, start = average_errors(start_all).mean;
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
                    (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
@@ -165,15 +178,18 @@ void evaluate_networks_with(const network_eval_settings& s) {
   md += row(("estimator (" + std::string(EstimatorPreset::name) + ")").c_str(), est);
   md += row("mean-map baseline", base);
   md += row(("auto-encoder reconstruction (" + std::string(AutoEncoderPreset::name) + ")").c_str(), ae);
+  md += row("estimate through the auto-encoder (the fine-tune's start)", start);
   md += "\nPer family (held out of training: leather, printed; the baseline is the mean map of all materials above)\n\n";
   md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|---|---|\n";
-  const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all);
+  const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all),
+             start_rows = errors_by_family(start_all);
   for (std::size_t k = 0; k < est_rows.size(); ++k) {
     const std::string prefix = std::string(material_kind_name(est_rows[k].kind)) + (is_held_out(est_rows[k].kind) ? " (held out)" : "") +
                                " | " + std::to_string(est_rows[k].count);
     md += row((prefix + " | estimator").c_str(), est_rows[k].mean);
     md += row((prefix + " | baseline").c_str(), base_rows[k].mean);
     md += row((prefix + " | auto-encoder").c_str(), ae_rows[k].mean);
+    md += row((prefix + " | estimate through the auto-encoder").c_str(), start_rows[k].mean);
   }
   std::printf("%s", md.c_str());
   if (!s.markdown.empty()) {
@@ -210,7 +226,14 @@ inline void add_train_commands(CLI::App& app) {
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
     train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>>(
-        *ae, [](const training::train_options& o, auto& net) { training::train_autoencoder(o, net); });
+        *ae, [&s = *ae](const training::train_options& o, auto& net) {
+          if (s.inputs == "truth") return training::train_autoencoder(o, net);
+          with_compact_estimator_preset(s.input_estimator, [&]<class P>() {
+            auto estimator = std::make_unique<estimation_network<P>>();
+            nn::load_weights(s.input_estimator, *estimator);
+            training::train_autoencoder(o, net, *estimator);
+          });
+        });
   });
   auto ev = std::make_shared<network_eval_settings>();
   auto* ev_cmd = app.add_subcommand("eval-networks", "per-parameter errors of the compact estimator (against the mean-map baseline) and auto-encoder");

@@ -821,6 +821,37 @@ TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped 
   CHECK(r.output.find("auto-encoder reconstruction") != std::string::npos);
 }
 
+TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder learns from the shipped estimator's estimates") {
+  temp_dir t;
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
+  const std::string init = " --init " + (models / "autoencoder.safetensors").string();
+  auto r = run("--threads 1 train-autoencoder --out enc --steps 1 --size 64 --batch 2 --validate-every 1000 --validation-count 1 "
+               "--inputs estimates --trainable encoder" + init, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const auto description = nlohmann::json::parse(std::ifstream(t.path / "enc/checkpoint.json"));
+  CHECK(description.at("inputs") == "estimates");
+  CHECK(description.at("trainable") == "encoder");
+  // Resuming it as a run on the true maps is refused with the option that resumes it.
+  r = run("--threads 1 train-autoencoder --out enc --steps 2 --size 64 --batch 2 --trainable encoder --resume", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--inputs estimates") != std::string::npos);
+  // The estimator reads sizes that are multiples of 64; encoder-only needs weights to start from.
+  r = run("train-autoencoder --out small --size 32 --inputs estimates", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("multiple of 64") != std::string::npos);
+  r = run("train-autoencoder --out none --size 64 --trainable encoder", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--init") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "small"));
+  CHECK_FALSE(fs::exists(t.path / "none"));
+  // eval-networks reports the fine-tune's start: the estimate through the auto-encoder.
+  r = run("--threads 1 eval-networks --count 1 --size 64 --autoencoder enc/autoencoder.safetensors", t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("| estimate through the auto-encoder (the fine-tune's start) |") != std::string::npos);
+}
+
 TEST_CASE("eval --first-seed redoes one material of a larger run") {
   temp_dir t;
   const std::string common = " --min-size 32 --max-size 32 --images 4 --sets alpha --finetune-steps 1 --steps 2 --materials extended";

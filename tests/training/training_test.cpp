@@ -160,6 +160,82 @@ TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights
   for (const auto& d : {src, a, b}) fs::remove_all(d);
 }
 
+TEST_CASE("training: an auto-encoder step reads the inputs it is given, and compares with the truth") {
+  training::train_options o = tiny_options(fresh_folder("networks_inputs_unused"), 32);
+  const std::vector<training::sample> samples = training::make_batch(o, 0, false);
+  auto loss = [&](const std::vector<tensor<parameter_count>>* inputs) {
+    auto_encoder<testing::autoencoder_tiny> net(3);
+    nn::adam opt;
+    opt.add_parameters(net);
+    ad::tape t;
+    return training::autoencoder_step(t, net, opt, samples, o, 0, inputs).total;
+  };
+  std::vector<tensor<parameter_count>> truth, other;
+  for (const auto& x : samples) {
+    truth.push_back(x.truth_net.clone());
+    other.push_back(x.truth_net.clone());
+    for (std::size_t i = 0; i < other.back().size(); ++i) other.back().data()[i] *= 0.5f;
+  }
+  CHECK(loss(&truth) == loss(nullptr));  // the true maps given as inputs: the same step
+  CHECK(loss(&other) != loss(nullptr));
+  other.pop_back();
+  CHECK_THROWS_AS(loss(&other), std::invalid_argument);
+}
+
+TEST_CASE("training: an auto-encoder on the estimator's estimates keeps its decoder, validates on estimates, resumes only as such") {
+  const fs::path src = fresh_folder("networks_est_in_source"), a = fresh_folder("networks_est_in_straight"),
+                 b = fresh_folder("networks_est_in_resumed");
+  auto_encoder<testing::autoencoder_tiny> source(3);
+  training::train_autoencoder(tiny_options(src, 64), source);
+  estimation_network<testing::estimator_tiny> estimator(4);
+  auto options = [&](const fs::path& dir) {
+    auto o = tiny_options(dir, 64);
+    o.init_weights = src / "autoencoder.safetensors";
+    o.encoder_only = true;
+    return o;
+  };
+  auto_encoder<testing::autoencoder_tiny> straight(11);
+  training::train_autoencoder(options(a), straight, estimator);
+  CHECK(straight.dec2.weight.value[7] == source.dec2.weight.value[7]);
+  CHECK(straight.enc1.weight.value[7] != source.enc1.weight.value[7]);
+  CHECK(training::read_checkpoint_description(a).at("inputs") == "estimates");
+  // The CSV's validation is of D(E(estimate)): recompute its first material's L1 term.
+  {
+    training::train_options o = options(a);
+    const training::sample x = training::make_sample(training::validation_seed(0), 64, true, training::material_options_for_seed(o, training::validation_seed(0)));
+    const tensor<parameter_count> e = training::estimator_output(estimator, x);
+    const tensor<parameter_count> through_estimate = training::autoencoder_output(straight, x, &e), through_truth = training::autoencoder_output(straight, x);
+    std::vector<training::sample> one{x};
+    const double l1_estimate = training::map_losses(through_estimate, one, nullptr).l1, l1_truth = training::map_losses(through_truth, one, nullptr).l1;
+    std::ifstream csv(a / "validation.csv");
+    std::string line, last;
+    while (std::getline(csv, line)) last = line;
+    const double logged = std::stod(last.substr(last.find(',', last.find(',', last.find(',') + 1) + 1) + 1));  // val_l1
+    CHECK(logged == doctest::Approx(l1_estimate).epsilon(1e-4));
+    CHECK(l1_estimate != doctest::Approx(l1_truth).epsilon(1e-4));
+  }
+  {
+    auto_encoder<testing::autoencoder_tiny> killed(11);
+    auto o = options(b);
+    o.stop_after = 2;
+    training::train_autoencoder(o, killed, estimator);
+  }
+  auto_encoder<testing::autoencoder_tiny> resumed(13);
+  auto o = options(b);
+  o.resume = true;
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("--inputs estimates"), std::runtime_error);
+  training::train_autoencoder(o, resumed, estimator);
+  const auto wa = all_weights(straight), wb = all_weights(resumed);
+  REQUIRE(wa.size() == wb.size());
+  CHECK(std::equal(wa.begin(), wa.end(), wb.begin()));
+  // The estimator's sizes: a multiple of 64.
+  auto small = options(fresh_folder("networks_est_in_small"));
+  small.size = 32;
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(small, resumed, estimator), doctest::Contains("multiple of 64"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(small.out_dir));
+  for (const auto& d : {src, a, b}) fs::remove_all(d);
+}
+
 TEST_CASE("training: loss terms are zero for the truth and positive otherwise; seeds are disjoint") {
   std::vector<training::sample> s;
   s.push_back(training::make_sample(training::validation_seed(0), 32, true));

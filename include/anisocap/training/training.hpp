@@ -195,6 +195,10 @@ struct train_options {
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
   /// the weights it fine-tunes well from (docs/method.md section 7). Needs init_weights or resume.
   bool encoder_only = false;
+  /// Auto-encoder: the inputs are set by train_autoencoder's estimator overload (`--estimates-from`):
+  /// true when the encoder reads the estimator's estimates of the materials' photos instead of
+  /// the true maps. Recorded in checkpoint.json ("inputs") and kept on resume.
+  bool inputs_are_estimates = false;
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
   material_mix mix = material_mix::original;  ///< families of the training and validation materials (not extended)
@@ -371,13 +375,14 @@ tensor<parameter_count> estimator_output(Net& net, const sample& s) {
   return out;
 }
 
-/// The auto-encoder's reconstruction of one sample (running batch-norm statistics, no gradients).
+/// The auto-encoder's reconstruction of one sample (running batch-norm statistics, no gradients):
+/// D(E(m)) of the true maps, or of `input` (network space, the sample's size) when given.
 template <class Net>
-tensor<parameter_count> autoencoder_output(Net& net, const sample& s) {
+tensor<parameter_count> autoencoder_output(Net& net, const sample& s, const tensor<parameter_count>* input = nullptr) {
   ad::tape t;
   ad::tape::no_grad_guard guard(t);
   net.set_training(false);
-  auto x = t.leaf(s.truth_net);
+  auto x = t.leaf(input ? *input : s.truth_net);
   auto y = net.decode(t, net.encode(t, x));
   net.set_training(true);
   tensor<parameter_count> out(1, s.truth.height(), s.truth.width());
@@ -457,8 +462,8 @@ inline std::string setting_text(const json& value) {
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, render-loss weight or emphasis:
 /// such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight" (1), "emphasis" ("": none), "emphasis_share" (0) and "trainable"
-/// ("all"); other entries a checkpoint lacks are not compared.
+/// original mix), "render_weight" (1), "emphasis" ("": none), "emphasis_share" (0), "trainable"
+/// ("all") and "inputs" ("truth"); other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
@@ -466,7 +471,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
-      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}};
+      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"}};
   // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
@@ -475,6 +480,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
     if (key == "emphasis") return json("");
     if (key == "emphasis_share") return json(0.0);
     if (key == "trainable") return json("all");
+    if (key == "inputs") return json("truth");
     return json();
   };
   for (const auto& [key, option] : options) {
@@ -521,6 +527,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["emphasis"] = emphasis;
   info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
   info["trainable"] = o.encoder_only ? "encoder" : "all";
+  info["inputs"] = o.inputs_are_estimates ? "estimates" : "truth";
   auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
   if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
   const auto csv = o.out_dir / "validation.csv";
@@ -663,15 +670,22 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
 /// by o.render_weight), and with
 /// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
 /// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
-/// step. `t` is cleared first. Returns the batch's loss terms before the step.
+/// step. `t` is cleared first. Returns the batch's loss terms before the step. With `inputs`
+/// (one network-space map set per sample, e.g. the estimator's estimates) the encoder reads those
+/// instead of the true maps; the loss still compares with the truth.
 template <class Preset>
 loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
-                            const train_options& o, long step) {
+                            const train_options& o, long step, const std::vector<tensor<parameter_count>>* inputs = nullptr) {
   constexpr int Z = auto_encoder<Preset>::latent_channels;
   const int B = int(samples.size()), H = samples[0].truth_net.height(), W = samples[0].truth_net.width();
+  if (inputs && int(inputs->size()) != B) throw std::invalid_argument("autoencoder_step: one input per sample");
   t.clear();
   auto x = t.make_variable<parameter_count>(B, H, W, false);
-  for (int b = 0; b < B; ++b) std::copy_n(samples[b].truth_net.data(), samples[b].truth_net.size(), x.value.pixel(b, 0, 0));
+  for (int b = 0; b < B; ++b) {
+    const tensor<parameter_count>& in = inputs ? (*inputs)[std::size_t(b)] : samples[b].truth_net;
+    if (in.height() != H || in.width() != W) throw std::invalid_argument("autoencoder_step: an input's size differs from its sample's");
+    std::copy_n(in.data(), in.size(), x.value.pixel(b, 0, 0));
+  }
   net.set_training(true);
   auto z = net.encode(t, x);
   auto y = net.decode(t, z);
@@ -737,6 +751,41 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
     return validate(net, o, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); });
   };
   detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
+}
+
+/// Trains the auto-encoder as train_autoencoder does, with the encoder reading `estimator`'s
+/// estimates of each material's 5 training photos (the maps the pipeline encodes, docs/method.md
+/// section 8.2) instead of the true maps, and the loss comparing D(E(estimate)) with the truth.
+/// The estimator is not trained. Validation measures the same: D(E(estimate)) against the truth.
+/// With o.encoder_only the decoder keeps its --init weights: the encoder learns the latent code
+/// from which the decoder the pipeline fine-tunes starts nearest the truth.
+template <class Preset, class EstimatorPreset>
+void train_autoencoder(const train_options& options, auto_encoder<Preset>& net, estimation_network<EstimatorPreset>& estimator) {
+  train_options o = options;
+  o.inputs_are_estimates = true;
+  if (o.size <= 0 || o.size % 64 != 0)
+    throw std::invalid_argument("train-autoencoder: with estimates as inputs --size must be a positive multiple of 64 (the estimator's)");
+  if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
+  o.validate();
+  if (o.encoder_only && o.init_weights.empty() && !o.resume)
+    throw std::invalid_argument("train-autoencoder: --trainable encoder trains against the decoder of the weights it starts from: "
+                                "give them with --init (or --resume such a run)");
+  nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 1e-3, o));
+  opt.add_parameters(net);
+  net.freeze_decoder(o.encoder_only);
+  ad::tape t;
+  auto step_fn = [&](long step, const std::vector<sample>& samples) {
+    std::vector<tensor<parameter_count>> estimates;
+    for (const sample& x : samples) estimates.push_back(estimator_output(estimator, x));
+    return autoencoder_step(t, net, opt, samples, o, step, &estimates).total;
+  };
+  auto validate_fn = [&] {
+    return validate(net, o, true, [&](auto& n, const sample& s) {
+      const tensor<parameter_count> e = estimator_output(estimator, s);
+      return autoencoder_output(n, s, &e);
+    });
+  };
+  detail::run(o, "autoencoder", net, opt, true, step_fn, validate_fn);
 }
 
 }  // namespace anisocap::training
