@@ -482,13 +482,19 @@ def make_net(network, preset):
     return AutoEncoder(preset) if network == "autoencoder" else Estimator(preset)
 
 
-def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3):
-    """Returns (total, l1, render) for one batch of network-space truth maps and configurations."""
+def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3, source=None):
+    """Returns (total, l1, render) for one batch of network-space truth maps and configurations.
+    For the auto-encoder, `source` (an estimator, not trained) replaces the encoder's input by its
+    estimate from the 5 training inputs (train-autoencoder --inputs estimates)."""
     with torch.no_grad():
         truth_maps = network_to_maps(maps)
         targets = torch.log(render_batch(truth_maps, conf[:, 5:9]) + ward.LOG_EPS)
     if network == "autoencoder":
-        z = net.encode(maps)
+        x = maps
+        if source is not None:
+            with torch.no_grad():
+                x = source(estimator_inputs(render_batch(truth_maps, conf[:, 0:5]), source.inputs), 5)
+        z = net.encode(x)
         y = net.decode(z)
         l1, rl = map_l1(y, maps), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
@@ -504,13 +510,13 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
     return total, l1, rl, y
 
 
-def validate(net, network, val, render_weight, channels, batch=8):
+def validate(net, network, val, render_weight, channels, batch=8, source=None):
     net.eval()
     rows = []
     with torch.no_grad():
         for i in range(0, len(val[0]), batch):
             maps, conf = val[0][i:i + batch], val[1][i:i + batch]
-            _, l1, rl, y = losses(net, network, maps, conf, render_weight, channels=channels)
+            _, l1, rl, y = losses(net, network, maps, conf, render_weight, channels=channels, source=source)
             rows.append([l1.item(), rl.item()] + per_parameter_mse(y, maps))
     net.train()
     return np.mean(np.array(rows), 0)
@@ -540,6 +546,24 @@ def train(args):
     net = make_net(args.network, preset).to(device)
     meta, names = load_cpp(net, args.init)
     channels = net.inputs if args.network == "estimator" else 12
+    source = None
+    if args.network == "autoencoder" and args.inputs == "estimates":
+        if not args.input_estimator:
+            raise SystemExit("--inputs estimates needs --input-estimator FILE")
+        _, source_meta, _ = read_safetensors(args.input_estimator)
+        if source_meta.get("network") != "estimator":
+            raise SystemExit(f"{args.input_estimator}: holds {source_meta.get('network')} weights, not estimator weights")
+        source = Estimator(source_meta.get("preset", "compact")).to(device)
+        load_cpp(source, args.input_estimator)
+        source.eval()
+        source.requires_grad_(False)
+    trained = net.parameters()
+    if args.trainable == "encoder":
+        if args.network != "autoencoder":
+            raise SystemExit("--trainable encoder is for the auto-encoder")
+        for layer in (net.dec0, net.dec1, net.dec2, net.dec3, net.dec4):
+            layer.requires_grad_(False)
+        trained = [p for p in net.parameters() if p.requires_grad]
     os.makedirs(args.out, exist_ok=True)
     extra = ["--materials", "training"] + (["--emphasis", args.emphasis, "--emphasis-share", str(args.emphasis_share)] if args.emphasis else [])
     val_records = None
@@ -552,7 +576,7 @@ def train(args):
            torch.from_numpy(val_records["conf"].copy()).to(device))
     producer = Producer(args.tool, args.seed, args.size, args.chunk, args.workers, extra, first=args.first)
     pool = Pool(producer, args.pool, args.size, device)
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    opt = torch.optim.Adam(trained, lr=args.lr)
     csv_path = os.path.join(args.out, "validation.csv")
     header = ["step", "materials_drawn", "materials_generated", "seconds", "lr", "train_loss", "val_l1", "val_render",
               "mse_diffuse", "mse_specular", "mse_normal", "mse_lobes", "mse_rotation", "mse_fresnel",
@@ -561,7 +585,7 @@ def train(args):
         csv.writer(f).writerow(header)
 
     def log_validation(step, seconds, lr, train_loss):
-        v = validate(net, args.network, val, args.render_weight, channels)
+        v = validate(net, args.network, val, args.render_weight, channels, source=source)
         row = [step, pool.used, producer.generated, round(seconds, 1), lr, train_loss] + [float(x) for x in v]
         with open(csv_path, "a", newline="") as f:
             csv.writer(f).writerow(row)
@@ -582,7 +606,7 @@ def train(args):
         for g in opt.param_groups:
             g["lr"] = lr
         maps, conf = pool.batch(args.batch)
-        total, l1, rl, _ = losses(net, args.network, maps, conf, args.render_weight, channels=channels)
+        total, l1, rl, _ = losses(net, args.network, maps, conf, args.render_weight, channels=channels, source=source)
         opt.zero_grad(set_to_none=True)
         total.backward()
         opt.step()
@@ -610,7 +634,8 @@ def train(args):
                    "materials_drawn": pool.used, "materials_generated": producer.generated, "seconds": time.time() - start,
                    "lr": args.lr, "lr_end": args.lr_end, "decay": args.decay, "warmup": args.warmup, "seed": args.seed,
                    "first": args.first, "render_weight": args.render_weight, "emphasis": args.emphasis,
-                   "emphasis_share": args.emphasis_share, "device": torch.cuda.get_device_name() if device.type == "cuda" else "cpu",
+                   "emphasis_share": args.emphasis_share, "trainable": args.trainable, "inputs": args.inputs,
+                   "input_estimator": args.input_estimator, "device": torch.cuda.get_device_name() if device.type == "cuda" else "cpu",
                    "torch": torch.__version__}, f, indent=1)
     print(f"{args.network}: {step} steps, {pool.used} materials drawn ({producer.generated} generated) in {time.time() - start:.0f} s; "
           f"weights in {out_file}", flush=True)
@@ -699,6 +724,11 @@ def main():
     t.add_argument("--validate-every", type=int, default=500)
     t.add_argument("--save-minutes", type=float, default=2)
     t.add_argument("--cpu", action="store_true")
+    t.add_argument("--trainable", choices=["all", "encoder"], default="all",
+                   help="auto-encoder: train everything, or the encoder only against the --init decoder")
+    t.add_argument("--inputs", choices=["truth", "estimates"], default="truth",
+                   help="auto-encoder: the encoder reads the true maps or --input-estimator's estimates of the 5 inputs")
+    t.add_argument("--input-estimator", default="", help="estimator weights (C++ file) for --inputs estimates")
     c = sub.add_parser("check")
     c.add_argument("--network", choices=["estimator", "autoencoder"], required=True)
     c.add_argument("--weights", required=True)
