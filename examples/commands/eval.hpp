@@ -1,6 +1,7 @@
 #pragma once
 // `anisocap eval`: the paper's Table 1 on procedural validation materials.
 #include <chrono>
+#include <limits>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -32,7 +33,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
   std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
   std::vector<std::string> order;
   std::ostringstream csv;
-  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family\n";
+  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family,photo_loss\n";
   auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
     if (!rows.count(key)) order.push_back(key);
     auto& r = rows[key];
@@ -94,7 +95,14 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         const double sec = seconds_since(t0);
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
                      static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
-        auto record = [&](const char* stage, const material_maps& maps) {
+        // The stage's image loss against the input photographs (stage_report::loss): what a capture
+        // of real photographs can measure, beside the errors that need the truth.
+        auto photo_loss = [&](const char* stage) {
+          for (const stage_report& r : pr.stages)
+            if (r.name == stage && r.ran) return r.loss;
+          return std::numeric_limits<double>::quiet_NaN();
+        };
+        auto record = [&](const char* stage, const char* report, const material_maps& maps) {
           const parameter_errors pe = compare_maps(maps, truth);
           const double nv = novel_view_error(maps, truth, novel);
           const std::string key = std::to_string(n) + "|" + stage + "|" + set;
@@ -102,10 +110,11 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
           family_rows[key].push_back({*material_options.kind, pe, nv});
           csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
               << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
-              << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << '\n';
+              << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << ','
+              << photo_loss(report) << '\n';
         };
-        if (pr.after_finetune) record("fine-tuned", *pr.after_finetune);
-        record("refined", pr.maps);
+        if (pr.after_finetune) record("fine-tuned", "finetune", *pr.after_finetune);
+        record("refined", "refine", pr.maps);
       }
     write_tables();
     std::fprintf(stderr, "eval: %d/%d materials done, tables in %s\n", m + 1, e.count, e.out.c_str());
