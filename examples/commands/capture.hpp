@@ -123,7 +123,8 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", photos.size(), photos[0].width(),
                photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
 
-  capture_result result = run_capture(cap, photos, s.models, o, start_maps ? &*start_maps : nullptr, masks);
+  model_selection selection;
+  capture_result result = run_capture(cap, photos, s.models, o, start_maps ? &*start_maps : nullptr, masks, &selection);
   const std::string kernel_used = kernel_analysis{result.features, 0, 0, 0}.describe();
   if (o.kernel.auto_tolerance > 0) std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_used.c_str());
 
@@ -171,6 +172,10 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                           {"half_life", o.finetune.half_life}, {"crop", o.finetune.crop.cells}, {"guard", o.finetune.guard.factor},
                           {"preset", s.models.preset}};
   report["loss"] = result.loss;
+  if (!s.models.alternative.empty() && networks)
+    report["models"] = {{"chosen", fs::absolute(selection.chosen).string()}, {"loss", selection.loss},
+                        {"other", fs::absolute(selection.other).string()}, {"other_loss", selection.other_loss},
+                        {"other_seconds", selection.other_seconds}};
   report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)

@@ -852,6 +852,40 @@ TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder
   CHECK(r.output.find("| estimate through the auto-encoder (the fine-tune's start) |") != std::string::npos);
 }
 
+TEST_CASE("capture --also-models: runs the networks with both folders' weights and keeps the better fit") {
+  temp_dir t;
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models";
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
+  const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
+  auto r = run(common + " -o both --models '" + models.string() + "' --also-models '" + (models / "next").string() + "'", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "both/report.json"));
+  REQUIRE(report.contains("models"));
+  const nlohmann::json& m = report.at("models");
+  CHECK(m.at("loss").get<double>() == report.at("loss").get<double>());
+  CHECK(m.at("loss").get<double>() <= m.at("other_loss").get<double>());
+  CHECK(m.at("chosen") != m.at("other"));
+  CHECK_FALSE(fs::exists(t.path / "both/.checkpoint"));
+  // Each folder alone gives the loss the selection reported for it: the choice is of whole runs.
+  for (const char* side : {"chosen", "other"}) {
+    const std::string dir = std::string("alone_") + side;
+    r = run(common + " -o " + dir + " --models '" + m.at(side).get<std::string>() + "'", t.path);
+    REQUIRE(r.status == 0);
+    const double alone = nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>();
+    CHECK(alone == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
+  }
+  // A folder that does not exist, and one without weights: refused, nothing written.
+  r = run(common + " -o none --also-models missing_folder", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("missing_folder") != std::string::npos);
+  fs::create_directories(t.path / "empty");
+  r = run(common + " -o none --also-models empty", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--also-models: no compact weights in empty") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "none/report.json"));
+}
+
 TEST_CASE("eval --first-seed redoes one material of a larger run") {
   temp_dir t;
   const std::string common = " --min-size 32 --max-size 32 --images 4 --sets alpha --finetune-steps 1 --steps 2 --materials extended";
