@@ -10,8 +10,14 @@ each side wins, so a claim "A beats B" can be read three ways. The two sides are
 - with --weights, the first table against the second (two evals of one protocol with different
   weights, or different options), on the materials both have finished, for one --set.
 
+With --weights --select, a third side is added: per material, the result of whichever table's
+refined stage fits the input photographs better (the lower photo_loss column, which evals write
+since photo_loss was added), i.e. what a capture that ran both weight sets and kept the better fit
+would get without knowing the truth. It is compared with the first table, and the choices are
+counted per family.
+
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
-       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12]
+       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select]
 Standard library only.
 """
 import argparse
@@ -52,12 +58,36 @@ def print_comparison(side_a, side_b, name_a, name_b):
                   f"{statistics.median(a):.4g} | {statistics.median(b):.4g} | {wins_a} | {wins_b} |")
 
 
+def print_selection(side_a, side_b):
+    """The per-material choice by the refined stage's photo_loss, against the first side."""
+    seeds = sorted(s for s, st in side_a if st == "refined" and (s, "refined") in side_b)
+    if any(not side[(s, "refined")].get("photo_loss") for side in (side_a, side_b) for s in seeds):
+        sys.exit("--select needs the photo_loss column in both tables (evals written since it was added)")
+    chosen, picks = {}, {}
+    for s in seeds:
+        second = float(side_b[(s, "refined")]["photo_loss"]) < float(side_a[(s, "refined")]["photo_loss"])
+        source = side_b if second else side_a
+        family = side_a[(s, "refined")]["family"]
+        picks.setdefault(family, [0, 0])[1 if second else 0] += 1
+        for stage in ("fine-tuned", "refined"):
+            if (s, stage) in source:
+                chosen[(s, stage)] = source[(s, stage)]
+    print("\nChoice by the refined stage's photo_loss (per family: materials taking the first, the second):",
+          ", ".join(f"{f} {a}/{b}" for f, (a, b) in sorted(picks.items())))
+    print()
+    print_comparison(side_a, chosen, "first", "chosen")
+    print()
+    print_comparison(side_b, chosen, "second", "chosen")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("tables", nargs="+")
     parser.add_argument("--images", type=int, default=12, help="input count N to compare at")
     parser.add_argument("--weights", action="store_true", help="compare the first table against the second")
     parser.add_argument("--set", default="alpha", help="the configuration set compared with --weights")
+    parser.add_argument("--select", action="store_true",
+                        help="with --weights: also the per-material choice of the table whose refined stage has the lower photo_loss")
     args = parser.parse_args()
     if args.weights:
         if len(args.tables) != 2:
@@ -70,6 +100,8 @@ def main():
         print(f"N = {args.images}, set {args.set}: {args.tables[0]} (first) against {args.tables[1]} (second) "
               f"on the materials both have\n")
         print_comparison(side_a, side_b, "first", "second")
+        if args.select:
+            print_selection(side_a, side_b)
         return
     rows = {}
     for path in args.tables:
