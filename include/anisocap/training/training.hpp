@@ -22,6 +22,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -729,13 +730,17 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   detail::run(o, "estimator", net, opt, true, step_fn, validate_fn);
 }
 
-/// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
-/// loss of D(E(m)) + smoothness_weight * mean |D(z) - D(z + delta)| with delta ~ N(0, latent_noise^2)
-/// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's). With
-/// o.encoder_only the decoder is frozen (auto_encoder::freeze_decoder) and keeps the weights the run
-/// started from.
-template <class Preset>
-void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
+namespace detail {
+
+/// The body of both train_autoencoder overloads: the encoder reads the true maps when Estimator is
+/// void, else `estimator`'s estimates of each sample's 5 training photos.
+template <class Preset, class Estimator>
+void train_autoencoder_on(const train_options& options, auto_encoder<Preset>& net, Estimator* estimator) {
+  constexpr bool from_estimates = !std::is_void_v<Estimator>;
+  train_options o = options;
+  o.inputs_are_estimates = from_estimates;
+  if (from_estimates && (o.size <= 0 || o.size % 64 != 0))
+    throw std::invalid_argument("train-autoencoder: with estimates as inputs --size must be a positive multiple of 64 (the estimator's)");
   if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
   if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
   o.validate();  // before the schedule is built from the options
@@ -746,11 +751,38 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
   opt.add_parameters(net);
   net.freeze_decoder(o.encoder_only);
   ad::tape t;
-  auto step_fn = [&](long step, const std::vector<sample>& samples) { return autoencoder_step(t, net, opt, samples, o, step).total; };
-  auto validate_fn = [&] {
-    return validate(net, o, false, [](auto& n, const sample& s) { return autoencoder_output(n, s); });
+  auto step_fn = [&](long step, const std::vector<sample>& samples) {
+    if constexpr (from_estimates) {
+      std::vector<tensor<parameter_count>> estimates;
+      for (const sample& x : samples) estimates.push_back(estimator_output(*estimator, x));
+      return autoencoder_step(t, net, opt, samples, o, step, &estimates).total;
+    } else {
+      return autoencoder_step(t, net, opt, samples, o, step).total;
+    }
   };
-  detail::run(o, "autoencoder", net, opt, false, step_fn, validate_fn);
+  auto validate_fn = [&] {
+    return validate(net, o, from_estimates, [&](auto& n, const sample& s) {
+      if constexpr (from_estimates) {
+        const tensor<parameter_count> e = estimator_output(*estimator, s);
+        return autoencoder_output(n, s, &e);
+      } else {
+        return autoencoder_output(n, s);
+      }
+    });
+  };
+  run(o, "autoencoder", net, opt, from_estimates, step_fn, validate_fn);
+}
+
+}  // namespace detail
+
+/// Trains the auto-encoder (docs/method.md section 7): per step, `batch` procedural map sets; loss = L1 + render
+/// loss of D(E(m)) + smoothness_weight * mean |D(z) - D(z + delta)| with delta ~ N(0, latent_noise^2)
+/// per latent value (Gao 2019's smoothness); Adam (default rate 1e-3, the paper's). With
+/// o.encoder_only the decoder is frozen (auto_encoder::freeze_decoder) and keeps the weights the run
+/// started from.
+template <class Preset>
+void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
+  detail::train_autoencoder_on<Preset, void>(o, net, nullptr);
 }
 
 /// Trains the auto-encoder as train_autoencoder does, with the encoder reading `estimator`'s
@@ -758,34 +790,11 @@ void train_autoencoder(const train_options& o, auto_encoder<Preset>& net) {
 /// section 8.2) instead of the true maps, and the loss comparing D(E(estimate)) with the truth.
 /// The estimator is not trained. Validation measures the same: D(E(estimate)) against the truth.
 /// With o.encoder_only the decoder keeps its --init weights: the encoder learns the latent code
-/// from which the decoder the pipeline fine-tunes starts nearest the truth.
+/// from which the decoder the pipeline fine-tunes starts nearest the truth. Sizes must be
+/// multiples of 64 (the estimator's).
 template <class Preset, class EstimatorPreset>
-void train_autoencoder(const train_options& options, auto_encoder<Preset>& net, estimation_network<EstimatorPreset>& estimator) {
-  train_options o = options;
-  o.inputs_are_estimates = true;
-  if (o.size <= 0 || o.size % 64 != 0)
-    throw std::invalid_argument("train-autoencoder: with estimates as inputs --size must be a positive multiple of 64 (the estimator's)");
-  if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
-  o.validate();
-  if (o.encoder_only && o.init_weights.empty() && !o.resume)
-    throw std::invalid_argument("train-autoencoder: --trainable encoder trains against the decoder of the weights it starts from: "
-                                "give them with --init (or --resume such a run)");
-  nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 1e-3, o));
-  opt.add_parameters(net);
-  net.freeze_decoder(o.encoder_only);
-  ad::tape t;
-  auto step_fn = [&](long step, const std::vector<sample>& samples) {
-    std::vector<tensor<parameter_count>> estimates;
-    for (const sample& x : samples) estimates.push_back(estimator_output(estimator, x));
-    return autoencoder_step(t, net, opt, samples, o, step, &estimates).total;
-  };
-  auto validate_fn = [&] {
-    return validate(net, o, true, [&](auto& n, const sample& s) {
-      const tensor<parameter_count> e = estimator_output(estimator, s);
-      return autoencoder_output(n, s, &e);
-    });
-  };
-  detail::run(o, "autoencoder", net, opt, true, step_fn, validate_fn);
+void train_autoencoder(const train_options& o, auto_encoder<Preset>& net, estimation_network<EstimatorPreset>& estimator) {
+  detail::train_autoencoder_on(o, net, &estimator);
 }
 
 }  // namespace anisocap::training
