@@ -342,14 +342,17 @@ struct model_selection {
   double other_seconds = 0;        ///< the time the other run's stages took
 };
 
-/// run_capture_once with `models`, and when `models.alternative` is set and the network stages run,
-/// again with the alternative folder's weights (check-points in o.checkpoint.folder/alternative);
-/// returns the result with the lower final image loss (the first on a tie) and says in `selection`
-/// (when given) which it kept.
+/// run_capture_once with `models`, and when `models.alternative` is set, again with the alternative
+/// folder's weights (check-points in o.checkpoint.folder/alternative); returns the result with the
+/// lower final image loss (the first on a tie) and says in `selection` (when given) which it kept.
+/// An alternative without the network stages in `o.stages` is refused (std::invalid_argument).
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
                                   const capture_options& o, const material_maps* start = nullptr, const std::vector<image>& masks = {},
                                   model_selection* selection = nullptr) {
-  if (models.alternative.empty() || !o.stages.networks()) return run_capture_once(cap, photos, models, o, start, masks);
+  if (models.alternative.empty()) return run_capture_once(cap, photos, models, o, start, masks);
+  if (!o.stages.networks())
+    throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run "
+                                "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
   const model_choice other = models.alternative_choice();
   if (!other.present())
     throw std::invalid_argument("--also-models: no " + other.preset + " weights in " + (other.models / other.preset).string() +

@@ -883,6 +883,9 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   r = run(common + " -o none --also-models empty", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("--also-models: no compact weights in empty") != std::string::npos);
+  r = run(common + " -o none --stages refine --also-models '" + (models / "next").string() + "'", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--also-models chooses between the network stages' results") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "none/report.json"));
 }
 
