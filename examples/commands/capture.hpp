@@ -174,8 +174,9 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   report["loss"] = result.loss;
   if (!s.models.alternative.empty() && networks)
     report["models"] = {{"chosen", fs::absolute(selection.chosen).string()}, {"loss", selection.loss},
-                        {"other", fs::absolute(selection.other).string()}, {"other_loss", selection.other_loss},
-                        {"other_seconds", selection.other_seconds}};
+                        {"other", fs::absolute(selection.other).string()}, {"other_ran", selection.other_ran},
+                        {"other_loss", selection.other_ran ? nlohmann::json(selection.other_loss) : nlohmann::json()},
+                        {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above}};
   report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)

@@ -245,6 +245,10 @@ struct model_choice {
   /// loss, capture_result::loss) is kept. Twice the time; on spun metal it took 36% off the
   /// novel-view error with models/next beside the shipped weights (models/README.md "Run 16").
   fs::path alternative;
+  /// The second folder runs only when the first run's final image loss is above this
+  /// (`--also-models-above`; 0: always). At 0.1 it ran on 4 of the family comparison's 16
+  /// materials and 7 of 8 spun tiles and kept the whole choice's gain (models/README.md "Run 16").
+  double alternative_above = 0.1;
   /// The choice of the alternative folder's weights (same preset, no alternative of its own).
   model_choice alternative_choice() const {
     model_choice m = *this;
@@ -261,6 +265,9 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
                 "a second such folder: run the network stages with both and keep the result that fits the photographs better "
                 "(twice the time; e.g. models/next for spun metal, models/README.md \"Run 16\")")
       ->check(CLI::ExistingDirectory);
+  c->add_option("--also-models-above", m.alternative_above,
+                "with --also-models: run the second folder only when the first run's final image loss is above this (0: always)")
+      ->check(CLI::NonNegativeNumber);
 }
 
 /// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
@@ -340,12 +347,15 @@ struct model_selection {
   fs::path chosen, other;          ///< the weights folders of the kept and the other result
   double loss = 0, other_loss = 0; ///< their final image losses against the photographs
   double other_seconds = 0;        ///< the time the other run's stages took
+  bool other_ran = true;           ///< false: the first run's loss was at most the threshold, the other did not run
 };
 
-/// run_capture_once with `models`, and when `models.alternative` is set, again with the alternative
-/// folder's weights (check-points in o.checkpoint.folder/alternative); returns the result with the
-/// lower final image loss (the first on a tie) and says in `selection` (when given) which it kept.
-/// An alternative without the network stages in `o.stages` is refused (std::invalid_argument).
+/// run_capture_once with `models`, and when `models.alternative` is set and that run's final image
+/// loss is above `models.alternative_above`, again with the alternative folder's weights
+/// (check-points in o.checkpoint.folder/alternative); returns the result with the lower final
+/// image loss (the first on a tie) and says in `selection` (when given) which it kept and whether
+/// the second ran. An alternative without the network stages in `o.stages` is refused
+/// (std::invalid_argument).
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
                                   const capture_options& o, const material_maps* start = nullptr, const std::vector<image>& masks = {},
                                   model_selection* selection = nullptr) {
@@ -358,6 +368,12 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     throw std::invalid_argument("--also-models: no " + other.preset + " weights in " + (other.models / other.preset).string() +
                                 " (estimator.safetensors and autoencoder.safetensors)");
   capture_result first = run_capture_once(cap, photos, models, o, start, masks);
+  if (!(first.loss > models.alternative_above)) {
+    std::fprintf(stderr, "capture: the weights in %s fit the photographs to %.4f, at most %g: the weights in %s are not tried\n",
+                 models.models.c_str(), first.loss, models.alternative_above, other.models.c_str());
+    if (selection) *selection = model_selection{models.models, other.models, first.loss, 0, 0, false};
+    return first;
+  }
   std::fprintf(stderr, "capture: the weights in %s fit the photographs to %.4f; now the weights in %s\n", models.models.c_str(),
                first.loss, other.models.c_str());
   capture_options o2 = o;

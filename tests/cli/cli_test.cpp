@@ -857,12 +857,14 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models";
   REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
   const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
-  auto r = run(common + " -o both --models '" + models.string() + "' --also-models '" + (models / "next").string() + "'", t.path);
+  const std::string both = " --models '" + models.string() + "' --also-models '" + (models / "next").string() + "'";
+  auto r = run(common + " -o both --also-models-above 0" + both, t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
   const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "both/report.json"));
   REQUIRE(report.contains("models"));
   const nlohmann::json& m = report.at("models");
+  CHECK(m.at("other_ran") == true);
   CHECK(m.at("loss").get<double>() == report.at("loss").get<double>());
   CHECK(m.at("loss").get<double>() <= m.at("other_loss").get<double>());
   CHECK(m.at("chosen") != m.at("other"));
@@ -875,6 +877,13 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
     const double alone = nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>();
     CHECK(alone == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
   }
+  // Above a threshold the first fit already meets, the second folder is not tried.
+  r = run(common + " -o first_only --also-models-above 1e9" + both, t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json first_only = nlohmann::json::parse(read_text(t.path / "first_only/report.json")).at("models");
+  CHECK(first_only.at("other_ran") == false);
+  CHECK(first_only.at("other_loss").is_null());
+  CHECK(first_only.at("chosen").get<std::string>() == fs::absolute(models).string());
   // A folder that does not exist, and one without weights: refused, nothing written.
   r = run(common + " -o none --also-models missing_folder", t.path);
   CHECK(r.status != 0);
