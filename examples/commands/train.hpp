@@ -23,7 +23,7 @@ struct train_settings {
   training::train_options options;
   std::string inputs = "truth";  ///< auto-encoder: what the encoder reads, truth or estimates
   /// Auto-encoder with estimates as inputs: the estimator weights that make them.
-  std::string input_estimator = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "estimator.safetensors").string();
+  std::string input_estimator = model_choice{}.estimator().string();
 };
 
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
@@ -110,8 +110,8 @@ void train_in_locked_folder(const train_settings& s, Train train) {
 
 /// Settings of eval-networks.
 struct network_eval_settings {
-  std::string estimator = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "estimator.safetensors").string();
-  std::string autoencoder = (fs::path(ANISOCAP_MODELS_DIR) / "compact" / "autoencoder.safetensors").string();
+  std::string estimator = model_choice{}.estimator().string();
+  std::string autoencoder = model_choice{}.autoencoder().string();
   int count = 30;
   int size = 256;
   std::string markdown;

@@ -111,8 +111,7 @@ class auto_encoder {
   /// Freezes (or unfreezes) the decoder: no gradients are computed for its weights, while
   /// gradients still flow through it to z (training the encoder against a fixed decoder).
   void freeze_decoder(bool frozen = true) {
-    auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
-    network_detail::visit(f, dec0, dec1, dec2, dec3, dec4);
+    for_each_decoder_parameter([frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; });
   }
 
   /// Visits every trainable parameter.

@@ -196,8 +196,7 @@ struct train_options {
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
   /// the weights it fine-tunes well from (docs/method.md section 7). Needs init_weights or resume.
   bool encoder_only = false;
-  /// Auto-encoder: the inputs are set by train_autoencoder's estimator overload (`--estimates-from`):
-  /// true when the encoder reads the estimator's estimates of the materials' photos instead of
+  /// Auto-encoder: set by train_autoencoder's estimator overload (`--inputs estimates`): true when the encoder reads the estimator's estimates of the materials' photos instead of
   /// the true maps. Recorded in checkpoint.json ("inputs") and kept on resume.
   bool inputs_are_estimates = false;
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
