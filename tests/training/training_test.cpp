@@ -264,6 +264,31 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
     CHECK(grad3.data()[i] == doctest::Approx(grad0.data()[i] + 3 * r).epsilon(1e-4).scale(1e-6));
   }
   CHECK(render_part > 0);
+  // The lobe weight scales the lobe widths' and rotation's L1 in the total and their gradient
+  // channels; the other channels' gradient and the unweighted terms stay.
+  tensor<parameter_count> grad_lobe(1, 32, 32);
+  const auto l_lobe = training::map_losses(off, s, &grad_lobe, 1.0, 2.5);
+  CHECK(l.lobe > 0);
+  CHECK(l.lobe < l.l1);
+  CHECK(l_lobe.l1 == doctest::Approx(l.l1));
+  CHECK(l_lobe.lobe == doctest::Approx(l.lobe));
+  CHECK(l_lobe.total == doctest::Approx(l.l1 + 1.5 * l.lobe + l.render));
+  const std::size_t texels = std::size_t(32) * 32;
+  const float l1_step = float(1.0 / (double(texels) * parameter_count));
+  int lobe_channels_moved = 0;
+  for (std::size_t t = 0; t < texels; ++t)
+    for (int k = 0; k < parameter_count; ++k) {
+      const std::size_t i = t * parameter_count + k;
+      const double diff = double(grad_lobe.data()[i]) - grad.data()[i];
+      if (k == lobe_x || k == lobe_y || k == rotation) {
+        // The L1 part of the lobe channels' gradient is a multiple of one step: x 2.5 adds 1.5 of it.
+        CHECK(std::abs(diff) <= 1.5 * l1_step * 1.0001 + 1e-5 * std::abs(grad.data()[i]));
+        lobe_channels_moved += std::abs(diff) > 1.4 * l1_step;
+      } else {
+        CHECK(diff == doctest::Approx(0).scale(1e-9));
+      }
+    }
+  CHECK(lobe_channels_moved > int(texels));
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
@@ -453,7 +478,7 @@ bool any_line_contains(const std::vector<std::string>& lines, const std::string&
 
 }  // namespace
 
-TEST_CASE("training: a resume with another network, preset, seed, size, batch or render weight is refused, naming checkpoint.json and the saved value") {
+TEST_CASE("training: a resume with another network, preset, seed, size, batch, render or lobe weight is refused, naming checkpoint.json and the saved value") {
   const fs::path dir = fresh_folder("networks_resume_settings");
   {
     auto_encoder<testing::autoencoder_tiny> net(3);
@@ -484,6 +509,9 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch or
   o = resume();
   o.render_weight = 0.25;
   refused([&] { training::train_autoencoder(o, net); }, "trained with render_weight 1, not 0.25; resume it with --render-weight 1");
+  o = resume();
+  o.lobe_weight = 3;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with --lobe-weight 1");
   auto_encoder<autoencoder_tiny_renamed> renamed(3);
   o = resume();
   refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");

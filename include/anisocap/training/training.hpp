@@ -97,7 +97,8 @@ inline sample make_sample(std::uint64_t seed, int size, bool with_photos, materi
 /// The parts of a loss, each averaged over the batch.
 struct loss_terms {
   double total = 0;       ///< what is minimised
-  double l1 = 0;          ///< mean |u - u_true| in network space
+  double l1 = 0;          ///< mean |u - u_true| in network space (unweighted)
+  double lobe = 0;        ///< the lobe widths' and rotation's part of l1 (lobe_l1's, unweighted)
   double render = 0;      ///< render loss (sum over the 4 configurations of the mean log-image difference)
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
@@ -136,18 +137,19 @@ inline double lobe_l1(const float* p, const float* q, float* g, float step) {
 /// L1 in network space plus `render_weight` times the render loss (docs/method.md section 5: equal
 /// weights, render_weight 1), of network outputs u (one entry per sample); when grad is given, adds
 /// d(loss)/du (the loss is the batch mean). The L1 of the lobe widths and the rotation is
-/// lobe_l1's, which respects the lobe's symmetries; the other channels take |u - u_true|.
-/// terms.render is the unweighted render loss.
+/// lobe_l1's, which respects the lobe's symmetries, weighted by `lobe_weight` in the total and the
+/// gradient; the other channels take |u - u_true|. terms.l1, terms.lobe and terms.render are
+/// unweighted; terms.total = l1 + (lobe_weight - 1) lobe + render_weight render.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
-                             tensor<parameter_count>* grad, double render_weight = 1.0) {
+                             tensor<parameter_count>* grad, double render_weight = 1.0, double lobe_weight = 1.0) {
   loss_terms terms;
   const int B = u.batch();
   if (B != int(samples.size())) throw std::invalid_argument("map_losses: batch and sample count differ");
   const std::size_t n = std::size_t(u.height()) * u.width() * parameter_count;
   for (int b = 0; b < B; ++b) {
     const sample& s = samples[b];
-    double l1 = 0;
-    const float step = float(1.0 / (double(n) * B));
+    double l1 = 0, lobe = 0;
+    const float step = float(1.0 / (double(n) * B)), lobe_step = float(lobe_weight / (double(n) * B));
     for (int y = 0; y < u.height(); ++y)
       for (int x = 0; x < u.width(); ++x) {
         const float* p = u.pixel(b, y, x);
@@ -159,9 +161,10 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
           l1 += std::abs(d);
           if (g) g[k] += d > 0 ? step : (d < 0 ? -step : 0.0f);
         }
-        l1 += lobe_l1(p, q, g, step);
+        lobe += lobe_l1(p, q, g, lobe_step);
       }
-    terms.l1 += l1 / double(n) / B;
+    terms.l1 += (l1 + lobe) / double(n) / B;
+    terms.lobe += lobe / double(n) / B;
     const material_maps maps = network_space::network_to_maps(u, b);
     material_maps grad_maps;
     if (grad) grad_maps = material_maps(maps.width(), maps.height());
@@ -169,7 +172,7 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     terms.render += r / B;
     if (grad) network_space::add_network_gradient(u, b, grad_maps, render_weight / B, *grad);
   }
-  terms.total = terms.l1 + render_weight * terms.render;
+  terms.total = terms.l1 + (lobe_weight - 1) * terms.lobe + render_weight * terms.render;
   return terms;
 }
 
@@ -191,6 +194,9 @@ struct train_options {
   /// Weight of the render loss against the L1 term in the training loss (map_losses); validation
   /// losses always use 1, so runs with different weights compare row for row.
   double render_weight = 1.0;
+  /// Weight of the lobe widths' and rotation's L1 (lobe_l1) against the other channels' in the
+  /// training loss (map_losses; `--lobe-weight`); validation losses always use 1.
+  double lobe_weight = 1.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   /// Auto-encoder: train the encoder (and its batch norm) only, against the decoder of the weights
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
@@ -230,6 +236,8 @@ struct train_options {
       throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
     if (!(render_weight >= 0) || !std::isfinite(render_weight))
       throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
+    if (!(lobe_weight > 0) || !std::isfinite(lobe_weight))
+      throw std::invalid_argument("the lobe L1 weight (--lobe-weight) must be finite and positive");
     if (lr_decay_to != 0 || lr_decay_from != 0) {
       if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
         throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
@@ -460,10 +468,11 @@ inline std::string setting_text(const json& value) {
 
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
-/// (`saved`) in the network, preset, seed, size, batch, materials, render-loss weight or emphasis:
-/// such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight" (1), "emphasis" ("": none), "emphasis_share" (0), "trainable"
-/// ("all") and "inputs" ("truth"); other entries a checkpoint lacks are not compared.
+/// (`saved`) in the network, preset, seed, size, batch, materials, render-loss or lobe weight or
+/// emphasis: such a run would silently continue as another one. Older checkpoints lack "materials"
+/// (the original mix), "render_weight" (1), "lobe_weight" (1), "emphasis" ("": none),
+/// "emphasis_share" (0), "trainable" ("all") and "inputs" ("truth"); other entries a checkpoint
+/// lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
@@ -471,12 +480,13 @@ inline void check_resume_settings(const json& saved, const json& given, const st
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
+      {"lobe_weight", "--lobe-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"}};
   // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
     if (key == "materials") return json("original");
-    if (key == "render_weight") return json(1.0);
+    if (key == "render_weight" || key == "lobe_weight") return json(1.0);
     if (key == "emphasis") return json("");
     if (key == "emphasis_share") return json(0.0);
     if (key == "trainable") return json("all");
@@ -522,6 +532,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["learning_rate"] = opt.learning_rate();
   info["materials"] = material_mix_name(o.mix);
   info["render_weight"] = o.render_weight;
+  info["lobe_weight"] = o.lobe_weight;
   std::string emphasis;
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
@@ -646,12 +657,13 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 }  // namespace detail
 
 /// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
-/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 + render_weight x
-/// render loss) and its gradient, backward, one Adam step. `t` is cleared first (reuse it across steps to keep its
-/// memory). Returns the batch's loss terms before the step.
+/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 with the lobe terms
+/// weighted by lobe_weight, + render_weight x render loss) and its gradient, backward, one Adam
+/// step. `t` is cleared first (reuse it across steps to keep its memory). Returns the batch's loss
+/// terms before the step.
 template <class Preset>
 loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
-                          double render_weight = 1.0) {
+                          double render_weight = 1.0, double lobe_weight = 1.0) {
   const int B = int(samples.size()), N = int(samples[0].photos.size());
   const int H = samples[0].truth.height(), W = samples[0].truth.width();
   t.clear();
@@ -659,7 +671,7 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
   for (int b = 0; b < B; ++b)
     for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
   auto y = net.forward(t, x, N);
-  const loss_terms l = map_losses(y.value, samples, &y.grad, render_weight);
+  const loss_terms l = map_losses(y.value, samples, &y.grad, render_weight, lobe_weight);
   t.backward();
   opt.step();
   return l;
@@ -667,7 +679,7 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
 
 /// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
 /// section 7): D(E(m)) of the samples' true maps in training mode, map_losses (render loss weighted
-/// by o.render_weight), and with
+/// by o.render_weight, lobe L1 by o.lobe_weight), and with
 /// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
 /// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
 /// step. `t` is cleared first. Returns the batch's loss terms before the step. With `inputs`
@@ -689,7 +701,7 @@ loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& op
   net.set_training(true);
   auto z = net.encode(t, x);
   auto y = net.decode(t, z);
-  loss_terms l = map_losses(y.value, samples, &y.grad, o.render_weight);
+  loss_terms l = map_losses(y.value, samples, &y.grad, o.render_weight, o.lobe_weight);
   if (o.smoothness_weight > 0) {
     auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
     nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
@@ -722,7 +734,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 5e-5, o));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight).total; };
+  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight, o.lobe_weight).total; };
   auto validate_fn = [&] {
     return validate(net, o, true, [](auto& n, const sample& s) { return estimator_output(n, s); });
   };
