@@ -86,7 +86,7 @@ int run(const settings& a, const procedural_options& options) {
   for (long step = 1; step <= a.steps; ++step) {
     std::vector<training::sample> samples;
     for (int b = 0; b < a.batch; ++b) samples.push_back(train[std::size_t((step * a.batch + b) % a.count)]);
-    training::estimator_step(t, net, opt, samples, a.render_weight);
+    training::estimator_step(t, net, opt, samples, {.render = a.render_weight});
     if (step % a.every == 0) report(step);
   }
   return 0;

@@ -70,6 +70,9 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                   "weight of the render loss against the L1 term in the training loss (validation always uses 1)");
   cmd->add_option("--lobe-weight", o.lobe_weight,
                   "weight of the lobe widths' and rotation's L1 against the other maps' in the training loss (validation always uses 1)");
+  cmd->add_option("--sigma-weight", o.sigma_weight,
+                  "weight of the lobe widths' squared error in the original range (what evaluations measure) added to the training loss "
+                  "(0: none; validation always uses 0)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
     cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");

@@ -252,8 +252,8 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   CHECK(l.total == doctest::Approx(l.l1 + l.render));
   // The render loss's weight scales its value in the total and its part of the gradient, nothing else.
   tensor<parameter_count> grad0(1, 32, 32), grad3(1, 32, 32);
-  const auto l0 = training::map_losses(off, s, &grad0, 0.0);
-  const auto l3 = training::map_losses(off, s, &grad3, 3.0);
+  const auto l0 = training::map_losses(off, s, &grad0, {.render = 0.0});
+  const auto l3 = training::map_losses(off, s, &grad3, {.render = 3.0});
   CHECK(l0.total == doctest::Approx(l.l1));
   CHECK(l3.total == doctest::Approx(l.l1 + 3 * l.render));
   CHECK(l0.render == doctest::Approx(l.render));
@@ -267,7 +267,7 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   // The lobe weight scales the lobe widths' and rotation's L1 in the total and their gradient
   // channels; the other channels' gradient and the unweighted terms stay.
   tensor<parameter_count> grad_lobe(1, 32, 32);
-  const auto l_lobe = training::map_losses(off, s, &grad_lobe, 1.0, 2.5);
+  const auto l_lobe = training::map_losses(off, s, &grad_lobe, {.lobe = 2.5});
   CHECK(l.lobe > 0);
   CHECK(l.lobe < l.l1);
   CHECK(l_lobe.l1 == doctest::Approx(l.l1));
@@ -289,7 +289,63 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
       }
     }
   CHECK(lobe_channels_moved > int(texels));
+  // The lobe widths' squared error: 0 for the truth, reported unweighted, and its weight adds
+  // w.sigma x terms.sigma to the total and changes the lobe width channels' gradient only.
+  CHECK(exact.sigma < 1e-10);
+  CHECK(l.sigma > 0);
+  tensor<parameter_count> grad_sigma(1, 32, 32);
+  const auto l_sigma = training::map_losses(off, s, &grad_sigma, {.sigma = 4.0});
+  CHECK(l_sigma.sigma == doctest::Approx(l.sigma));
+  CHECK(l_sigma.total == doctest::Approx(l.l1 + 4 * l.sigma + l.render));
+  int width_channels_moved = 0;
+  for (std::size_t i = 0; i < grad.size(); ++i) {
+    const int k = int(i % parameter_count);
+    const double diff = double(grad_sigma.data()[i]) - grad.data()[i];
+    if (k == lobe_x || k == lobe_y) width_channels_moved += diff != 0;
+    else CHECK(diff == 0);
+  }
+  CHECK(width_channels_moved > int(texels));
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
+}
+
+TEST_CASE("training: the lobe widths' squared error is compare_maps' sigma error, uses lobe_l1's form, and its gradient matches finite differences") {
+  float q[parameter_count] = {}, p[parameter_count] = {};
+  q[lobe_x] = 0.6f, q[lobe_y] = -0.2f, q[rotation] = 0.3f;
+  std::copy_n(q, parameter_count, p);
+  p[lobe_x] = 0.5f, p[lobe_y] = -0.1f;
+  int form = -1;
+  training::lobe_l1(p, q, nullptr, 1, &form);
+  CHECK(form == 0);
+  const double e = training::lobe_width_squared_error(p, q, form, nullptr, 1);
+  // The same error through the original ranges and compare_maps (one texel; sigma's error is the
+  // mean over the two widths).
+  material_maps truth(1, 1), estimate(1, 1);
+  for (int k = 0; k < parameter_count; ++k) {
+    truth.at(k, 0, 0) = float(network_space::from_network(k, q[k]));
+    estimate.at(k, 0, 0) = float(network_space::from_network(k, p[k]));
+  }
+  CHECK(e / 2 == doctest::Approx(compare_maps(estimate, truth).lobes).epsilon(1e-4));
+  // The swapped estimate (widths exchanged, rotation + pi/2) takes the truth's swapped form: error 0.
+  float r[parameter_count];
+  std::copy_n(q, parameter_count, r);
+  r[lobe_x] = q[lobe_y], r[lobe_y] = q[lobe_x], r[rotation] = q[rotation] - 1;
+  training::lobe_l1(r, q, nullptr, 1, &form);
+  CHECK(form == 1);
+  CHECK(training::lobe_width_squared_error(r, q, form, nullptr, 1) < 1e-10);
+  // Gradient against central differences (form fixed).
+  float g[parameter_count] = {};
+  training::lobe_width_squared_error(p, q, 0, g, 1);
+  for (int k : {int(lobe_x), int(lobe_y)}) {
+    const float h = 1e-3f;
+    float plus[parameter_count], minus[parameter_count];
+    std::copy_n(p, parameter_count, plus);
+    std::copy_n(p, parameter_count, minus);
+    plus[k] += h, minus[k] -= h;
+    const double fd = (training::lobe_width_squared_error(plus, q, 0, nullptr, 1) - training::lobe_width_squared_error(minus, q, 0, nullptr, 1)) / (2 * h);
+    CHECK(g[k] == doctest::Approx(fd).epsilon(1e-3));
+    CHECK(std::abs(fd) > 1e-4);
+  }
+  CHECK(g[rotation] == 0);
 }
 
 TEST_CASE("training: the lobe L1 respects the lobe's symmetries and its gradient matches finite differences") {
@@ -478,7 +534,7 @@ bool any_line_contains(const std::vector<std::string>& lines, const std::string&
 
 }  // namespace
 
-TEST_CASE("training: a resume with another network, preset, seed, size, batch, render or lobe weight is refused, naming checkpoint.json and the saved value") {
+TEST_CASE("training: a resume with another network, preset, seed, size, batch or loss weight is refused, naming checkpoint.json and the saved value") {
   const fs::path dir = fresh_folder("networks_resume_settings");
   {
     auto_encoder<testing::autoencoder_tiny> net(3);
@@ -509,6 +565,9 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch, r
   o = resume();
   o.render_weight = 0.25;
   refused([&] { training::train_autoencoder(o, net); }, "trained with render_weight 1, not 0.25; resume it with --render-weight 1");
+  o = resume();
+  o.sigma_weight = 2;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with sigma_weight 0, not 2; resume it with --sigma-weight 0");
   o = resume();
   o.lobe_weight = 3;
   refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with --lobe-weight 1");

@@ -99,6 +99,7 @@ struct loss_terms {
   double total = 0;       ///< what is minimised
   double l1 = 0;          ///< mean |u - u_true| in network space (unweighted)
   double lobe = 0;        ///< the lobe widths' and rotation's part of l1 (lobe_l1's, unweighted)
+  double sigma = 0;       ///< mean squared error of the lobe widths in the original range (lobe_width_squared_error; unweighted)
   double render = 0;      ///< render loss (sum over the 4 configurations of the mean log-image difference)
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
@@ -114,8 +115,9 @@ inline const double rotation_ramp = 2 * std::log(1.25) / (-network_space::log_mi
 /// compared with both of the truth's equivalent forms and the nearer one counts, and the rotation
 /// term is weighted by the truth's anisotropy, min(1, |q_x - q_y| / rotation_ramp): an isotropic
 /// lobe has no rotation to learn. When g is given, adds `step` times the gradient with respect to
-/// p[lobe_x], p[lobe_y] and p[rotation] into g (indexed the same way).
-inline double lobe_l1(const float* p, const float* q, float* g, float step) {
+/// p[lobe_x], p[lobe_y] and p[rotation] into g (indexed the same way). When `form` is given, it
+/// receives the truth's form that counted: 0 as is, 1 swapped.
+inline double lobe_l1(const float* p, const float* q, float* g, float step, int* form = nullptr) {
   auto wrap = [](double d) { return d - 2 * std::nearbyint(d / 2); };  // into [-1, 1]: alpha modulo pi
   auto sign = [](double d) { return d > 0 ? 1.0 : (d < 0 ? -1.0 : 0.0); };
   const double w = std::min(1.0, std::abs(double(q[lobe_x]) - q[lobe_y]) / rotation_ramp);
@@ -126,6 +128,7 @@ inline double lobe_l1(const float* p, const float* q, float* g, float step) {
   double cost[2];
   for (int f = 0; f < 2; ++f) cost[f] = std::abs(dx[f]) + std::abs(dy[f]) + w * std::abs(da[f]);
   const int f = cost[1] < cost[0] ? 1 : 0;
+  if (form) *form = f;
   if (g) {
     g[lobe_x] += float(step * sign(dx[f]));
     g[lobe_y] += float(step * sign(dy[f]));
@@ -134,22 +137,51 @@ inline double lobe_l1(const float* p, const float* q, float* g, float step) {
   return cost[f];
 }
 
-/// L1 in network space plus `render_weight` times the render loss (docs/method.md section 5: equal
-/// weights, render_weight 1), of network outputs u (one entry per sample); when grad is given, adds
+/// The squared error of one texel's lobe widths in the original range, (sigma_x - s_x)^2 +
+/// (sigma_y - s_y)^2 with sigma = network_space::from_network of p's lobe channels and s the truth's
+/// form `form` (lobe_l1's: 0 as is, 1 swapped). This is what compare_maps measures (there the form
+/// is chosen by the squared errors of the widths and the rotation), unlike the L1 of log widths,
+/// which lets broad lobes be far off. When g is given, adds `step` times the gradient with respect
+/// to p[lobe_x] and p[lobe_y] into g.
+inline double lobe_width_squared_error(const float* p, const float* q, int form, float* g, float step) {
+  const double sx = network_space::from_network(lobe_x, p[lobe_x]), sy = network_space::from_network(lobe_y, p[lobe_y]);
+  const double tx = network_space::from_network(lobe_x, q[form == 0 ? lobe_x : lobe_y]);
+  const double ty = network_space::from_network(lobe_y, q[form == 0 ? lobe_y : lobe_x]);
+  if (g) {  // d sigma / du = sigma (-log_min_lobe) / 2
+    const double c = -network_space::log_min_lobe;
+    g[lobe_x] += float(step * 2 * (sx - tx) * sx * c / 2);
+    g[lobe_y] += float(step * 2 * (sy - ty) * sy * c / 2);
+  }
+  return (sx - tx) * (sx - tx) + (sy - ty) * (sy - ty);
+}
+
+/// The weights of map_losses' terms in the training loss (train_options::loss_weights).
+struct loss_weights {
+  double render = 1.0;  ///< the render loss, against the L1 term (docs/method.md section 5: 1)
+  double lobe = 1.0;    ///< the lobe widths' and rotation's L1 (lobe_l1) against the other channels'
+  double sigma = 0.0;   ///< the lobe widths' squared error in the original range (lobe_width_squared_error)
+};
+
+/// L1 in network space plus `w.render` times the render loss (docs/method.md section 5: equal
+/// weights, w.render 1), of network outputs u (one entry per sample); when grad is given, adds
 /// d(loss)/du (the loss is the batch mean). The L1 of the lobe widths and the rotation is
-/// lobe_l1's, which respects the lobe's symmetries, weighted by `lobe_weight` in the total and the
-/// gradient; the other channels take |u - u_true|. terms.l1, terms.lobe and terms.render are
-/// unweighted; terms.total = l1 + (lobe_weight - 1) lobe + render_weight render.
+/// lobe_l1's, which respects the lobe's symmetries, weighted by `w.lobe` in the total and the
+/// gradient; the other channels take |u - u_true|. With w.sigma > 0 the total adds w.sigma times
+/// the mean over texels and the two widths of lobe_width_squared_error (terms.sigma). terms.l1,
+/// terms.lobe, terms.sigma and terms.render are unweighted; terms.total = l1 + (w.lobe - 1) lobe +
+/// w.sigma sigma + w.render render.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
-                             tensor<parameter_count>* grad, double render_weight = 1.0, double lobe_weight = 1.0) {
+                             tensor<parameter_count>* grad, const loss_weights& w = {}) {
   loss_terms terms;
   const int B = u.batch();
   if (B != int(samples.size())) throw std::invalid_argument("map_losses: batch and sample count differ");
   const std::size_t n = std::size_t(u.height()) * u.width() * parameter_count;
   for (int b = 0; b < B; ++b) {
     const sample& s = samples[b];
-    double l1 = 0, lobe = 0;
-    const float step = float(1.0 / (double(n) * B)), lobe_step = float(lobe_weight / (double(n) * B));
+    double l1 = 0, lobe = 0, sigma = 0;
+    const double texels = double(u.height()) * u.width();
+    const float step = float(1.0 / (double(n) * B)), lobe_step = float(w.lobe / (double(n) * B)),
+                sigma_step = float(w.sigma / (2 * texels * B));
     for (int y = 0; y < u.height(); ++y)
       for (int x = 0; x < u.width(); ++x) {
         const float* p = u.pixel(b, y, x);
@@ -161,18 +193,21 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
           l1 += std::abs(d);
           if (g) g[k] += d > 0 ? step : (d < 0 ? -step : 0.0f);
         }
-        lobe += lobe_l1(p, q, g, lobe_step);
+        int form = 0;
+        lobe += lobe_l1(p, q, g, lobe_step, &form);
+        sigma += lobe_width_squared_error(p, q, form, w.sigma > 0 ? g : nullptr, sigma_step);
       }
     terms.l1 += (l1 + lobe) / double(n) / B;
     terms.lobe += lobe / double(n) / B;
+    terms.sigma += sigma / (2 * texels) / B;
     const material_maps maps = network_space::network_to_maps(u, b);
     material_maps grad_maps;
     if (grad) grad_maps = material_maps(maps.width(), maps.height());
     const double r = loss_and_gradient(maps, s.loss_configurations, s.targets, grad ? &grad_maps : nullptr);
     terms.render += r / B;
-    if (grad) network_space::add_network_gradient(u, b, grad_maps, render_weight / B, *grad);
+    if (grad) network_space::add_network_gradient(u, b, grad_maps, w.render / B, *grad);
   }
-  terms.total = terms.l1 + (lobe_weight - 1) * terms.lobe + render_weight * terms.render;
+  terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + w.sigma * terms.sigma + w.render * terms.render;
   return terms;
 }
 
@@ -197,6 +232,9 @@ struct train_options {
   /// Weight of the lobe widths' and rotation's L1 (lobe_l1) against the other channels' in the
   /// training loss (map_losses; `--lobe-weight`); validation losses always use 1.
   double lobe_weight = 1.0;
+  /// Weight of the lobe widths' squared error in the original range (lobe_width_squared_error) in
+  /// the training loss (map_losses; `--sigma-weight`, default 0: none); validation losses use 0.
+  double sigma_weight = 0.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   /// Auto-encoder: train the encoder (and its batch norm) only, against the decoder of the weights
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
@@ -238,6 +276,8 @@ struct train_options {
       throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
     if (!(lobe_weight > 0) || !std::isfinite(lobe_weight))
       throw std::invalid_argument("the lobe L1 weight (--lobe-weight) must be finite and positive");
+    if (!(sigma_weight >= 0) || !std::isfinite(sigma_weight))
+      throw std::invalid_argument("the lobe-width squared-error weight (--sigma-weight) must be finite and not negative");
     if (lr_decay_to != 0 || lr_decay_from != 0) {
       if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
         throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
@@ -252,6 +292,9 @@ struct train_options {
         throw std::invalid_argument(std::string("training: --emphasis names the held-out family '") + material_kind_name(k) +
                                     "', which training never draws");
   }
+
+  /// The training loss's weights (map_losses).
+  loss_weights loss() const { return {render_weight, lobe_weight, sigma_weight}; }
 
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
   static train_options autoencoder() {
@@ -468,9 +511,9 @@ inline std::string setting_text(const json& value) {
 
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
-/// (`saved`) in the network, preset, seed, size, batch, materials, render-loss or lobe weight or
-/// emphasis: such a run would silently continue as another one. Older checkpoints lack "materials"
-/// (the original mix), "render_weight" (1), "lobe_weight" (1), "emphasis" ("": none),
+/// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight or emphasis: such
+/// a run would silently continue as another one. Older checkpoints lack "materials" (the original
+/// mix), "render_weight" (1), "lobe_weight" (1), "sigma_weight" (0), "emphasis" ("": none),
 /// "emphasis_share" (0), "trainable" ("all") and "inputs" ("truth"); other entries a checkpoint
 /// lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
@@ -480,13 +523,14 @@ inline void check_resume_settings(const json& saved, const json& given, const st
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
-      {"lobe_weight", "--lobe-weight"},
+      {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"}};
   // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
     if (key == "materials") return json("original");
     if (key == "render_weight" || key == "lobe_weight") return json(1.0);
+    if (key == "sigma_weight") return json(0.0);
     if (key == "emphasis") return json("");
     if (key == "emphasis_share") return json(0.0);
     if (key == "trainable") return json("all");
@@ -533,6 +577,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["materials"] = material_mix_name(o.mix);
   info["render_weight"] = o.render_weight;
   info["lobe_weight"] = o.lobe_weight;
+  info["sigma_weight"] = o.sigma_weight;
   std::string emphasis;
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
@@ -657,13 +702,13 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 }  // namespace detail
 
 /// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
-/// 7): the samples' 5 inputs in network space, the forward pass, map_losses (L1 with the lobe terms
-/// weighted by lobe_weight, + render_weight x render loss) and its gradient, backward, one Adam
+/// 7): the samples' 5 inputs in network space, the forward pass, map_losses with weights `w` (L1 +
+/// w.render x render loss by default) and its gradient, backward, one Adam
 /// step. `t` is cleared first (reuse it across steps to keep its memory). Returns the batch's loss
 /// terms before the step.
 template <class Preset>
 loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
-                          double render_weight = 1.0, double lobe_weight = 1.0) {
+                          const loss_weights& w = {}) {
   const int B = int(samples.size()), N = int(samples[0].photos.size());
   const int H = samples[0].truth.height(), W = samples[0].truth.width();
   t.clear();
@@ -671,7 +716,7 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
   for (int b = 0; b < B; ++b)
     for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[b].photos[i], x.value, b * N + i);
   auto y = net.forward(t, x, N);
-  const loss_terms l = map_losses(y.value, samples, &y.grad, render_weight, lobe_weight);
+  const loss_terms l = map_losses(y.value, samples, &y.grad, w);
   t.backward();
   opt.step();
   return l;
@@ -679,7 +724,7 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
 
 /// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
 /// section 7): D(E(m)) of the samples' true maps in training mode, map_losses (render loss weighted
-/// by o.render_weight, lobe L1 by o.lobe_weight), and with
+/// by o.loss()), and with
 /// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
 /// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
 /// step. `t` is cleared first. Returns the batch's loss terms before the step. With `inputs`
@@ -701,7 +746,7 @@ loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& op
   net.set_training(true);
   auto z = net.encode(t, x);
   auto y = net.decode(t, z);
-  loss_terms l = map_losses(y.value, samples, &y.grad, o.render_weight, o.lobe_weight);
+  loss_terms l = map_losses(y.value, samples, &y.grad, o.loss());
   if (o.smoothness_weight > 0) {
     auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
     nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
@@ -734,7 +779,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net) {
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 5e-5, o));
   opt.add_parameters(net);
   ad::tape t;
-  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.render_weight, o.lobe_weight).total; };
+  auto step_fn = [&](long, const std::vector<sample>& samples) { return estimator_step(t, net, opt, samples, o.loss()).total; };
   auto validate_fn = [&] {
     return validate(net, o, true, [](auto& n, const sample& s) { return estimator_output(n, s); });
   };
