@@ -316,9 +316,11 @@ def wrap(d):
     return d - 2 * torch.round(d / 2)
 
 
-def map_l1(u, truth, lobe_weight=1.0):
+def map_l1(u, truth, lobe_weight=1.0, sigma_weight=0.0):
     """training::map_losses' L1 term (lobe_l1 for the lobes and the rotation, weighted by
-    lobe_weight as train --lobe-weight does), batch mean."""
+    lobe_weight as train --lobe-weight does), batch mean; with sigma_weight > 0 plus sigma_weight
+    times the lobe widths' squared error in the original range against lobe_l1's form of the truth
+    (training::lobe_width_squared_error, mean over texels and the two widths; train --sigma-weight)."""
     other = [0, 1, 2, 3, 4, 5, 8, 9, 10]
     total = (u[:, other] - truth[:, other]).abs().sum((1, 2, 3))
     px, py, pa = u[:, 6], u[:, 7], u[:, 11]
@@ -327,7 +329,14 @@ def map_l1(u, truth, lobe_weight=1.0):
     c0 = (px - qx).abs() + (py - qy).abs() + w * wrap(pa - qa).abs()
     c1 = (px - qy).abs() + (py - qx).abs() + w * wrap(pa - qa - 1).abs()
     total = total + lobe_weight * torch.minimum(c0, c1).sum((1, 2))
-    return (total / (u.shape[2] * u.shape[3] * 12)).mean()
+    result = (total / (u.shape[2] * u.shape[3] * 12)).mean()
+    if sigma_weight > 0:
+        width = lambda t: torch.exp(LOG_MIN_LOBE + (t + 1) / 2 * (-LOG_MIN_LOBE))  # noqa: E731
+        swap = (c1 < c0).detach()
+        tx, ty = torch.where(swap, qy, qx), torch.where(swap, qx, qy)
+        sq = (width(px) - width(tx)) ** 2 + (width(py) - width(ty)) ** 2
+        result = result + sigma_weight * sq.mean() / 2
+    return result
 
 
 def render_loss(u, conf_loss, targets_log):
@@ -483,11 +492,13 @@ def make_net(network, preset):
     return AutoEncoder(preset) if network == "autoencoder" else Estimator(preset)
 
 
-def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3, source=None, lobe_weight=1.0):
+def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3, source=None, lobe_weight=1.0,
+           sigma_weight=0.0):
     """Returns (total, l1, render) for one batch of network-space truth maps and configurations.
     For the auto-encoder, `source` (an estimator, not trained) replaces the encoder's input by its
     estimate from the 5 training inputs (train-autoencoder --inputs estimates). `lobe_weight`
-    weighs the lobe widths' and rotation's L1 (train --lobe-weight; validation uses 1)."""
+    weighs the lobe widths' and rotation's L1 (train --lobe-weight; validation uses 1), `sigma_weight`
+    the lobe widths' squared error (train --sigma-weight; validation uses 0)."""
     with torch.no_grad():
         truth_maps = network_to_maps(maps)
         targets = torch.log(render_batch(truth_maps, conf[:, 5:9]) + ward.LOG_EPS)
@@ -498,7 +509,7 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
                 x = source(estimator_inputs(render_batch(truth_maps, conf[:, 0:5]), source.inputs), 5)
         z = net.encode(x)
         y = net.decode(z)
-        l1, rl = map_l1(y, maps, lobe_weight), render_loss(y, conf[:, 5:9], targets)
+        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
         if smoothness > 0 and net.training:
             y2 = net.decode(z + latent_noise * torch.randn_like(z))
@@ -507,7 +518,7 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
         with torch.no_grad():
             x = estimator_inputs(render_batch(truth_maps, conf[:, 0:5]), channels)
         y = net(x, 5)
-        l1, rl = map_l1(y, maps, lobe_weight), render_loss(y, conf[:, 5:9], targets)
+        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
     return total, l1, rl, y
 
@@ -609,7 +620,7 @@ def train(args):
             g["lr"] = lr
         maps, conf = pool.batch(args.batch)
         total, l1, rl, _ = losses(net, args.network, maps, conf, args.render_weight, channels=channels, source=source,
-                                   lobe_weight=args.lobe_weight)
+                                   lobe_weight=args.lobe_weight, sigma_weight=args.sigma_weight)
         opt.zero_grad(set_to_none=True)
         total.backward()
         opt.step()
@@ -636,7 +647,7 @@ def train(args):
         json.dump({"network": args.network, "preset": preset, "init": args.init, "steps": step, "batch": args.batch,
                    "materials_drawn": pool.used, "materials_generated": producer.generated, "seconds": time.time() - start,
                    "lr": args.lr, "lr_end": args.lr_end, "decay": args.decay, "warmup": args.warmup, "seed": args.seed,
-                   "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "emphasis": args.emphasis,
+                   "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight, "emphasis": args.emphasis,
                    "emphasis_share": args.emphasis_share, "trainable": args.trainable, "inputs": args.inputs,
                    "input_estimator": args.input_estimator, "device": torch.cuda.get_device_name() if device.type == "cuda" else "cpu",
                    "torch": torch.__version__}, f, indent=1)
@@ -717,6 +728,7 @@ def main():
     t.add_argument("--warmup", type=int, default=300)
     t.add_argument("--render-weight", type=float, default=0.1)
     t.add_argument("--lobe-weight", type=float, default=1.0, help="weight of the lobe widths' and rotation's L1 (validation: 1)")
+    t.add_argument("--sigma-weight", type=float, default=0.0, help="weight of the lobe widths' squared error, original range (validation: 0)")
     t.add_argument("--seed", type=int, default=1013)
     t.add_argument("--first", type=int, default=0, help="first material index (a continued run takes new materials)")
     t.add_argument("--emphasis", default="")
