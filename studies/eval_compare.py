@@ -14,10 +14,12 @@ With --weights --select, a third side is added: per material, the result of whic
 refined stage fits the input photographs better (the lower photo_loss column, which evals write
 since photo_loss was added), i.e. what a capture that ran both weight sets and kept the better fit
 would get without knowing the truth. It is compared with the first table, and the choices are
-counted per family.
+counted per family. With --above L the second table counts only for the materials whose first
+refined photo_loss is above L (what `--also-models-above L` does: the second weights run only
+after a poor first fit); the number of such second runs is printed.
 
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
-       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select]
+       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select [--above L]]
 Standard library only.
 """
 import argparse
@@ -58,21 +60,25 @@ def print_comparison(side_a, side_b, name_a, name_b):
                   f"{statistics.median(a):.4g} | {statistics.median(b):.4g} | {wins_a} | {wins_b} |")
 
 
-def print_selection(side_a, side_b):
-    """The per-material choice by the refined stage's photo_loss, against the first side."""
+def print_selection(side_a, side_b, above=0.0):
+    """The per-material choice by the refined stage's photo_loss, against the first side; the second
+    side is tried only where the first side's refined photo_loss is above `above`."""
     seeds = sorted(s for s, st in side_a if st == "refined" and (s, "refined") in side_b)
     if any(not side[(s, "refined")].get("photo_loss") for side in (side_a, side_b) for s in seeds):
         sys.exit("--select needs the photo_loss column in both tables (evals written since it was added)")
-    chosen, picks = {}, {}
+    chosen, picks, tried = {}, {}, 0
     for s in seeds:
-        second = float(side_b[(s, "refined")]["photo_loss"]) < float(side_a[(s, "refined")]["photo_loss"])
+        first_loss = float(side_a[(s, "refined")]["photo_loss"])
+        tried += first_loss > above
+        second = first_loss > above and float(side_b[(s, "refined")]["photo_loss"]) < first_loss
         source = side_b if second else side_a
         family = side_a[(s, "refined")]["family"]
         picks.setdefault(family, [0, 0])[1 if second else 0] += 1
         for stage in ("fine-tuned", "refined"):
             if (s, stage) in source:
                 chosen[(s, stage)] = source[(s, stage)]
-    print("\nChoice by the refined stage's photo_loss (per family: materials taking the first, the second):",
+    print(f"\nChoice by the refined stage's photo_loss, the second tried where the first is above {above:g} "
+          f"({tried} of {len(seeds)} materials; per family: materials taking the first, the second):",
           ", ".join(f"{f} {a}/{b}" for f, (a, b) in sorted(picks.items())))
     print()
     print_comparison(side_a, chosen, "first", "chosen")
@@ -88,7 +94,11 @@ def main():
     parser.add_argument("--set", default="alpha", help="the configuration set compared with --weights")
     parser.add_argument("--select", action="store_true",
                         help="with --weights: also the per-material choice of the table whose refined stage has the lower photo_loss")
+    parser.add_argument("--above", type=float, default=0.0,
+                        help="with --select: try the second table only where the first's refined photo_loss is above this")
     args = parser.parse_args()
+    if args.above != 0.0 and not args.select:
+        sys.exit("--above goes with --select")
     if args.weights:
         if len(args.tables) != 2:
             sys.exit("--weights compares exactly two tables")
@@ -101,7 +111,7 @@ def main():
               f"on the materials both have\n")
         print_comparison(side_a, side_b, "first", "second")
         if args.select:
-            print_selection(side_a, side_b)
+            print_selection(side_a, side_b, args.above)
         return
     rows = {}
     for path in args.tables:
