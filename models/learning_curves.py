@@ -131,7 +131,7 @@ def compare(curves, output, plt):
     for ax in list(axes.flat)[len(panels):]:
         ax.axis("off")
     axes[0][0].legend(fontsize=7)
-    fig.suptitle("validation MSE (original ranges) on the 8 training-time validation materials", fontsize=10)
+    fig.suptitle("validation MSE (original ranges) on the training-time validation materials", fontsize=10)
     fig.tight_layout()
     fig.savefig(output, dpi=90)
     print(f"wrote {output}")
