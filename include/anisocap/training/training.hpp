@@ -155,7 +155,7 @@ inline double lobe_width_squared_error(const float* p, const float* q, int form,
   return (sx - tx) * (sx - tx) + (sy - ty) * (sy - ty);
 }
 
-/// The weights of map_losses' terms in the training loss (train_options::loss_weights).
+/// The weights of map_losses' terms in the training loss (train_options::loss()).
 struct loss_weights {
   double render = 1.0;  ///< the render loss, against the L1 term (docs/method.md section 5: 1)
   double lobe = 1.0;    ///< the lobe widths' and rotation's L1 (lobe_l1) against the other channels'
@@ -525,7 +525,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
       {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"}};
-  // What a description that lacks an entry meant: older versions wrote no materials, render weight or emphasis.
+  // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
     if (key == "materials") return json("original");
@@ -723,10 +723,10 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
 }
 
 /// One optimiser step of the auto-encoder on a batch (make_batch without photos; docs/method.md
-/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses (render loss weighted
-/// by o.loss()), and with
-/// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z + delta)|,
-/// delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward, one Adam
+/// section 7): D(E(m)) of the samples' true maps in training mode, map_losses with o.loss()'s
+/// weights, and with o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight *
+/// mean |D(z) - D(z + delta)|, delta ~ N(0, o.latent_noise^2) per latent value drawn from
+/// (o.seed, step); backward, one Adam
 /// step. `t` is cleared first. Returns the batch's loss terms before the step. With `inputs`
 /// (one network-space map set per sample, e.g. the estimator's estimates) the encoder reads those
 /// instead of the true maps; the loss still compares with the truth.
