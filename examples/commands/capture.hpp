@@ -158,13 +158,10 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   report["photos"] = photo_report;
   report["threads"] = omp_get_max_threads();
   report["stages"] = nlohmann::json::array();
-  double stage_seconds = 0;
-  for (const auto& st : result.stages) {
+  for (const auto& st : result.stages)
     report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
                                 {"loss", st.loss}, {"seconds", st.seconds}, {"evaluated_fraction", st.evaluated_fraction},
                                 {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction}});
-    stage_seconds += st.seconds;
-  }
   report["refine"] = {{"steps", o.refine.steps}, {"learning_rate", o.refine.learning_rate},
                       {"stop", o.refine.min_relative_improvement}, {"freeze", o.refine.freeze_tolerance}};
   if (networks)
@@ -177,7 +174,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                         {"other", fs::absolute(selection.other).string()}, {"other_ran", selection.other_ran},
                         {"other_loss", selection.other_ran ? nlohmann::json(selection.other_loss) : nlohmann::json()},
                         {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above}};
-  report["timings"] = {{"load", load_seconds}, {"stages", stage_seconds}, {"write", write_seconds}, {"total", seconds_since(start)}};
+  report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)
     report["novel_views"].push_back({{"file", "novel/" + v.file}, {"camera", v.camera}, {"light", v.light}, {"intensity", v.intensity}});

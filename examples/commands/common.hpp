@@ -380,14 +380,9 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
   if (!o2.checkpoint.folder.empty()) o2.checkpoint.folder /= "alternative";
   capture_result second = run_capture_once(cap, photos, other, o2, start, masks);
   const bool take_second = !first.stopped && !second.stopped && second.loss < first.loss;
-  auto seconds = [](const capture_result& r) {
-    double t = 0;
-    for (const auto& st : r.stages) t += st.seconds;
-    return t;
-  };
   if (selection)
-    *selection = take_second ? model_selection{other.models, models.models, second.loss, first.loss, seconds(first)}
-                             : model_selection{models.models, other.models, first.loss, second.loss, seconds(second)};
+    *selection = take_second ? model_selection{other.models, models.models, second.loss, first.loss, first.stage_seconds()}
+                             : model_selection{models.models, other.models, first.loss, second.loss, second.stage_seconds()};
   std::fprintf(stderr, "capture: kept the weights in %s (image loss %.4f against %.4f)\n",
                (take_second ? other.models : models.models).c_str(), take_second ? second.loss : first.loss,
                take_second ? first.loss : second.loss);

@@ -149,6 +149,13 @@ struct capture_result {
   double loss = 0;
   /// The fine-tune returned at its `stop_after` (refine did not run); resume from the check-point.
   bool stopped = false;
+
+  /// The time the stages took, in seconds (the sum of stages' seconds).
+  double stage_seconds() const {
+    double t = 0;
+    for (const stage_report& st : stages) t += st.seconds;
+    return t;
+  }
 };
 
 /// Stands for the networks of a capture that runs without them.

@@ -240,8 +240,9 @@ struct train_options {
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
   /// the weights it fine-tunes well from (docs/method.md section 7). Needs init_weights or resume.
   bool encoder_only = false;
-  /// Auto-encoder: set by train_autoencoder's estimator overload (`--inputs estimates`): true when the encoder reads the estimator's estimates of the materials' photos instead of
-  /// the true maps. Recorded in checkpoint.json ("inputs") and kept on resume.
+  /// Auto-encoder: set by train_autoencoder's estimator overload (`--inputs estimates`): true when
+  /// the encoder reads the estimator's estimates of the materials' photos instead of the true maps.
+  /// Recorded in checkpoint.json ("inputs") and kept on resume.
   bool inputs_are_estimates = false;
   long stop_after = -1;               ///< >= 0: return after this step as if killed (tests)
   double progress_seconds = 10;       ///< wall time between progress lines
@@ -703,9 +704,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 
 /// One optimiser step of the estimator on a batch (make_batch with photos; docs/method.md section
 /// 7): the samples' 5 inputs in network space, the forward pass, map_losses with weights `w` (L1 +
-/// w.render x render loss by default) and its gradient, backward, one Adam
-/// step. `t` is cleared first (reuse it across steps to keep its memory). Returns the batch's loss
-/// terms before the step.
+/// w.render x render loss by default) and its gradient, backward, one Adam step. `t` is cleared
+/// first (reuse it across steps to keep its memory). Returns the batch's loss terms before the step.
 template <class Preset>
 loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
                           const loss_weights& w = {}) {
@@ -726,10 +726,10 @@ loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam
 /// section 7): D(E(m)) of the samples' true maps in training mode, map_losses with o.loss()'s
 /// weights, and with o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight *
 /// mean |D(z) - D(z + delta)|, delta ~ N(0, o.latent_noise^2) per latent value drawn from
-/// (o.seed, step); backward, one Adam
-/// step. `t` is cleared first. Returns the batch's loss terms before the step. With `inputs`
-/// (one network-space map set per sample, e.g. the estimator's estimates) the encoder reads those
-/// instead of the true maps; the loss still compares with the truth.
+/// (o.seed, step); backward, one Adam step. `t` is cleared first. Returns the batch's loss terms
+/// before the step. With `inputs` (one network-space map set per sample, e.g. the estimator's
+/// estimates) the encoder reads those instead of the true maps; the loss still compares with the
+/// truth.
 template <class Preset>
 loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
                             const train_options& o, long step, const std::vector<tensor<parameter_count>>* inputs = nullptr) {
