@@ -291,6 +291,12 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "(~5x longer). Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "thorough", "paper"}))
       ->default_str("fast");
+  c->add_option("--estimate-window", o.estimate.window,
+                "side of the sliding windows the estimation network sees, texels (the capture is estimated window by window and "
+                "blended; models/README.md \"Run 18\" measures the choice)")
+      ->check(CLI::Range(64, 1 << 16));
+  c->add_option("--estimate-stride", o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
+      ->check(CLI::Range(1, 1 << 16));
   c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
   c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));
   c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));

@@ -119,6 +119,8 @@ struct network_eval_settings {
   std::string autoencoder = model_choice{}.autoencoder().string();
   int count = 30;
   int size = 256;
+  int window = 0;  ///< > 0: the estimator runs as the pipeline's estimate does, over sliding windows of this side (0: the whole material at once)
+  int stride = 0;  ///< the windows' step (0: window / 4)
   std::string markdown;
   material_mix mix = material_mix::original;  ///< the mix the validation materials' kinds are drawn from
   std::string families;  ///< non-empty: comma-separated families, material i gets the (i mod n)-th
@@ -160,7 +162,14 @@ void evaluate_networks_with(const network_eval_settings& s) {
   std::vector<material_errors> est_all, base_all, ae_all, start_all;
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const auto& x = samples[i];
-    const auto u = training::estimator_output(estimator, x);
+    tensor<parameter_count> u;
+    if (s.window > 0) {
+      const material_maps m = estimate(x.photos, estimator, estimate_options{s.window, s.stride > 0 ? s.stride : s.window / 4});
+      u = tensor<parameter_count>(1, s.size, s.size);
+      network_space::maps_to_network(m, u, 0);
+    } else {
+      u = training::estimator_output(estimator, x);
+    }
     const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), x.truth), b = compare_maps(mean, x.truth);
     const auto r = training::autoencoder_output(autoencoder, x);
     const parameter_errors a = compare_maps(network_space::network_to_maps(r, 0), x.truth);
@@ -177,6 +186,9 @@ void evaluate_networks_with(const network_eval_settings& s) {
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
                    (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
+                   (s.window > 0 ? ", the estimator over " + std::to_string(s.window) + " x " + std::to_string(s.window) +
+                                                             " windows (stride " + std::to_string(s.stride > 0 ? s.stride : s.window / 4) + ", as the pipeline's estimate)"
+                                                       : std::string()) +
                    ", 5 inputs (training set); MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
                    "and over the anisotropic texels of the materials that have them)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
@@ -207,6 +219,9 @@ void evaluate_networks_with(const network_eval_settings& s) {
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
 /// materials; the presets (compact or a compact variant) are read from the weight files.
 inline void evaluate_networks(const network_eval_settings& s) {
+  if (s.window % 64 != 0)
+    throw std::invalid_argument("eval-networks: --window " + std::to_string(s.window) + " is not a multiple of 64 (the estimator's)");
+  if (s.window > 0) estimate_options{s.window, s.stride > 0 ? s.stride : s.window / 4}.validate();
   with_compact_estimator_preset(s.estimator, [&]<class P>() {
     with_compact_autoencoder_preset(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
   });
@@ -246,6 +261,11 @@ inline void add_train_commands(CLI::App& app) {
   ev_cmd->add_option("--autoencoder", ev->autoencoder, "auto-encoder weights");
   ev_cmd->add_option("--count", ev->count, "validation materials");
   ev_cmd->add_option("--size", ev->size, "material size (multiple of 64)");
+  ev_cmd->add_option("--window", ev->window,
+                     "run the estimator over sliding windows of this side (stride a quarter), as capture's estimate stage does "
+                     "(default: the whole material at once)")
+      ->check(CLI::Range(64, 1 << 16));
+  ev_cmd->add_option("--stride", ev->stride, "the windows' step (default: a quarter of --window)")->check(CLI::Range(1, 1 << 16));
   ev_cmd->add_option("--markdown", ev->markdown, "also write the table to this file");
   add_mix_option(ev_cmd, ev->mix, {material_mix::original, material_mix::extended, material_mix::training},
                  "families the materials are drawn from: original, extended or training");

@@ -133,6 +133,22 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(s3.str().find("\"crop\": 1") != std::string::npos);
   CHECK(s3.str().find("\"warmup\": 3") != std::string::npos);
   CHECK(s3.str().find("\"half_life\": 100") != std::string::npos);
+  CHECK(s3.str().find("\"window\": 256") != std::string::npos);  // the estimate's default window
+  // The estimate's windows: smaller windows are reported; a stride past the window is one clear
+  // error, before any output.
+  r = run("capture syn2/capture.json -o nets64 --stages all --estimate-window 64 --estimate-stride 16 --finetune-steps 2 --steps 2 --no-view",
+          t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  std::ifstream rep4(t.path / "nets64/report.json");
+  std::stringstream s4;
+  s4 << rep4.rdbuf();
+  CHECK(s4.str().find("\"window\": 64") != std::string::npos);
+  CHECK(s4.str().find("\"stride\": 16") != std::string::npos);
+  r = run("capture syn2/capture.json -o nets_bad --stages all --estimate-window 64 --estimate-stride 65", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("stride (65) is larger than its window (64)") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "nets_bad"));
   r = run("render --maps syn/truth --capture syn/capture.json -o again", t.path);
   REQUIRE(r.status == 0);
   // Rendering the true maps reproduces the inputs exactly (same renderer, same configuration).
@@ -608,6 +624,25 @@ TEST_CASE("families: new kinds synthesize, the held-out families evaluate per fa
   CHECK(e.output.find("| foil | 1 | auto-encoder |") != std::string::npos);
   CHECK(run("eval -o ev --families leather,linen", t.path).output.find("linen") != std::string::npos);
   CHECK(run("eval-networks --families linen", t.path).output.find("linen") != std::string::npos);
+  {  // --window: one window that covers the material is the whole estimate; smaller ones differ
+    const std::string nets = " --count 2 --size 128 --estimator '" + (models / "estimator.safetensors").string() + "' --autoencoder '" +
+                             (models / "autoencoder.safetensors").string() + "'";
+    auto estimator_row = [](const std::string& out) {
+      const auto at = out.find("| estimator (");
+      return at == std::string::npos ? std::string() : out.substr(at, out.find('\n', at) - at);
+    };
+    const auto whole = run("eval-networks" + nets, t.path), one = run("eval-networks --window 128" + nets, t.path),
+               small = run("eval-networks --window 64 --stride 32" + nets, t.path);
+    REQUIRE(whole.status == 0);
+    REQUIRE(one.status == 0);
+    REQUIRE(small.status == 0);
+    CHECK_FALSE(estimator_row(whole.output).empty());
+    CHECK(estimator_row(one.output) == estimator_row(whole.output));
+    CHECK(estimator_row(small.output) != estimator_row(whole.output));
+    CHECK(small.output.find("64 x 64 windows (stride 32") != std::string::npos);
+    CHECK(run("eval-networks --window 96" + nets, t.path).output.find("multiple of 64") != std::string::npos);
+    CHECK(run("eval-networks --window 64 --stride 80" + nets, t.path).output.find("larger than its window") != std::string::npos);
+  }
   CHECK(run("train-estimator --out tr --materials extended", t.path).output.find("--materials") != std::string::npos);
   CHECK(run("synthesize -o s3 --images 5 --fresnel 4", t.path).status != 0);
   CHECK_FALSE(fs::exists(t.path / "ev"));

@@ -73,3 +73,13 @@ TEST_CASE("rotation blends as a pi-periodic angle") {
   });
   for (std::size_t i = 0; i < m.texel_count(); i += 101) CHECK(std::abs(std::abs(m.plane(rotation)[i]) - float(std::numbers::pi / 2)) < 0.06f);
 }
+
+TEST_CASE("estimate options: a stride larger than the window, or a non-positive size, is refused; the defaults pass") {
+  CHECK_NOTHROW(estimate_options{}.validate());
+  const estimate_options w192{192, 64}, w128{128, 128}, too_far{128, 129}, no_window{0, 64}, no_stride{256, 0};
+  CHECK_NOTHROW(w192.validate());
+  CHECK_NOTHROW(w128.validate());
+  CHECK_THROWS_WITH_AS(too_far.validate(), doctest::Contains("no estimate"), std::invalid_argument);
+  CHECK_THROWS_AS(no_window.validate(), std::invalid_argument);
+  CHECK_THROWS_AS(no_stride.validate(), std::invalid_argument);
+}

@@ -263,6 +263,7 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
   if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_material: the estimate and encode stages need networks");
   if (start && o.stages.estimate) throw std::invalid_argument("capture_material: start maps replace the estimate stage");
   o.refine.validate();
+  if (o.stages.estimate) o.estimate.validate();
   if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
     throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
   if (o.stages.finetune) o.finetune.validate();

@@ -3,8 +3,8 @@
 /// The estimate stage (docs/method.md section 8.1): the estimation network over sliding windows, or
 /// without networks a first guess from the photographs alone.
 ///
-/// Sliding windows: the estimator sees 256 x 256 windows of the photographs with an
-/// overlap of up to 192 texels (stride 64); the window estimates are blended back to full size
+/// Sliding windows: the estimator sees windows of the photographs (by default 256 x 256 with an
+/// overlap of up to 192 texels, stride 64: estimate_options); the window estimates are blended back to full size
 /// with weights that fall off towards each window's border. Materials smaller than a window are
 /// mirrored out to the window size and the estimate cropped back.
 #include <algorithm>
@@ -13,6 +13,7 @@
 #include <functional>
 #include <numbers>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
@@ -119,8 +120,19 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
 
 /// Options of `estimate`.
 struct estimate_options {
-  int window = 256;  ///< estimation window (the estimator's training size)
-  int stride = 64;   ///< window step (overlap 192)
+  int window = 256;  ///< estimation window side, texels (the network sees window x window crops)
+  int stride = 64;   ///< window step (overlap window - stride)
+
+  /// Throws std::invalid_argument unless 0 < stride <= window (a larger step would leave texels
+  /// that no window covers).
+  void validate() const {
+    if (window <= 0 || stride <= 0)
+      throw std::invalid_argument("the estimate's window (" + std::to_string(window) + ") and stride (" + std::to_string(stride) +
+                                  ") must be positive");
+    if (stride > window)
+      throw std::invalid_argument("the estimate's stride (" + std::to_string(stride) + ") is larger than its window (" +
+                                  std::to_string(window) + "): texels between the windows would have no estimate");
+  }
 };
 
 /// The estimate of the map set from the photographs (docs/method.md section 8.1): `estimator`
