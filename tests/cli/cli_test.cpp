@@ -55,6 +55,13 @@ struct temp_dir {
 
 void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
 
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
 }  // namespace
 
 TEST_CASE("synthesize, capture with truth, render: outputs and report") {
@@ -140,11 +147,9 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
           t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
-  std::ifstream rep4(t.path / "nets64/report.json");
-  std::stringstream s4;
-  s4 << rep4.rdbuf();
-  CHECK(s4.str().find("\"window\": 64") != std::string::npos);
-  CHECK(s4.str().find("\"stride\": 16") != std::string::npos);
+  const std::string report64 = read_text(t.path / "nets64/report.json");
+  CHECK(report64.find("\"window\": 64") != std::string::npos);
+  CHECK(report64.find("\"stride\": 16") != std::string::npos);
   r = run("capture syn2/capture.json -o nets_bad --stages all --estimate-window 64 --estimate-stride 65", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("stride (65) is larger than its window (64)") != std::string::npos);
@@ -323,12 +328,6 @@ TEST_CASE("bad input: one clear message naming the file, non-zero exit, no outpu
 }
 
 namespace {
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 std::string replaced(std::string text, const std::string& from, const std::string& to) {
   const auto at = text.find(from);
   REQUIRE(at != std::string::npos);
