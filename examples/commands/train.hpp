@@ -121,6 +121,8 @@ struct network_eval_settings {
   int size = 256;
   int window = 0;  ///< > 0: the estimator runs as the pipeline's estimate does, over sliding windows of this side (0: the whole material at once)
   int stride = 0;  ///< the windows' step (0: window / 4)
+  /// The windows `window` and `stride` describe (meaningful when window > 0).
+  estimate_options windows() const { return {window, stride > 0 ? stride : window / 4}; }
   std::string markdown;
   material_mix mix = material_mix::original;  ///< the mix the validation materials' kinds are drawn from
   std::string families;  ///< non-empty: comma-separated families, material i gets the (i mod n)-th
@@ -164,7 +166,7 @@ void evaluate_networks_with(const network_eval_settings& s) {
     const auto& x = samples[i];
     tensor<parameter_count> u;
     if (s.window > 0) {
-      const material_maps m = estimate(x.photos, estimator, estimate_options{s.window, s.stride > 0 ? s.stride : s.window / 4});
+      const material_maps m = estimate(x.photos, estimator, s.windows());
       u = tensor<parameter_count>(1, s.size, s.size);
       network_space::maps_to_network(m, u, 0);
     } else {
@@ -186,9 +188,9 @@ void evaluate_networks_with(const network_eval_settings& s) {
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
                    (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
-                   (s.window > 0 ? ", the estimator over " + std::to_string(s.window) + " x " + std::to_string(s.window) +
-                                                             " windows (stride " + std::to_string(s.stride > 0 ? s.stride : s.window / 4) + ", as the pipeline's estimate)"
-                                                       : std::string()) +
+                   (s.window > 0 ? ", the estimator over " + std::to_string(s.window) + " x " + std::to_string(s.window) + " windows (stride " +
+                                       std::to_string(s.windows().stride) + ", as the pipeline's estimate)"
+                                 : std::string()) +
                    ", 5 inputs (training set); MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
                    "and over the anisotropic texels of the materials that have them)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
@@ -221,7 +223,7 @@ void evaluate_networks_with(const network_eval_settings& s) {
 inline void evaluate_networks(const network_eval_settings& s) {
   if (s.window % 64 != 0)
     throw std::invalid_argument("eval-networks: --window " + std::to_string(s.window) + " is not a multiple of 64 (the estimator's)");
-  if (s.window > 0) estimate_options{s.window, s.stride > 0 ? s.stride : s.window / 4}.validate();
+  if (s.window > 0) s.windows().validate();
   with_compact_estimator_preset(s.estimator, [&]<class P>() {
     with_compact_autoencoder_preset(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
   });
