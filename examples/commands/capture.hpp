@@ -112,10 +112,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   o.stages = pipeline_stages::parse(stages_text);
   const bool networks = o.stages.networks();
   if (networks && s.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
-  if (!networks) {  // refine from the first guess starts far from the answer: refine_options' own schedule
-    if (parsed->count("--steps") == 0) o.refine.steps = refine_options{}.steps;
-    if (parsed->count("--lr") == 0) o.refine.learning_rate = refine_options{}.learning_rate;
-  }
+  refine_alone_schedule(o, *parsed);
   o.checkpoint = {s.out / ".checkpoint", s.resume};
   o.finetune.progress_every = 25;
   o.refine.progress_every = std::max(1, o.refine.steps / 50);

@@ -21,6 +21,7 @@ struct eval_settings {
   material_mix mix = material_mix::original;  // the mix the materials' kinds are drawn from (data/procedural.hpp)
   std::string families;     // non-empty: these families only, material m gets the (m mod n)-th
   fresnel_options fresnel;  // set alpha's grazing configurations (default: the paper's 2)
+  std::string stages = "all";  // the pipeline stages each capture runs (pipeline_stages::parse)
 };
 
 /// eval's work once its options are checked and e.out is locked: captures each material (of
@@ -138,7 +139,7 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
   const std::vector<material_kind> families = material_kinds_from_names(e.families);
   options.finetune.validate();  // reject impossible options before any work
   options.refine.validate();
-  if (!models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
+  if (options.stages.networks() && !models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
   output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
   try {
     evaluate_materials(e, families, models, options);
@@ -170,9 +171,17 @@ inline void add_eval_command(CLI::App& app) {
   c->add_option("--families", e->families,
                 "evaluate these families only, comma-separated (e.g. leather,printed or brushed,spun,foil); material m gets the (m mod n)-th")
       ->check(family_list_check());
+  c->add_option("--stages", e->stages,
+                "stages each capture runs: all, or a list of estimate,encode,finetune,refine (e.g. estimate,refine leaves the "
+                "auto-encoder out; refine alone starts from the first guess with the refine's own schedule, as capture does)");
   add_model_options(c, *models);
   add_optimiser_options(c, *options);
-  c->callback([e, models, options] { eval_command(*e, *models, *options); });
+  c->callback([e, models, options, c] {
+    capture_options o = *options;
+    o.stages = pipeline_stages::parse(e->stages);
+    refine_alone_schedule(o, *c);
+    eval_command(*e, *models, o);
+  });
 }
 
 }  // namespace anisocap::commands

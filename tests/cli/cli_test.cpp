@@ -966,3 +966,33 @@ TEST_CASE("eval --first-seed redoes one material of a larger run") {
   CHECK(photo_loss > 0);
   CHECK(one == row("all", "900003"));
 }
+
+TEST_CASE("eval --stages: the auto-encoder left out gives refined rows only; unknown stages and --also-models without networks are refused") {
+  temp_dir t;
+  const std::string common = " --count 1 --min-size 32 --max-size 32 --images 4 --sets alpha --finetune-steps 1 --steps 2";
+  auto r = run("--threads 1 eval -o all" + common, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  r = run("--threads 1 eval -o er" + common + " --stages estimate,refine", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const std::string all = read_text(t.path / "all/table.csv"), er = read_text(t.path / "er/table.csv");
+  CHECK(all.find(",fine-tuned,") != std::string::npos);
+  CHECK(er.find(",fine-tuned,") == std::string::npos);
+  CHECK(er.find(",refined,") != std::string::npos);
+  // The refine alone starts from the first guess: the same material, another result.
+  r = run("--threads 1 eval -o r" + common + " --stages refine", t.path);
+  REQUIRE(r.status == 0);
+  const std::string alone = read_text(t.path / "r/table.csv");
+  CHECK(alone.find(",refined,") != std::string::npos);
+  CHECK(alone != er);
+  r = run("eval -o bad" + common + " --stages estimate,bogus", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("unknown stage 'bogus'") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "bad"));
+  r = run("eval -o bad" + common + " --stages refine --also-models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models/next").string() + "'",
+          t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--also-models chooses between the network stages' results") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "bad"));
+}
