@@ -164,7 +164,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   if (networks)
     report["finetune"] = {{"steps", o.finetune.steps}, {"learning_rate", o.finetune.learning_rate}, {"warmup", o.finetune.warmup},
                           {"half_life", o.finetune.half_life}, {"crop", o.finetune.crop.cells}, {"guard", o.finetune.guard.factor},
-                          {"preset", s.models.preset}};
+                          {"residual", o.finetune.residual}, {"preset", s.models.preset}};
   if (o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
   report["loss"] = result.loss;
   if (!s.models.alternative.empty() && networks)

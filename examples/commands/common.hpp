@@ -306,6 +306,9 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option("--estimate-stride", o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
       ->check(CLI::Range(1, 1 << 16));
   c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
+  c->add_flag("--finetune-residual", o.finetune.residual,
+              "start the fine-tune at the estimate itself: fit D(z) + r, with r fixed so that the start equals the estimate, "
+              "instead of D(z) (docs/method.md section 8.3; models/README.md \"Run 19\")");
   c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));
   c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
   c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));

@@ -119,3 +119,42 @@ TEST_CASE("network space: the orientation channels give the direction of the str
   CHECK(out.pixel(0, 8, 8)[5] == doctest::Approx(-1.0));
 }
 
+
+TEST_CASE("network space: shift_to takes decoded values to a map set, shifted applies it, wrapping the rotation and clamping the rest") {
+  const int W = 5, H = 4;
+  const material_maps target = generate_material(12, W, H);
+  tensor<parameter_count> u(1, H, W), expected(1, H, W);
+  random_generator rng(3);
+  for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(rng.uniform() * 1.8 - 0.9);
+  ns::maps_to_network(target, expected, 0);
+  const tensor<parameter_count> r = ns::shift_to(u, target);
+  const tensor<parameter_count> s = ns::shifted(u, r);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      for (int k = 0; k < parameter_count; ++k) {
+        if (k == rotation) {
+          // The difference is wrapped into [-1, 1] (a half turn of alpha is 2 in network space)...
+          CHECK(std::abs(r(0, y, x, k)) <= 1.0f + 1e-6f);
+          // ...and the shifted value is the target's modulo that half turn.
+          const double d = double(s(0, y, x, k)) - expected(0, y, x, k);
+          CHECK(std::abs(d - 2.0 * std::nearbyint(d / 2.0)) < 1e-5);
+        } else {
+          CHECK(s(0, y, x, k) == doctest::Approx(expected(0, y, x, k)).epsilon(1e-5).scale(1.0));
+        }
+      }
+  // The decoded maps of the shifted values are the target (alpha modulo pi).
+  const material_maps back = ns::network_to_maps(s, 0);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int i = 0; i < W * H; ++i)
+      if (k != rotation && k != lobe_x && k != lobe_y) CHECK(back.plane(k)[i] == doctest::Approx(target.plane(k)[i]).epsilon(1e-4));
+  // A value pushed past the range is clamped to it, except the rotation.
+  tensor<parameter_count> big(1, 1, 1), zero(1, 1, 1);
+  big.fill(0.8f);
+  const tensor<parameter_count> out = ns::shifted(zero, big);
+  CHECK(out(0, 0, 0, diffuse_r) == doctest::Approx(0.8f));
+  const tensor<parameter_count> twice = ns::shifted(out, big);
+  CHECK(twice(0, 0, 0, fresnel_f0) == 1.0f);
+  CHECK(twice(0, 0, 0, rotation) == doctest::Approx(1.6f));
+  tensor<parameter_count> other(1, 2, 1);
+  CHECK_THROWS_AS(ns::shifted(zero, other), std::invalid_argument);
+}

@@ -96,6 +96,45 @@ material_maps network_to_maps(const tensor<parameter_count, T>& u, int b) {
   return maps;
 }
 
+/// The network values `u` (a decoder's output) shifted by `r` (same height and width; entry 0 of
+/// each): u + r, clamped to [-1, 1] in every channel but the rotation, which is pi-periodic and
+/// stays as it is. The fine-tune's residual start (docs/method.md section 8.3) renders these; its
+/// gradient passes the shift unchanged (a straight-through clamp).
+template <class T>
+tensor<parameter_count, T> shifted(const tensor<parameter_count, T>& u, const tensor<parameter_count, float>& r) {
+  if (u.height() != r.height() || u.width() != r.width())
+    throw std::invalid_argument("network_space::shifted: the values are " + std::to_string(u.height()) + "x" + std::to_string(u.width()) +
+                                ", the shift " + std::to_string(r.height()) + "x" + std::to_string(r.width()));
+  tensor<parameter_count, T> out(1, u.height(), u.width());
+  for (int y = 0; y < u.height(); ++y)
+    for (int x = 0; x < u.width(); ++x) {
+      const T* a = u.pixel(0, y, x);
+      const float* d = r.pixel(0, y, x);
+      T* o = out.pixel(0, y, x);
+      for (int k = 0; k < parameter_count; ++k) o[k] = k == rotation ? T(a[k] + d[k]) : std::clamp(T(a[k] + d[k]), T(-1), T(1));
+    }
+  return out;
+}
+
+/// The shift that takes network values `u` (a decoder's output, entry 0) to the map set `target`
+/// (same size): to_network(target) - u, with the rotation's difference wrapped into [-1, 1] (a
+/// rotation of pi is none).
+template <class T>
+tensor<parameter_count, float> shift_to(const tensor<parameter_count, T>& u, const material_maps& target) {
+  tensor<parameter_count, float> r(1, target.height(), target.width());
+  maps_to_network(target, r, 0);
+  if (u.height() != r.height() || u.width() != r.width())
+    throw std::invalid_argument("network_space::shift_to: the values and the maps differ in size");
+  for (int y = 0; y < r.height(); ++y)
+    for (int x = 0; x < r.width(); ++x) {
+      float* d = r.pixel(0, y, x);
+      const T* a = u.pixel(0, y, x);
+      for (int k = 0; k < parameter_count; ++k) d[k] -= float(a[k]);
+      d[rotation] -= 2.0f * std::nearbyint(d[rotation] / 2.0f);
+    }
+  return r;
+}
+
 /// Chain rule of network_to_maps: adds scale * dL/du to entry b of grad_u, given dL/d(maps) in
 /// `grad_maps` at the network values u.
 template <class T>

@@ -204,7 +204,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("render.cull_tolerance", o.render.cull_tolerance).add("render.double_precision", o.render.double_precision ? 1.0 : 0.0);
   const finetune_options& ft = o.finetune;
   f.add("finetune.learning_rate", ft.learning_rate).add("finetune.warmup", ft.warmup).add("finetune.half_life", ft.half_life);
-  f.add("finetune.min_improvement", ft.min_improvement).add("finetune.patience", ft.patience);
+  f.add("finetune.min_improvement", ft.min_improvement).add("finetune.patience", ft.patience).add("finetune.residual", ft.residual ? 1.0 : 0.0);
   f.add("finetune.guard.factor", ft.guard.factor).add("finetune.guard.every", ft.guard.every);
   f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
   return f;
@@ -318,8 +318,11 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
       stage_report enc{"encode", true};
       const auto t1 = clock::now();
       const auto z = encode(autoencoder, maps);
+      // The residual start keeps the estimate as the fine-tune's start (D(z) + r = the estimate).
+      std::optional<tensor<parameter_count, float>> residual;
+      if (o.stages.finetune && o.finetune.residual) residual = decoder_residual(autoencoder, z, maps);
       enc.seconds = seconds_since(t1);
-      maps = decode(autoencoder, z, W, H);
+      maps = decode(autoencoder, z, W, H, residual ? &*residual : nullptr);
       enc.loss = image_loss(maps, result.features);
       result.stages.push_back(enc);
       if (o.stages.finetune) {
@@ -327,7 +330,8 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
         if (!fo.progress) fo.progress = reporter("finetune");
         checkpoint_options co = o.checkpoint;
         if (checkpoints) co.folder /= "finetune";
-        finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co);
+        finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co,
+                                      residual ? &*residual : nullptr);
         maps = std::move(fr.maps);
         result.after_finetune = maps;
         result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});

@@ -46,4 +46,26 @@ material_maps decode(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>:
   return network_space::network_to_maps(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width), 0);
 }
 
+/// The decoder's maps of `z`, shifted by `residual` (network space, the material's size; none when
+/// null): what the fine-tune renders (finetune_options::residual), without gradients.
+template <class P>
+material_maps decode(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width, int height,
+                     const tensor<parameter_count, float>* residual) {
+  if (!residual) return decode(autoencoder, z, width, height);
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  return network_space::network_to_maps(network_space::shifted(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width), *residual), 0);
+}
+
+/// The fine-tune's residual start (finetune_options::residual): the shift, in network space over the
+/// material, that takes the decoder's maps of `z` to `estimate`. The decoder's maps plus it are
+/// the estimate itself before the first step.
+template <class P>
+tensor<parameter_count, float> decoder_residual(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
+                                                const material_maps& estimate) {
+  ad::tape t;
+  ad::tape::no_grad_guard guard(t);
+  return network_space::shift_to(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, estimate.height(), estimate.width()), estimate);
+}
+
 }  // namespace anisocap

@@ -72,6 +72,11 @@ struct finetune_options {
   int patience = 200;
   finetune_guard_options guard{};
   finetune_crop_options crop{};
+  /// Residual start (docs/method.md section 8.3): fine-tune D(z) + r instead of D(z), where r, fixed,
+  /// takes the decoder's first maps to the estimate (decoder_residual). The stage then starts at the
+  /// estimate itself rather than at its reconstruction through the auto-encoder, and the decoder's
+  /// updates move the maps from there. capture_material computes r; finetune takes it as an argument.
+  bool residual = false;
   int progress_every = 50;
   /// >= 0: return after this many steps with a check-point, as if killed there (tests of resume).
   int stop_after = -1;
@@ -161,7 +166,7 @@ struct scratch {
 template <brdf_features F, class P>
 double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
                  const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
-                 const render_options& render, scratch& scratch) {
+                 const render_options& render, scratch& scratch, const tensor<parameter_count, float>* residual = nullptr) {
   constexpr int M = auto_encoder<P>::size_multiple;
   const int cells_y = z.height(), cells_x = z.width();
   const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
@@ -170,7 +175,8 @@ double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_en
   const int y0 = win.r0 * M, x0 = win.c0 * M;
   const int h = std::min(win.r1 * M, height) - y0, w = std::min(win.c1 * M, width) - x0;
   if (h <= 0 || w <= 0) throw std::invalid_argument("crop_step: the window holds no texel of the material");
-  const auto u_view = y.value.tile(mr * M, mc * M, h, w);
+  const auto u_view = residual ? network_space::shifted(y.value.tile(mr * M, mc * M, h, w), residual->tile(y0, x0, h, w))
+                               : y.value.tile(mr * M, mc * M, h, w);
   const material_maps m = network_space::network_to_maps(u_view, 0);
   crop_loss_targets(targets, x0, y0, w, h, scratch.targets);
   if (scratch.gradient.width() != w || scratch.gradient.height() != h) scratch.gradient = material_maps(w, h);
@@ -327,15 +333,20 @@ int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoen
 /// Fine-tunes the decoder of `autoencoder` from the latent code `z` on the photographs behind
 /// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
 /// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
+/// `residual` (network space, width x height; null for none) is the fixed shift of the residual
+/// start (finetune_options::residual): the stage then fits D(z) + residual.
 template <class P>
 finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width,
                          int height, const capture& cap, const loss_targets& targets, brdf_features features,
                          const render_options& render, double start_loss, const finetune_options& o,
-                         const checkpoint_options& checkpoint = {}) {
+                         const checkpoint_options& checkpoint = {}, const tensor<parameter_count, float>* residual = nullptr) {
   namespace fs = std::filesystem;
   const auto start = std::chrono::steady_clock::now();
   o.validate();
   const int W = width, H = height;
+  if (residual && (residual->height() != H || residual->width() != W))
+    throw std::invalid_argument("finetune: the residual is " + std::to_string(residual->height()) + "x" + std::to_string(residual->width()) +
+                                ", the material " + std::to_string(H) + "x" + std::to_string(W));
   auto image_loss = [&](const material_maps& m) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, render); });
   };
@@ -380,7 +391,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     bool restarted = false;
     if (!cropping) {
       auto y = autoencoder.decode(t, t.leaf(z));
-      const auto u_view = y.value.tile(0, 0, H, W);
+      const auto u_view = residual ? network_space::shifted(y.value.tile(0, 0, H, W), *residual) : y.value.tile(0, 0, H, W);
       const material_maps m = network_space::network_to_maps(u_view, 0);
       loss = with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, &grad, {}, render); });
       if (o.observer) o.observer(step, loss, [&]() { return m; });
@@ -393,12 +404,12 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     } else {
       const auto win = finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step);
       loss = with_features(features, [&]<brdf_features F>() {
-        return finetune_crops::crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, render, scratch);
+        return finetune_crops::crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, render, scratch, residual);
       });
       if (o.observer) {  // weights not yet updated; the tape is no longer needed
         std::optional<material_maps> whole;
         o.observer(step, loss, [&]() {
-          if (!whole) whole = decode(autoencoder, z, W, H);
+          if (!whole) whole = decode(autoencoder, z, W, H, residual);
           return *whole;
         });
       }
@@ -427,7 +438,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       break;
     }
   }
-  result.maps = decode(autoencoder, z, W, H);
+  result.maps = decode(autoencoder, z, W, H, residual);
   restrict_to_features(result.maps, features);  // what a reduced kernel fitted, as every renderer sees it
   result.loss = image_loss(result.maps);
   if (guarding && cropping && !guard.snapshot.empty()) {
@@ -435,7 +446,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     // whole tile renders better with it than with the last weights.
     const auto last = adam.take_snapshot();
     adam.restore(guard.snapshot);
-    material_maps snapshot_maps = decode(autoencoder, z, W, H);
+    material_maps snapshot_maps = decode(autoencoder, z, W, H, residual);
     restrict_to_features(snapshot_maps, features);
     const double snapshot_tile_loss = image_loss(snapshot_maps);
     if (snapshot_tile_loss < result.loss) {
