@@ -167,11 +167,12 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                           {"residual", o.finetune.residual}, {"preset", s.models.preset}};
   if (o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
   report["loss"] = result.loss;
-  if (!s.models.alternative.empty() && networks)
+  if (s.models.second_run() && networks)
     report["models"] = {{"chosen", fs::absolute(selection.chosen).string()}, {"loss", selection.loss},
                         {"other", fs::absolute(selection.other).string()}, {"other_ran", selection.other_ran},
                         {"other_loss", selection.other_ran ? nlohmann::json(selection.other_loss) : nlohmann::json()},
-                        {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above}};
+                        {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above},
+                        {"chosen_residual", selection.chosen_residual}, {"other_residual", selection.other_residual}};
   report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)

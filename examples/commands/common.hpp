@@ -249,11 +249,20 @@ struct model_choice {
   /// (`--also-models-above`; 0: always). At 0.1 it ran on 4 of the family comparison's 16
   /// materials and 7 of 8 spun tiles and kept the whole choice's gain (models/README.md "Run 16").
   double alternative_above = 0.1;
-  /// The choice of the alternative folder's weights (same preset, no alternative of its own).
+  /// `--also-residual`: the second run starts its fine-tune at the estimate itself
+  /// (finetune_options::residual), with the alternative folder's weights or, without one, the same.
+  /// Kept where it fits better: with run 18's estimator it took the family comparison's novel-view
+  /// error from 0.033 to 0.023 (models/README.md "Run 19").
+  bool alternative_residual = false;
+  /// Whether a second run is asked for (`--also-models` or `--also-residual`).
+  bool second_run() const { return !alternative.empty() || alternative_residual; }
+  /// The choice of the second run's weights: the alternative folder's, or these without
+  /// `--also-models` (same preset, no second run of its own).
   model_choice alternative_choice() const {
     model_choice m = *this;
-    m.models = alternative;
+    if (!alternative.empty()) m.models = alternative;
     m.alternative.clear();
+    m.alternative_residual = false;
     return m;
   }
 };
@@ -266,8 +275,12 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
                 "(twice the time; e.g. models/next for spun metal, models/README.md \"Run 16\")")
       ->check(CLI::ExistingDirectory);
   c->add_option("--also-models-above", m.alternative_above,
-                "with --also-models: run the second folder only when the first run's final image loss is above this (0: always)")
+                "with --also-models or --also-residual: run the second time only when the first run's final image loss is above this "
+                "(0: always)")
       ->check(CLI::NonNegativeNumber);
+  c->add_flag("--also-residual", m.alternative_residual,
+              "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual), with "
+              "the --also-models weights if given, and keep the result that fits the photographs better (models/README.md \"Run 19\")");
 }
 
 /// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
@@ -365,44 +378,52 @@ struct model_selection {
   double loss = 0, other_loss = 0; ///< their final image losses against the photographs
   double other_seconds = 0;        ///< the time the other run's stages took
   bool other_ran = true;           ///< false: the first run's loss was at most the threshold, the other did not run
+  bool chosen_residual = false, other_residual = false;  ///< whether each run's fine-tune had the residual start
 };
 
-/// run_capture_once with `models`, and when `models.alternative` is set and that run's final image
-/// loss is above `models.alternative_above`, again with the alternative folder's weights
-/// (check-points in o.checkpoint.folder/alternative); returns the result with the lower final
-/// image loss (the first on a tie) and says in `selection` (when given) which it kept and whether
-/// the second ran. An alternative without the network stages in `o.stages` is refused
-/// (std::invalid_argument).
+/// run_capture_once with `models`, and when a second run is asked for (`models.second_run()`) and
+/// that run's final image loss is above `models.alternative_above`, again with the alternative
+/// folder's weights and/or the residual start (check-points in o.checkpoint.folder/alternative);
+/// returns the result with the lower final image loss (the first on a tie) and says in
+/// `selection` (when given) which it kept and whether the second ran. A second run without the
+/// network stages in `o.stages` is refused (std::invalid_argument).
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
                                   const capture_options& o, const material_maps* start = nullptr, const std::vector<image>& masks = {},
                                   model_selection* selection = nullptr) {
-  if (models.alternative.empty()) return run_capture_once(cap, photos, models, o, start, masks);
+  if (!models.second_run()) return run_capture_once(cap, photos, models, o, start, masks);
+  const char* option = models.alternative.empty() ? "--also-residual" : "--also-models";
   if (!o.stages.networks())
-    throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run "
+    throw std::invalid_argument(std::string(option) + " chooses between the network stages' results, and these stages do not run "
                                 "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
   const model_choice other = models.alternative_choice();
   if (!other.present())
     throw std::invalid_argument("--also-models: no " + other.preset + " weights in " + (other.models / other.preset).string() +
                                 " (estimator.safetensors and autoencoder.safetensors)");
+  capture_options o2 = o;
+  if (models.alternative_residual) o2.finetune.residual = true;
+  const bool first_residual = o.finetune.residual, second_residual = o2.finetune.residual;
+  auto name = [](const model_choice& m, bool residual) {
+    return "the weights in " + m.models.string() + (residual ? " with the residual start" : "");
+  };
+  const std::string first_name = name(models, first_residual), second_name = name(other, second_residual);
   capture_result first = run_capture_once(cap, photos, models, o, start, masks);
   if (!(first.loss > models.alternative_above)) {
-    std::fprintf(stderr, "capture: the weights in %s fit the photographs to %.4f, at most %g: the weights in %s are not tried\n",
-                 models.models.c_str(), first.loss, models.alternative_above, other.models.c_str());
-    if (selection) *selection = model_selection{models.models, other.models, first.loss, 0, 0, false};
+    std::fprintf(stderr, "capture: %s fit the photographs to %.4f, at most %g: %s not tried\n", first_name.c_str(), first.loss,
+                 models.alternative_above, second_name.c_str());
+    if (selection) *selection = model_selection{models.models, other.models, first.loss, 0, 0, false, first_residual, second_residual};
     return first;
   }
-  std::fprintf(stderr, "capture: the weights in %s fit the photographs to %.4f; now the weights in %s\n", models.models.c_str(),
-               first.loss, other.models.c_str());
-  capture_options o2 = o;
+  std::fprintf(stderr, "capture: %s fit the photographs to %.4f; now %s\n", first_name.c_str(), first.loss, second_name.c_str());
   if (!o2.checkpoint.folder.empty()) o2.checkpoint.folder /= "alternative";
   capture_result second = run_capture_once(cap, photos, other, o2, start, masks);
   const bool take_second = !first.stopped && !second.stopped && second.loss < first.loss;
   if (selection)
-    *selection = take_second ? model_selection{other.models, models.models, second.loss, first.loss, first.stage_seconds()}
-                             : model_selection{models.models, other.models, first.loss, second.loss, second.stage_seconds()};
-  std::fprintf(stderr, "capture: kept the weights in %s (image loss %.4f against %.4f)\n",
-               (take_second ? other.models : models.models).c_str(), take_second ? second.loss : first.loss,
-               take_second ? first.loss : second.loss);
+    *selection = take_second ? model_selection{other.models, models.models, second.loss, first.loss, first.stage_seconds(), true,
+                                               second_residual, first_residual}
+                             : model_selection{models.models, other.models, first.loss, second.loss, second.stage_seconds(), true,
+                                               first_residual, second_residual};
+  std::fprintf(stderr, "capture: kept %s (image loss %.4f against %.4f)\n", (take_second ? second_name : first_name).c_str(),
+               take_second ? second.loss : first.loss, take_second ? first.loss : second.loss);
   return take_second ? std::move(second) : std::move(first);
 }
 

@@ -996,3 +996,37 @@ TEST_CASE("eval --stages: the auto-encoder left out gives refined rows only; unk
   CHECK(r.output.find("--also-models chooses between the network stages' results") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "bad"));
 }
+
+TEST_CASE("capture --also-residual: a second run with the fine-tune started at the estimate, kept where it fits better") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
+  const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
+  auto r = run(common + " -o both --also-residual --also-models-above 0", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("with the residual start") != std::string::npos);
+  const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "both/report.json"));
+  const nlohmann::json& m = report.at("models");
+  CHECK(m.at("other_ran") == true);
+  CHECK(m.at("chosen") == m.at("other"));  // the same weights, two starts
+  CHECK(m.at("chosen_residual") != m.at("other_residual"));
+  CHECK(m.at("loss").get<double>() == report.at("loss").get<double>());
+  CHECK(m.at("loss").get<double>() <= m.at("other_loss").get<double>());
+  // Each start alone gives the loss the selection reported for it.
+  for (const char* side : {"chosen", "other"}) {
+    const bool residual = m.at(std::string(side) + "_residual").get<bool>();
+    const std::string dir = std::string("alone_") + side;
+    r = run(common + " -o " + dir + (residual ? " --finetune-residual" : ""), t.path);
+    REQUIRE(r.status == 0);
+    const nlohmann::json alone = nlohmann::json::parse(read_text(t.path / dir / "report.json"));
+    CHECK(alone.at("finetune").at("residual") == residual);
+    CHECK(alone.at("loss").get<double>() == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
+    // The residual start's encode stage renders the estimate itself.
+    const auto& stages = alone.at("stages");
+    if (residual) CHECK(stages.at(1).at("loss").get<double>() == doctest::Approx(stages.at(0).at("loss").get<double>()).epsilon(1e-4));
+  }
+  r = run(common + " -o none --stages refine --also-residual", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("--also-residual chooses between the network stages' results") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "none/report.json"));
+}
