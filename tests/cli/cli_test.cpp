@@ -55,6 +55,16 @@ struct temp_dir {
 
 void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
 
+/// Runs `args` in `dir` and checks that it is refused: a non-zero exit, `message` in the output,
+/// and nothing at `dir / out`.
+void check_refused(const std::string& args, const fs::path& dir, const std::string& message, const fs::path& out) {
+  const run_result r = run(args, dir);
+  INFO(args << "\n" << r.output);
+  CHECK(r.status != 0);
+  CHECK(r.output.find(message) != std::string::npos);
+  CHECK_FALSE(fs::exists(dir / out));
+}
+
 std::string read_text(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
   std::stringstream s;
@@ -986,15 +996,9 @@ TEST_CASE("eval --stages: the auto-encoder left out gives refined rows only; unk
   const std::string alone = read_text(t.path / "r/table.csv");
   CHECK(alone.find(",refined,") != std::string::npos);
   CHECK(alone != er);
-  r = run("eval -o bad" + common + " --stages estimate,bogus", t.path);
-  CHECK(r.status != 0);
-  CHECK(r.output.find("unknown stage 'bogus'") != std::string::npos);
-  CHECK_FALSE(fs::exists(t.path / "bad"));
-  r = run("eval -o bad" + common + " --stages refine --also-models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models/next").string() + "'",
-          t.path);
-  CHECK(r.status != 0);
-  CHECK(r.output.find("--also-models chooses between the network stages' results") != std::string::npos);
-  CHECK_FALSE(fs::exists(t.path / "bad"));
+  check_refused("eval -o bad" + common + " --stages estimate,bogus", t.path, "unknown stage 'bogus'", "bad");
+  check_refused("eval -o bad" + common + " --stages refine --also-models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models/next").string() + "'",
+                t.path, "--also-models chooses between the network stages' results", "bad");
 }
 
 TEST_CASE("capture --also-residual: a second run with the fine-tune started at the estimate, kept where it fits better") {
@@ -1025,8 +1029,6 @@ TEST_CASE("capture --also-residual: a second run with the fine-tune started at t
     const auto& stages = alone.at("stages");
     if (residual) CHECK(stages.at(1).at("loss").get<double>() == doctest::Approx(stages.at(0).at("loss").get<double>()).epsilon(1e-4));
   }
-  r = run(common + " -o none --stages refine --also-residual", t.path);
-  CHECK(r.status != 0);
-  CHECK(r.output.find("--also-residual chooses between the network stages' results") != std::string::npos);
-  CHECK_FALSE(fs::exists(t.path / "none/report.json"));
+  check_refused(common + " -o none --stages refine --also-residual", t.path, "--also-residual chooses between the network stages' results",
+                "none/report.json");
 }
