@@ -283,8 +283,6 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
               "the --also-models weights if given, and keep the result that fits the photographs better (models/README.md \"Run 19\")");
 }
 
-/// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
-/// comes first so that options after it on the command line refine it.
 /// Without the network stages the refine starts from the first guess, far from the answer: it then
 /// takes refine_options' own steps and rate, unless `parsed` (the command) gave --steps or --lr.
 inline void refine_alone_schedule(capture_options& o, const CLI::App& parsed) {
@@ -293,6 +291,8 @@ inline void refine_alone_schedule(capture_options& o, const CLI::App& parsed) {
   if (parsed.count("--lr") == 0) o.refine.learning_rate = refine_options{}.learning_rate;
 }
 
+/// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
+/// comes first so that options after it on the command line refine it.
 inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option_function<std::string>(
        "--schedule",

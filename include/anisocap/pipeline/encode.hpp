@@ -38,23 +38,15 @@ tensor<auto_encoder<P>::latent_channels, float> encode(auto_encoder<P>& autoenco
 }
 
 /// The decoder's maps of the latent code `z`, cropped to the `width` x `height` material, without
-/// gradients.
-template <class P>
-material_maps decode(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width, int height) {
-  ad::tape t;
-  ad::tape::no_grad_guard guard(t);
-  return network_space::network_to_maps(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width), 0);
-}
-
-/// The decoder's maps of `z`, shifted by `residual` (network space, the material's size; none when
-/// null): what the fine-tune renders (finetune_options::residual), without gradients.
+/// gradients; shifted by `residual` when given (network space, the material's size: what the
+/// fine-tune with the residual start renders, finetune_options::residual).
 template <class P>
 material_maps decode(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width, int height,
-                     const tensor<parameter_count, float>* residual) {
-  if (!residual) return decode(autoencoder, z, width, height);
+                     const tensor<parameter_count, float>* residual = nullptr) {
   ad::tape t;
   ad::tape::no_grad_guard guard(t);
-  return network_space::network_to_maps(network_space::shifted(autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width), *residual), 0);
+  const auto u = autoencoder.decode(t, t.leaf(z)).value.tile(0, 0, height, width);
+  return network_space::network_to_maps(residual ? network_space::shifted(u, *residual) : u, 0);
 }
 
 /// The fine-tune's residual start (finetune_options::residual): the shift, in network space over the
