@@ -16,10 +16,14 @@ since photo_loss was added), i.e. what a capture that ran both weight sets and k
 would get without knowing the truth. It is compared with the first table, and the choices are
 counted per family. With --above L the second table counts only for the materials whose first
 refined photo_loss is above L (what `--also-models-above L` does: the second weights run only
-after a poor first fit); the number of such second runs is printed.
+after a poor first fit); the number of such second runs is printed. With --ratio R it counts
+only where, besides, the first table's auto-encoder projection of the estimate fits the photographs
+at least R times worse than the estimate itself (encode_photo_loss / estimate_photo_loss >= R,
+columns evals write since they were added): a trigger for the residual start's second run
+(`--also-residual`) that needs no loss threshold.
 
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
-       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select [--above L]]
+       python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select [--above L] [--ratio R]]
 Standard library only.
 """
 import argparse
@@ -60,24 +64,36 @@ def print_comparison(side_a, side_b, name_a, name_b):
                   f"{statistics.median(a):.4g} | {statistics.median(b):.4g} | {wins_a} | {wins_b} |")
 
 
-def print_selection(side_a, side_b, above=0.0):
+def projection_ratio(row):
+    """How many times worse the auto-encoder projection of the estimate fits the photographs than
+    the estimate itself, from one row of a table with the estimate_photo_loss and encode_photo_loss
+    columns."""
+    if not row.get("estimate_photo_loss") or not row.get("encode_photo_loss"):
+        sys.exit("--ratio needs the estimate_photo_loss and encode_photo_loss columns in the first table")
+    return float(row["encode_photo_loss"]) / float(row["estimate_photo_loss"])
+
+
+def print_selection(side_a, side_b, above=0.0, ratio=0.0):
     """The per-material choice by the refined stage's photo_loss, against the first side; the second
-    side is tried only where the first side's refined photo_loss is above `above`."""
+    side is tried only where the first side's refined photo_loss is above `above` and its projection
+    ratio (projection_ratio) is at least `ratio`."""
     seeds = sorted(s for s, st in side_a if st == "refined" and (s, "refined") in side_b)
     if any(not side[(s, "refined")].get("photo_loss") for side in (side_a, side_b) for s in seeds):
         sys.exit("--select needs the photo_loss column in both tables (evals written since it was added)")
     chosen, picks, tried = {}, {}, 0
     for s in seeds:
         first_loss = float(side_a[(s, "refined")]["photo_loss"])
-        tried += first_loss > above
-        second = first_loss > above and float(side_b[(s, "refined")]["photo_loss"]) < first_loss
+        trigger = first_loss > above and (ratio == 0.0 or projection_ratio(side_a[(s, "refined")]) >= ratio)
+        tried += trigger
+        second = trigger and float(side_b[(s, "refined")]["photo_loss"]) < first_loss
         source = side_b if second else side_a
         family = side_a[(s, "refined")]["family"]
         picks.setdefault(family, [0, 0])[1 if second else 0] += 1
         for stage in ("fine-tuned", "refined"):
             if (s, stage) in source:
                 chosen[(s, stage)] = source[(s, stage)]
-    print(f"\nChoice by the refined stage's photo_loss, the second tried where the first is above {above:g} "
+    print(f"\nChoice by the refined stage's photo_loss, the second tried where the first is above {above:g}"
+          + (f" and its projection ratio at least {ratio:g}" if ratio else "") + " "
           f"({tried} of {len(seeds)} materials; per family: materials taking the first, the second):",
           ", ".join(f"{f} {a}/{b}" for f, (a, b) in sorted(picks.items())))
     print()
@@ -96,9 +112,12 @@ def main():
                         help="with --weights: also the per-material choice of the table whose refined stage has the lower photo_loss")
     parser.add_argument("--above", type=float, default=0.0,
                         help="with --select: try the second table only where the first's refined photo_loss is above this")
+    parser.add_argument("--ratio", type=float, default=0.0,
+                        help="with --select: try the second table only where the first's encode_photo_loss / "
+                             "estimate_photo_loss is at least this (0: everywhere)")
     args = parser.parse_args()
-    if args.above != 0.0 and not args.select:
-        sys.exit("--above goes with --select")
+    if (args.above != 0.0 or args.ratio != 0.0) and not args.select:
+        sys.exit("--above and --ratio go with --select")
     if args.weights:
         if len(args.tables) != 2:
             sys.exit("--weights compares exactly two tables")
@@ -111,7 +130,7 @@ def main():
               f"on the materials both have\n")
         print_comparison(side_a, side_b, "first", "second")
         if args.select:
-            print_selection(side_a, side_b, args.above)
+            print_selection(side_a, side_b, args.above, args.ratio)
         return
     rows = {}
     for path in args.tables:

@@ -34,7 +34,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
   std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
   std::vector<std::string> order;
   std::ostringstream csv;
-  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family,photo_loss\n";
+  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family,photo_loss,estimate_photo_loss,encode_photo_loss\n";
   auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
     if (!rows.count(key)) order.push_back(key);
     auto& r = rows[key];
@@ -97,7 +97,9 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
                      static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
         // The stage's image loss against the input photographs (stage_report::loss): what a capture
-        // of real photographs can measure, beside the errors that need the truth.
+        // of real photographs can measure, beside the errors that need the truth. Every row also
+        // carries the (kept run's) estimate's and its auto-encoder projection's losses, the starts
+        // the fine-tune can take (docs/method.md section 8.3).
         auto photo_loss = [&](const char* stage) {
           for (const stage_report& r : pr.stages)
             if (r.name == stage && r.ran) return r.loss;
@@ -112,7 +114,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
           csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
               << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
               << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << ','
-              << photo_loss(report) << '\n';
+              << photo_loss(report) << ',' << photo_loss("estimate") << ',' << photo_loss("encode") << '\n';
         };
         if (pr.after_finetune) record("fine-tuned", "finetune", *pr.after_finetune);
         record("refined", "refine", pr.maps);

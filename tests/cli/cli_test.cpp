@@ -959,7 +959,7 @@ TEST_CASE("eval --first-seed redoes one material of a larger run") {
       std::vector<std::string> fields;
       std::stringstream cells(line);
       for (std::string cell; std::getline(cells, cell, ',');) fields.push_back(cell);
-      if (fields.size() == 18 && fields[1] == seed && fields[6] == "refined") {
+      if (fields.size() == 20 && fields[1] == seed && fields[6] == "refined") {
         fields.erase(fields.begin() + 15);  // seconds
         fields.erase(fields.begin());       // material index
         return fields;
@@ -968,12 +968,18 @@ TEST_CASE("eval --first-seed redoes one material of a larger run") {
     return std::vector<std::string>{};
   };
   const auto one = row("one", "900003");
-  REQUIRE(one.size() == 16);
+  REQUIRE(one.size() == 18);
   CHECK(one[14] == "coated");
-  // The refine's image loss against the photographs: a finite positive number, the same in both runs.
-  const double photo_loss = std::stod(one.back());
+  // The refine's image loss against the photographs, and those of the fine-tune's two possible
+  // starts (the estimate and its auto-encoder projection): finite positive numbers, the same in
+  // both runs; the projection is not the estimate, so its loss differs.
+  const double photo_loss = std::stod(one[15]), estimate_loss = std::stod(one[16]), encode_loss = std::stod(one[17]);
   CHECK(std::isfinite(photo_loss));
   CHECK(photo_loss > 0);
+  CHECK(std::isfinite(estimate_loss));
+  CHECK(estimate_loss > 0);
+  CHECK(std::isfinite(encode_loss));
+  CHECK(encode_loss != estimate_loss);
   CHECK(one == row("all", "900003"));
 }
 
