@@ -113,6 +113,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const bool networks = o.stages.networks();
   if (networks && s.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
   refine_alone_schedule(o, *parsed);
+  resolve_second_run(s.models, o.stages, *parsed);
   o.checkpoint = {s.out / ".checkpoint", s.resume};
   o.finetune.progress_every = 25;
   o.refine.progress_every = std::max(1, o.refine.steps / 50);
@@ -172,7 +173,10 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                         {"other", fs::absolute(selection.other).string()}, {"other_ran", selection.other_ran},
                         {"other_loss", selection.other_ran ? nlohmann::json(selection.other_loss) : nlohmann::json()},
                         {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above},
-                        {"chosen_residual", selection.chosen_residual}, {"other_residual", selection.other_residual}};
+                        {"chosen_residual", selection.chosen_residual}, {"other_residual", selection.other_residual},
+                        {"residual_ratio", s.models.residual_ratio},
+                        {"projection_ratio", std::isfinite(selection.projection_ratio) ? nlohmann::json(selection.projection_ratio)
+                                                                                       : nlohmann::json()}};
   report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)

@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <initializer_list>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -252,8 +253,16 @@ struct model_choice {
   /// `--also-residual`: the second run starts its fine-tune at the estimate itself
   /// (finetune_options::residual), with the alternative folder's weights or, without one, the same.
   /// Kept where it fits better: with run 18's estimator it took the family comparison's novel-view
-  /// error from 0.033 to 0.023 (models/README.md "Run 19").
-  bool alternative_residual = false;
+  /// error from 0.033 to 0.023 (models/README.md "Run 19"). On by default where the encode and
+  /// fine-tune stages run and no `--also-models` is given (resolve_second_run); `--no-also-residual`
+  /// turns it off.
+  bool alternative_residual = true;
+  /// The residual start's second run on the same weights happens only where the first run's
+  /// auto-encoder projection of the estimate fits the photographs at least this many times worse
+  /// than the estimate itself (projection_ratio; `--also-residual-ratio`, 0: no such condition),
+  /// on top of `alternative_above`. The ratio is measured before any fine-tuning and, unlike the
+  /// final loss, hardly moves with the photographs' noise (models/README.md "Run 20").
+  double residual_ratio = 1.4;
   /// Whether a second run is asked for (`--also-models` or `--also-residual`).
   bool second_run() const { return !alternative.empty() || alternative_residual; }
   /// The choice of the second run's weights: the alternative folder's, or these without
@@ -278,9 +287,39 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
                 "with --also-models or --also-residual: run the second time only when the first run's final image loss is above this "
                 "(0: always)")
       ->check(CLI::NonNegativeNumber);
-  c->add_flag("--also-residual", m.alternative_residual,
+  c->add_flag("--also-residual,!--no-also-residual", m.alternative_residual,
               "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual), with "
-              "the --also-models weights if given, and keep the result that fits the photographs better (models/README.md \"Run 19\")");
+              "the --also-models weights if given, and keep the result that fits the photographs better (models/README.md \"Run 19\"); "
+              "on by default where the fine-tune runs and no --also-models is given, subject to --also-models-above and "
+              "--also-residual-ratio");
+  c->add_option("--also-residual-ratio", m.residual_ratio,
+                "with --also-residual on the same weights: run the second time only where the auto-encoder's projection of the "
+                "estimate fits the photographs at least this many times worse than the estimate (0: wherever --also-models-above "
+                "allows)")
+      ->check(CLI::NonNegativeNumber);
+}
+
+/// The residual start's second run is on by default (model_choice::alternative_residual) but only
+/// where it can differ from the first: unless `parsed` (the command) gave `--also-residual`, it is
+/// turned off when `stages` leave out the encode or fine-tune stage or when `--also-models` names
+/// other weights (whose second run then has the standard start, as that option says).
+inline void resolve_second_run(model_choice& m, const pipeline_stages& stages, const CLI::App& parsed) {
+  if (parsed.count("--also-residual") > 0) return;
+  if (!stages.encode || !stages.finetune || !m.alternative.empty()) m.alternative_residual = false;
+}
+
+/// How many times worse the auto-encoder projection of the estimate (the encode stage) fits the
+/// photographs than the estimate itself: large where the projection loses what the estimator
+/// found, the case the residual start (finetune_options::residual) is for. NaN when either stage
+/// did not run.
+inline double projection_ratio(const capture_result& r) {
+  double estimate = std::numeric_limits<double>::quiet_NaN(), encode = estimate;
+  for (const stage_report& s : r.stages) {
+    if (!s.ran) continue;
+    if (s.name == "estimate") estimate = s.loss;
+    if (s.name == "encode") encode = s.loss;
+  }
+  return encode / estimate;
 }
 
 /// Without the network stages the refine starts from the first guess, far from the answer: it then
@@ -377,13 +416,16 @@ struct model_selection {
   fs::path chosen, other;          ///< the weights folders of the kept and the other result
   double loss = 0, other_loss = 0; ///< their final image losses against the photographs
   double other_seconds = 0;        ///< the time the other run's stages took
-  bool other_ran = true;           ///< false: the first run's loss was at most the threshold, the other did not run
+  bool other_ran = true;           ///< false: a condition below was not met, the other did not run
   bool chosen_residual = false, other_residual = false;  ///< whether each run's fine-tune had the residual start
+  double projection_ratio = 0;     ///< the first run's projection_ratio (NaN when its network stages did not both run)
 };
 
 /// run_capture_once with `models`, and when a second run is asked for (`models.second_run()`) and
 /// that run's final image loss is above `models.alternative_above`, again with the alternative
-/// folder's weights and/or the residual start (check-points in o.checkpoint.folder/alternative);
+/// folder's weights and/or the residual start (check-points in o.checkpoint.folder/alternative).
+/// The residual start on the same weights runs only where the first run did not already have it
+/// and its projection_ratio is at least `models.residual_ratio`;
 /// returns the result with the lower final image loss (the first on a tie) and says in
 /// `selection` (when given) which it kept and whether the second ran. A second run without the
 /// network stages in `o.stages` is refused (std::invalid_argument).
@@ -407,11 +449,25 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
   };
   const std::string first_name = name(models, first_residual), second_name = name(other, second_residual);
   capture_result first = run_capture_once(cap, photos, models, o, start, masks);
+  const double ratio = projection_ratio(first);
+  auto not_tried = [&](const std::string& why) {
+    std::fprintf(stderr, "capture: %s fit the photographs to %.4f; %s: %s not tried\n", first_name.c_str(), first.loss, why.c_str(),
+                 second_name.c_str());
+    if (selection)
+      *selection = model_selection{models.models, other.models, first.loss, 0, 0, false, first_residual, second_residual, ratio};
+    return std::move(first);
+  };
+  char why[200];
   if (!(first.loss > models.alternative_above)) {
-    std::fprintf(stderr, "capture: %s fit the photographs to %.4f, at most %g: %s not tried\n", first_name.c_str(), first.loss,
-                 models.alternative_above, second_name.c_str());
-    if (selection) *selection = model_selection{models.models, other.models, first.loss, 0, 0, false, first_residual, second_residual};
-    return first;
+    std::snprintf(why, sizeof why, "at most %g", models.alternative_above);
+    return not_tried(why);
+  }
+  const bool same_weights = models.alternative.empty();
+  if (same_weights && first_residual) return not_tried("it had the residual start already");
+  if (same_weights && models.residual_ratio > 0 && ratio < models.residual_ratio) {
+    std::snprintf(why, sizeof why, "the auto-encoder's projection fits %.2fx worse than the estimate, under %g", ratio,
+                  models.residual_ratio);
+    return not_tried(why);
   }
   std::fprintf(stderr, "capture: %s fit the photographs to %.4f; now %s\n", first_name.c_str(), first.loss, second_name.c_str());
   if (!o2.checkpoint.folder.empty()) o2.checkpoint.folder /= "alternative";
@@ -419,9 +475,9 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
   const bool take_second = !first.stopped && !second.stopped && second.loss < first.loss;
   if (selection)
     *selection = take_second ? model_selection{other.models, models.models, second.loss, first.loss, first.stage_seconds(), true,
-                                               second_residual, first_residual}
+                                               second_residual, first_residual, ratio}
                              : model_selection{models.models, other.models, first.loss, second.loss, second.stage_seconds(), true,
-                                               first_residual, second_residual};
+                                               first_residual, second_residual, ratio};
   std::fprintf(stderr, "capture: kept %s (image loss %.4f against %.4f)\n", (take_second ? second_name : first_name).c_str(),
                take_second ? second.loss : first.loss, take_second ? first.loss : second.loss);
   return take_second ? std::move(second) : std::move(first);

@@ -182,7 +182,9 @@ inline void add_eval_command(CLI::App& app) {
     capture_options o = *options;
     o.stages = pipeline_stages::parse(e->stages);
     refine_alone_schedule(o, *c);
-    eval_command(*e, *models, o);
+    model_choice m = *models;
+    resolve_second_run(m, o.stages, *c);
+    eval_command(*e, m, o);
   });
 }
 

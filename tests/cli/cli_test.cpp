@@ -918,7 +918,7 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   // Each folder alone gives the loss the selection reported for it: the choice is of whole runs.
   for (const char* side : {"chosen", "other"}) {
     const std::string dir = std::string("alone_") + side;
-    r = run(common + " -o " + dir + " --models '" + m.at(side).get<std::string>() + "'", t.path);
+    r = run(common + " -o " + dir + " --no-also-residual --models '" + m.at(side).get<std::string>() + "'", t.path);
     REQUIRE(r.status == 0);
     const double alone = nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>();
     CHECK(alone == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
@@ -1011,13 +1011,17 @@ TEST_CASE("capture --also-residual: a second run with the fine-tune started at t
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
   const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
-  auto r = run(common + " -o both --also-residual --also-models-above 0", t.path);
+  auto r = run(common + " -o both --also-residual --also-models-above 0 --also-residual-ratio 0", t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
   CHECK(r.output.find("with the residual start") != std::string::npos);
   const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "both/report.json"));
   const nlohmann::json& m = report.at("models");
   CHECK(m.at("other_ran") == true);
+  // The projection ratio: the encode stage's loss over the estimate's, as the first run's report has them.
+  const auto& stages = report.at("stages");
+  const double ratio = m.at("projection_ratio").get<double>();
+  CHECK(ratio > 0);
   CHECK(m.at("chosen") == m.at("other"));  // the same weights, two starts
   CHECK(m.at("chosen_residual") != m.at("other_residual"));
   CHECK(m.at("loss").get<double>() == report.at("loss").get<double>());
@@ -1026,15 +1030,47 @@ TEST_CASE("capture --also-residual: a second run with the fine-tune started at t
   for (const char* side : {"chosen", "other"}) {
     const bool residual = m.at(std::string(side) + "_residual").get<bool>();
     const std::string dir = std::string("alone_") + side;
-    r = run(common + " -o " + dir + (residual ? " --finetune-residual" : ""), t.path);
+    r = run(common + " -o " + dir + " --no-also-residual" + (residual ? " --finetune-residual" : ""), t.path);
     REQUIRE(r.status == 0);
     const nlohmann::json alone = nlohmann::json::parse(read_text(t.path / dir / "report.json"));
     CHECK(alone.at("finetune").at("residual") == residual);
     CHECK(alone.at("loss").get<double>() == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
     // The residual start's encode stage renders the estimate itself.
-    const auto& stages = alone.at("stages");
-    if (residual) CHECK(stages.at(1).at("loss").get<double>() == doctest::Approx(stages.at(0).at("loss").get<double>()).epsilon(1e-4));
+    const auto& alone_stages = alone.at("stages");
+    if (residual)
+      CHECK(alone_stages.at(1).at("loss").get<double>() == doctest::Approx(alone_stages.at(0).at("loss").get<double>()).epsilon(1e-4));
+    else
+      CHECK(ratio == doctest::Approx(alone_stages.at(1).at("loss").get<double>() / alone_stages.at(0).at("loss").get<double>()));
   }
+  CHECK(stages.at(0).at("name") == "estimate");
+  // Where the projection loses less than --also-residual-ratio asks, the second start is not tried;
+  // nor where the first run had the residual start already.
+  r = run(common + " -o gated --also-residual --also-models-above 0 --also-residual-ratio " + std::to_string(ratio * 1.01), t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("the auto-encoder's projection fits") != std::string::npos);
+  const nlohmann::json gated = nlohmann::json::parse(read_text(t.path / "gated/report.json")).at("models");
+  CHECK(gated.at("other_ran") == false);
+  CHECK(gated.at("other_loss").is_null());
+  CHECK(gated.at("projection_ratio").get<double>() == doctest::Approx(ratio));
+  r = run(common + " -o already --finetune-residual --also-residual --also-models-above 0 --also-residual-ratio 0", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("it had the residual start already") != std::string::npos);
+  CHECK(nlohmann::json::parse(read_text(t.path / "already/report.json")).at("models").at("other_ran") == false);
+  // The choice is on by default: the same two runs and the same result without the flag. Off with
+  // --no-also-residual, and off without a word where no fine-tune runs (asked for, it is refused below).
+  r = run(common + " -o default_on --also-models-above 0 --also-residual-ratio 0", t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json default_on = nlohmann::json::parse(read_text(t.path / "default_on/report.json"));
+  for (const char* key : {"loss", "other_loss", "chosen_residual", "other_residual", "projection_ratio"})
+    CHECK(default_on.at("models").at(key) == m.at(key));
+  CHECK(default_on.at("loss").get<double>() == report.at("loss").get<double>());
+  r = run(common + " -o off --also-models-above 0 --also-residual-ratio 0 --no-also-residual", t.path);
+  REQUIRE(r.status == 0);
+  CHECK_FALSE(nlohmann::json::parse(read_text(t.path / "off/report.json")).contains("models"));
+  CHECK(r.output.find("residual start") == std::string::npos);
+  r = run(common + " -o refine_only --stages refine --also-models-above 0 --also-residual-ratio 0", t.path);
+  REQUIRE(r.status == 0);
+  CHECK_FALSE(nlohmann::json::parse(read_text(t.path / "refine_only/report.json")).contains("models"));
   check_refused(common + " -o none --stages refine --also-residual", t.path, "--also-residual chooses between the network stages' results",
                 "none/report.json");
 }
