@@ -425,7 +425,8 @@ struct model_selection {
 /// that run's final image loss is above `models.alternative_above`, again with the alternative
 /// folder's weights and/or the residual start (check-points in o.checkpoint.folder/alternative).
 /// The residual start on the same weights runs only where the first run did not already have it
-/// and its projection_ratio is at least `models.residual_ratio`;
+/// and its projection_ratio is at least `models.residual_ratio` (a ratio that cannot be measured,
+/// without the estimate stage, does not hold it back);
 /// returns the result with the lower final image loss (the first on a tie) and says in
 /// `selection` (when given) which it kept and whether the second ran. A second run without the
 /// network stages in `o.stages` is refused (std::invalid_argument).
