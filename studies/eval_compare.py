@@ -19,8 +19,8 @@ refined photo_loss is above L (what `--also-models-above L` does: the second wei
 after a poor first fit); the number of such second runs is printed. With --ratio R it counts
 only where, besides, the first table's auto-encoder projection of the estimate fits the photographs
 at least R times worse than the estimate itself (encode_photo_loss / estimate_photo_loss >= R,
-columns evals write since they were added): a trigger for the residual start's second run
-(`--also-residual`) that needs no loss threshold.
+columns evals write since they were added): the condition the residual start's second run
+(`--also-residual-ratio`) adds to the loss threshold, one that noise hardly moves.
 
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
        python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select [--above L] [--ratio R]]

@@ -12,7 +12,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <initializer_list>
-#include <limits>
 #include <string>
 #include <vector>
 
@@ -312,15 +311,7 @@ inline void resolve_second_run(model_choice& m, const pipeline_stages& stages, c
 /// photographs than the estimate itself: large where the projection loses what the estimator
 /// found, the case the residual start (finetune_options::residual) is for. NaN when either stage
 /// did not run.
-inline double projection_ratio(const capture_result& r) {
-  double estimate = std::numeric_limits<double>::quiet_NaN(), encode = estimate;
-  for (const stage_report& s : r.stages) {
-    if (!s.ran) continue;
-    if (s.name == "estimate") estimate = s.loss;
-    if (s.name == "encode") encode = s.loss;
-  }
-  return encode / estimate;
-}
+inline double projection_ratio(const capture_result& r) { return r.stage_loss("encode") / r.stage_loss("estimate"); }
 
 /// Without the network stages the refine starts from the first guess, far from the answer: it then
 /// takes refine_options' own steps and rate, unless `parsed` (the command) gave --steps or --lr.

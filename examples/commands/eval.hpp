@@ -1,7 +1,6 @@
 #pragma once
 // `anisocap eval`: the paper's Table 1 on procedural validation materials.
 #include <chrono>
-#include <limits>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -96,15 +95,10 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         const double sec = seconds_since(t0);
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
                      static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
-        // The stage's image loss against the input photographs (stage_report::loss): what a capture
-        // of real photographs can measure, beside the errors that need the truth. Every row also
-        // carries the (kept run's) estimate's and its auto-encoder projection's losses, the starts
-        // the fine-tune can take (docs/method.md section 8.3).
-        auto photo_loss = [&](const char* stage) {
-          for (const stage_report& r : pr.stages)
-            if (r.name == stage && r.ran) return r.loss;
-          return std::numeric_limits<double>::quiet_NaN();
-        };
+        // Each row's photo_loss is the stage's image loss against the input photographs: what a
+        // capture of real photographs can measure, beside the errors that need the truth. Every row
+        // also carries the (kept run's) estimate's and its auto-encoder projection's losses, the
+        // starts the fine-tune can take (docs/method.md section 8.3).
         auto record = [&](const char* stage, const char* report, const material_maps& maps) {
           const parameter_errors pe = compare_maps(maps, truth);
           const double nv = novel_view_error(maps, truth, novel);
@@ -114,7 +108,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
           csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
               << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
               << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << ','
-              << photo_loss(report) << ',' << photo_loss("estimate") << ',' << photo_loss("encode") << '\n';
+              << pr.stage_loss(report) << ',' << pr.stage_loss("estimate") << ',' << pr.stage_loss("encode") << '\n';
         };
         if (pr.after_finetune) record("fine-tuned", "finetune", *pr.after_finetune);
         record("refined", "refine", pr.maps);

@@ -3,6 +3,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <random>
 
@@ -75,6 +76,9 @@ TEST_CASE("pipeline: every stage runs on a non-square size that is not a multipl
   // Fine-tuning and refining optimise the image loss: neither ends above where it started.
   CHECK(r.stages[2].loss <= r.stages[1].loss * 1.001);
   CHECK(r.stages[3].loss <= r.stages[2].loss * 1.001);
+  // stage_loss finds a stage's loss by name; a stage that is not in the report has none.
+  for (const stage_report& st : r.stages) CHECK(r.stage_loss(st.name) == st.loss);
+  CHECK(std::isnan(r.stage_loss("first_guess")));
   CHECK(r.maps.width() == 45);
   CHECK(r.maps.height() == 37);
   for (std::size_t i = 0; i < r.maps.texel_count(); ++i) {

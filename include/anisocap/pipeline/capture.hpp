@@ -12,9 +12,11 @@
 #include <sstream>
 #include <filesystem>
 #include <functional>
+#include <limits>
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "anisocap/pipeline/encode.hpp"
@@ -155,6 +157,13 @@ struct capture_result {
     double t = 0;
     for (const stage_report& st : stages) t += st.seconds;
     return t;
+  }
+
+  /// The image loss after the stage named `name` (stage_report::loss), NaN when it did not run.
+  double stage_loss(std::string_view name) const {
+    for (const stage_report& st : stages)
+      if (st.name == name && st.ran) return st.loss;
+    return std::numeric_limits<double>::quiet_NaN();
   }
 };
 
