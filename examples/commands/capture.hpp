@@ -159,9 +159,11 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   for (const auto& st : result.stages)
     report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
                                 {"loss", st.loss}, {"seconds", st.seconds}, {"evaluated_fraction", st.evaluated_fraction},
-                                {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction}});
+                                {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction},
+                                {"restart_replaced_fractions", st.restart_replaced_fractions}});
   report["refine"] = {{"steps", o.refine.steps}, {"learning_rate", o.refine.learning_rate},
-                      {"stop", o.refine.min_relative_improvement}, {"freeze", o.refine.freeze_tolerance}};
+                      {"stop", o.refine.min_relative_improvement}, {"freeze", o.refine.freeze_tolerance},
+                      {"neighbour_restarts", o.neighbour_restarts}};
   if (networks)
     report["finetune"] = {{"steps", o.finetune.steps}, {"learning_rate", o.finetune.learning_rate}, {"warmup", o.finetune.warmup},
                           {"half_life", o.finetune.half_life}, {"crop", o.finetune.crop.cells}, {"guard", o.finetune.guard.factor},

@@ -365,6 +365,11 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
                 "refine also from the same maps with both lobe widths at least this, and keep per 64-texel group the fit with the "
                 "lower loss (0: one start; docs/method.md section 8.4)")
       ->check(CLI::Range(0.0, 1.0));
+  c->add_option("--neighbour-restarts", o.neighbour_restarts,
+                "after the refine, for each radius R in turn (comma-separated texels, e.g. 16,8,4), refine again from the maps' means "
+                "over (2R+1)^2 windows and keep per 64-texel group the fit with the lower loss (none: no restarts; docs/method.md section 8.4)")
+      ->delimiter(',')
+      ->check(CLI::PositiveNumber);
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
        "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },

@@ -190,3 +190,125 @@ TEST_CASE("a wide-lobe second start recovers a wide lobe that a narrow start can
   CHECK(both.final_loss < 0.5 * single.final_loss);
   CHECK(lobe_error(two) < 0.5 * lobe_error(one));
 }
+
+TEST_CASE("window_mean is the mean over the clipped window, weighted or not") {
+  const int w = 23, h = 17;
+  const material_maps source = random_maps(w, h, 51);
+  const float* plane = source.plane(diffuse_r);
+  const float* weights = source.plane(specular_g);  // values in (0, 1)
+  std::vector<float> out(std::size_t(w) * h), weighted(out.size());
+  for (int radius : {1, 3, 30}) {
+    window_mean(plane, nullptr, plane, w, h, radius, out.data());
+    window_mean(plane, weights, plane, w, h, radius, weighted.data());
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        double sum = 0, count = 0, wsum = 0, wcount = 0;
+        for (int yy = std::max(0, y - radius); yy <= std::min(h - 1, y + radius); ++yy)
+          for (int xx = std::max(0, x - radius); xx <= std::min(w - 1, x + radius); ++xx) {
+            const std::size_t j = std::size_t(yy) * w + xx;
+            sum += plane[j];
+            count += 1;
+            wsum += weights[j] * plane[j];
+            wcount += weights[j];
+          }
+        const std::size_t i = std::size_t(y) * w + x;
+        REQUIRE(out[i] == doctest::Approx(sum / count).epsilon(1e-5));
+        REQUIRE(weighted[i] == doctest::Approx(wsum / wcount).epsilon(1e-5));
+      }
+  }
+  // A window without weight keeps the fallback's value.
+  std::vector<float> zero(out.size(), 0.0f), fallback(out.size(), 7.0f);
+  window_mean(plane, zero.data(), fallback.data(), w, h, 2, out.data());
+  for (float v : out) REQUIRE(v == 7.0f);
+}
+
+TEST_CASE("neighbourhood_mean: alpha through its wrap, lobes in log space, isotropic texels left out") {
+  const int w = 16, h = 8;
+  material_maps maps = random_maps(w, h, 52);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const std::size_t i = std::size_t(y) * w + x;
+      // Left half just below pi/2, right half just above -pi/2: nearly the same orientation.
+      maps.plane(rotation)[i] = x < w / 2 ? 1.52f : -1.52f;
+      maps.plane(lobe_x)[i] = x < w / 2 ? 0.4f : 0.1f;
+      maps.plane(lobe_y)[i] = 0.02f;
+    }
+  // An isotropic texel with alpha = 0 in the middle: its alpha must not count.
+  const std::size_t middle = std::size_t(h / 2) * w + w / 2;
+  maps.plane(rotation)[middle] = 0.0f;
+  maps.plane(lobe_x)[middle] = maps.plane(lobe_y)[middle] = 0.1f;
+  const material_maps mean = neighbourhood_mean(maps, 20);  // every window holds the whole map
+  for (std::size_t i = 0; i < mean.texel_count(); ++i) {
+    // A plain mean of alpha would be near 0 (a quarter turn off); the doubled-angle mean is +-pi/2.
+    REQUIRE(std::abs(mean.plane(rotation)[i]) > 1.5f);
+    REQUIRE(std::abs(mean.plane(rotation)[i]) <= float(std::numbers::pi / 2) + 1e-6f);
+  }
+  // The geometric mean of the lobe widths (64 texels of 0.4, 64 of 0.1), not the arithmetic 0.25.
+  CHECK(mean.plane(lobe_x)[0] == doctest::Approx(0.2).epsilon(1e-4));
+  CHECK(mean.plane(diffuse_g)[0] == doctest::Approx(mean.plane(diffuse_g)[mean.texel_count() - 1]).epsilon(1e-5));
+  // Constant maps are their own mean.
+  material_maps constant(w, h);
+  const float values[parameter_count] = {0.2f, 0.3f, 0.4f, 0.5f, 0.6f, 0.7f, 0.3f, 0.05f, 0.6f, 0.1f, -0.2f, 0.7f};
+  constant.fill(values);
+  const material_maps same = neighbourhood_mean(constant, 3);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < same.texel_count(); ++i) REQUIRE(same.plane(k)[i] == doctest::Approx(values[k]).epsilon(1e-5));
+  CHECK_THROWS_AS(neighbourhood_mean(maps, 0), std::invalid_argument);
+}
+
+TEST_CASE("neighbour restarts put a band fitted a quarter turn off back in the right basin") {
+  // The truth: uniform albedos, F0 and normal, a rotation that turns around a point (spun metal),
+  // narrow anisotropic lobes. The start: the truth, except a band of columns whose alpha is a
+  // quarter turn off and whose lobes are narrowed; the per-texel refine does not turn it back.
+  const int w = 32, h = 16;
+  material_maps truth(w, h);
+  const float uniform[parameter_count] = {0.1f, 0.08f, 0.06f, 0.4f, 0.4f, 0.4f, 0.25f, 0.04f, 0.7f, 0.05f, -0.03f, 0.0f};
+  truth.fill(uniform);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const std::size_t i = std::size_t(y) * w + x;
+      const float a = std::atan2(float(y) - 20.0f, float(x) - 16.0f) + float(std::numbers::pi / 2);
+      truth.plane(rotation)[i] = a - float(std::numbers::pi) * std::nearbyint(a / float(std::numbers::pi));
+    }
+  const capture cap = random_capture(12, 62);
+  const loss_targets targets = make_loss_targets(render(truth, cap));
+  material_maps start = truth;
+  auto in_band = [&](std::size_t i) { const int x = int(i % w); return x >= 12 && x < 18; };
+  for (std::size_t i = 0; i < start.texel_count(); ++i)
+    if (in_band(i)) {
+      start.plane(rotation)[i] += float(std::numbers::pi / 2);
+      start.plane(lobe_x)[i] = 0.03f;
+      start.plane(lobe_y)[i] = 0.01f;
+    }
+  const refine_options options = refine_options::after_networks();
+  // The same refine steps in all: one start for 3 x 500, or 500 and two restarts of 500. The first
+  // restart's window (17 columns) holds more texels that fit than the band's 6.
+  refine_options longer = options;
+  longer.steps = 3 * options.steps;
+  material_maps one = start, restarted = start;
+  const refine_result single = refine(one, cap, targets, longer);
+  const refine_result first = refine(restarted, cap, targets, options);
+  const neighbour_restart_result nr = refine_neighbour_restarts(restarted, cap, targets, {8, 4}, options);
+  REQUIRE(nr.radii == std::vector<int>{8, 4});
+  REQUIRE(nr.losses.size() == 2);
+  CHECK(nr.steps == 2 * options.steps);
+  CHECK(nr.losses[0] <= first.final_loss);
+  CHECK(nr.losses[1] <= nr.losses[0]);
+  CHECK(nr.final_loss == doctest::Approx(loss_and_gradient(restarted, cap, targets, nullptr)).epsilon(1e-12));
+  CHECK(nr.replaced_fraction[0] > 0);
+  auto band_rotation_error = [&](const material_maps& m) {
+    double e = 0, n = 0;
+    for (std::size_t i = 0; i < m.texel_count(); ++i)
+      if (in_band(i)) {
+        const double d = m.plane(rotation)[i] - truth.plane(rotation)[i];
+        e += std::pow(d - std::numbers::pi * std::nearbyint(d / std::numbers::pi), 2);
+        n += 1;
+      }
+    return e / n;
+  };
+  MESSAGE("one start: loss ", single.final_loss, ", band alpha error ", band_rotation_error(one), "; restarts: loss ", nr.final_loss,
+          ", band alpha error ", band_rotation_error(restarted), ", replaced ", nr.replaced_fraction[0], ", ", nr.replaced_fraction[1]);
+  CHECK(nr.final_loss < 0.5 * single.final_loss);
+  CHECK(band_rotation_error(restarted) < 0.25 * band_rotation_error(one));
+  CHECK_THROWS_AS(refine_neighbour_restarts(restarted, cap, targets, {0}, options), std::invalid_argument);
+}

@@ -92,6 +92,9 @@ struct capture_options {
   /// When > 0, refine also from a second start with both lobe widths at least this, and keep per
   /// texel group the fit with the lower loss (refine_two_starts). 0: one start.
   float second_start_lobe_width = 0.0f;
+  /// After the refine, one neighbourhood restart per radius, in this order
+  /// (refine_neighbour_restarts). Empty: none.
+  std::vector<int> neighbour_restarts;
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
   /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
@@ -134,6 +137,8 @@ struct stage_report {
   double evaluated_fraction = 1.0;  ///< refine: fraction of texel-steps evaluated (freezing)
   int restarts = 0;                 ///< fine-tune: times the divergence guard went back and halved the rate
   double replaced_fraction = 0;     ///< refine with a second start: share of texel groups taken from it
+  /// refine with neighbour restarts: per round, share of texel groups taken from its start
+  std::vector<double> restart_replaced_fractions{};
 };
 
 /// The result: the map set and a report per stage.
@@ -275,6 +280,8 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
   if (o.stages.estimate) o.estimate.validate();
   if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
     throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
+  for (int r : o.neighbour_restarts)
+    if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
   if (o.stages.finetune) o.finetune.validate();
   capture_result result;
   capture cap = given_cap;
@@ -370,6 +377,18 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
     } else {
       const refine_result rr = with_features(result.features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
       result.stages.push_back({"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction});
+    }
+    if (!o.neighbour_restarts.empty()) {
+      refine_options rounds = ro;
+      if (!o.refine.progress) rounds.progress = reporter("restart");  // each round's refine
+      const neighbour_restart_result nr = with_features(result.features, [&]<brdf_features F>() {
+        return refine_neighbour_restarts<F>(maps, cap, targets, o.neighbour_restarts, rounds);
+      });
+      stage_report& r = result.stages.back();
+      r.steps += nr.steps;
+      r.loss = nr.final_loss;
+      r.seconds += nr.seconds;
+      r.restart_replaced_fractions = nr.replaced_fraction;
     }
   }
   result.loss = image_loss(maps, all_features);

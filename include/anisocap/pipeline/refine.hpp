@@ -16,6 +16,7 @@
 #include <functional>
 #include <numbers>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
@@ -277,6 +278,124 @@ two_start_result refine_two_starts(material_maps& maps, const capture& cap, cons
   const std::size_t replaced = keep_lower_loss_groups<F>(maps, wide, cap, targets, options.placement, options.render);
   result.replaced_fraction = double(replaced) / double(texel_groups::count(maps));
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
+  result.seconds = seconds_since(start);
+  return result;
+}
+
+/// Mean of `plane` (n = width * height values, row-major) over the (2 radius + 1)^2 window around
+/// each texel, the window clipped at the borders; `weights` (optional, same size) weighs each value.
+/// Texels whose window holds no weight keep `fallback`'s value. Two running-sum passes: O(n)
+/// whatever the radius.
+inline void window_mean(const float* plane, const float* weights, const float* fallback, int width, int height, int radius, float* out) {
+  const std::size_t n = std::size_t(width) * std::size_t(height);
+  std::vector<double> value_rows(n), weight_rows(n);
+  // Horizontal pass: window sums along each row.
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < height; ++y) {
+    const std::size_t row = std::size_t(y) * std::size_t(width);
+    double v = 0, w = 0;
+    auto add = [&](int x, double sign) {
+      const double wx = weights ? double(weights[row + x]) : 1.0;
+      v += sign * wx * double(plane[row + x]);
+      w += sign * wx;
+    };
+    for (int x = 0; x < std::min(radius, width); ++x) add(x, 1);
+    for (int x = 0; x < width; ++x) {
+      if (x + radius < width) add(x + radius, 1);
+      if (x - radius - 1 >= 0) add(x - radius - 1, -1);
+      value_rows[row + x] = v;
+      weight_rows[row + x] = w;
+    }
+  }
+  // Vertical pass over the row sums, one column at a time.
+#pragma omp parallel for schedule(static)
+  for (int x = 0; x < width; ++x) {
+    double v = 0, w = 0;
+    auto add = [&](int y, double sign) {
+      v += sign * value_rows[std::size_t(y) * std::size_t(width) + x];
+      w += sign * weight_rows[std::size_t(y) * std::size_t(width) + x];
+    };
+    for (int y = 0; y < std::min(radius, height); ++y) add(y, 1);
+    for (int y = 0; y < height; ++y) {
+      if (y + radius < height) add(y + radius, 1);
+      if (y - radius - 1 >= 0) add(y - radius - 1, -1);
+      const std::size_t i = std::size_t(y) * std::size_t(width) + x;
+      // Running sums of positive weights: below 1e-9 of one texel's weight the window is empty
+      // up to rounding.
+      out[i] = w > 1e-9 ? float(v / w) : fallback[i];
+    }
+  }
+}
+
+/// `maps` with every plane replaced by its mean over the (2 radius + 1)^2 window around each texel
+/// (window_mean): refine's neighbourhood start (refine_neighbour_restarts). Albedos, F0 and the
+/// normal's x, y are averaged as they are (the mean of points in the unit disc stays in it), lobe
+/// widths in log space (their scale), and alpha as its doubled-angle vector (cos 2 alpha,
+/// sin 2 alpha) weighted by the texel's anisotropy |log(sigma_x / sigma_y)|: that vector is
+/// continuous where alpha wraps from pi/2 to -pi/2, and an isotropic texel's alpha, which means
+/// nothing, counts for nothing. A window without anisotropic texels keeps the texel's alpha.
+inline material_maps neighbourhood_mean(const material_maps& maps, int radius) {
+  if (radius < 1) throw std::invalid_argument("neighbourhood_mean: the radius must be at least 1 (got " + std::to_string(radius) + ")");
+  const int w = maps.width(), h = maps.height();
+  const std::size_t n = maps.texel_count();
+  material_maps out(w, h);
+  for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0, normal_x, normal_y})
+    window_mean(maps.plane(k), nullptr, maps.plane(k), w, h, radius, out.plane(k));
+  std::vector<float> log_lobe(n), mean(n);
+  for (int k : {lobe_x, lobe_y}) {
+    for (std::size_t i = 0; i < n; ++i) log_lobe[i] = std::log(std::max(maps.plane(k)[i], min_lobe_width));
+    window_mean(log_lobe.data(), nullptr, log_lobe.data(), w, h, radius, mean.data());
+    for (std::size_t i = 0; i < n; ++i) out.plane(k)[i] = std::exp(mean[i]);
+  }
+  std::vector<float> anisotropy(n), c(n), s(n), zero(n, 0.0f), mean_c(n), mean_s(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    anisotropy[i] = std::abs(std::log(std::max(maps.plane(lobe_x)[i], min_lobe_width) / std::max(maps.plane(lobe_y)[i], min_lobe_width)));
+    c[i] = std::cos(2 * maps.plane(rotation)[i]);
+    s[i] = std::sin(2 * maps.plane(rotation)[i]);
+  }
+  window_mean(c.data(), anisotropy.data(), zero.data(), w, h, radius, mean_c.data());
+  window_mean(s.data(), anisotropy.data(), zero.data(), w, h, radius, mean_s.data());
+  for (std::size_t i = 0; i < n; ++i)
+    out.plane(rotation)[i] = (mean_c[i] == 0 && mean_s[i] == 0) ? maps.plane(rotation)[i] : 0.5f * std::atan2(mean_s[i], mean_c[i]);
+  return out;
+}
+
+/// What `refine_neighbour_restarts` did.
+struct neighbour_restart_result {
+  std::vector<int> radii;                 ///< the rounds' window radii, in order
+  std::vector<double> replaced_fraction;  ///< per round: share of texel groups taken from its start
+  std::vector<double> losses;             ///< per round: loss of the kept maps after it
+  int steps = 0;                          ///< refine steps of all rounds
+  double final_loss = 0;                  ///< loss of the returned maps (never above the given maps')
+  double seconds = 0;
+};
+
+/// Neighbourhood restarts of a refined map set: for each radius r in turn, refine a start made of
+/// the current maps' neighbourhood means (neighbourhood_mean, radius r) with `options`, and keep in
+/// every texel group whichever of the current and the new fit has the lower loss
+/// (keep_lower_loss_groups). The per-texel refine cannot leave a basin that needs several
+/// parameters to move at once (on spun metal, where alpha turns through its wrap, texels fitted
+/// with a rotation a quarter turn off and lobes narrowed to match); a start taken from the
+/// neighbours, which fit, puts such texels in the right basin. Each round costs one refine; the
+/// loss never rises. docs/method.md section 8.4 says what the rounds buy.
+template <brdf_features F = all_features>
+neighbour_restart_result refine_neighbour_restarts(material_maps& maps, const capture& cap, const loss_targets& targets,
+                                                   const std::vector<int>& radii, const refine_options& options = {}) {
+  const auto start = std::chrono::steady_clock::now();
+  neighbour_restart_result result;
+  const double groups = double(texel_groups::count(maps));
+  for (int r : radii) {
+    material_maps candidate = neighbourhood_mean(maps, r);
+    restrict_to_features(candidate, F);
+    const refine_result round = refine<F>(candidate, cap, targets, options);
+    result.steps += round.steps;
+    const std::size_t replaced = keep_lower_loss_groups<F>(maps, candidate, cap, targets, options.placement, options.render);
+    result.radii.push_back(r);
+    result.replaced_fraction.push_back(double(replaced) / groups);
+    result.losses.push_back(loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render));
+  }
+  result.final_loss = result.losses.empty() ? loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render)
+                                            : result.losses.back();
   result.seconds = seconds_since(start);
   return result;
 }
