@@ -219,6 +219,38 @@ inline CLI::Option* add_mix_option(CLI::App* c, material_mix& mix, std::initiali
   return c->add_option("--materials", mix, help)->transform(by_name)->type_name(known)->default_str(material_mix_name(mix));
 }
 
+/// The radii of `--neighbour-restarts`: "none" (no restarts) or comma-separated whole numbers of at
+/// least 1. Throws CLI::ValidationError naming the bad entry.
+inline std::vector<int> parse_restart_radii(const std::string& list) {
+  if (list == "none") return {};
+  std::vector<int> radii;
+  std::size_t begin = 0;
+  while (begin <= list.size()) {
+    const std::size_t end = std::min(list.find(',', begin), list.size());
+    const std::string entry = list.substr(begin, end - begin);
+    int radius = 0;
+    std::size_t used = 0;
+    try {
+      radius = std::stoi(entry, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (entry.empty() || used != entry.size() || radius < 1)
+      throw CLI::ValidationError("--neighbour-restarts", "'" + entry + "' is not a radius (a whole number of texels, at least 1); give R,... or none");
+    radii.push_back(radius);
+    begin = end + 1;
+  }
+  return radii;
+}
+
+/// `radii` as --neighbour-restarts takes them.
+inline std::string restart_radii_text(const std::vector<int>& radii) {
+  if (radii.empty()) return "none";
+  std::string text;
+  for (int r : radii) text += (text.empty() ? "" : ",") + std::to_string(r);
+  return text;
+}
+
 /// Checks a comma-separated list of family names (material_kinds_from_names), naming the unknown one.
 inline CLI::Validator family_list_check() {
   return CLI::Validator(
@@ -365,11 +397,12 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
                 "refine also from the same maps with both lobe widths at least this, and keep per 64-texel group the fit with the "
                 "lower loss (0: one start; docs/method.md section 8.4)")
       ->check(CLI::Range(0.0, 1.0));
-  c->add_option("--neighbour-restarts", o.neighbour_restarts,
-                "after the refine, for each radius R in turn (comma-separated texels, e.g. 16,8,4), refine again from the maps' means "
-                "over (2R+1)^2 windows and keep per 64-texel group the fit with the lower loss (none: no restarts; docs/method.md section 8.4)")
-      ->delimiter(',')
-      ->check(CLI::PositiveNumber);
+  c->add_option_function<std::string>(
+       "--neighbour-restarts", [&o](const std::string& list) { o.neighbour_restarts = parse_restart_radii(list); },
+       "after the refine, for each radius R in turn (comma-separated texels), refine again from the maps' means over (2R+1)^2 "
+       "windows and keep per 64-texel group the fit with the lower loss (none: no restarts; docs/method.md section 8.4)")
+      ->type_name("R,...|none")
+      ->default_str(restart_radii_text(o.neighbour_restarts));
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
        "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },

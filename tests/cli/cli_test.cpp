@@ -203,6 +203,40 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK_FALSE(fs::exists(t.path / "bad"));
 }
 
+TEST_CASE("capture --neighbour-restarts: one refine per radius after the refine, the loss never above the single start's") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 64 --height 64 --images 6 --seed 8 --kind spun --materials extended", t.path).status == 0);
+  auto report = [&](const char* folder) {
+    std::ifstream in(t.path / folder / "report.json");
+    return nlohmann::json::parse(in);
+  };
+  auto r = run("capture syn/capture.json -o one --stages refine --steps 60 --no-view", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  r = run("capture syn/capture.json -o restarted --stages refine --steps 60 --neighbour-restarts 8,4 --no-view", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("restart step") != std::string::npos);  // the rounds report progress
+  const nlohmann::json a = report("one"), b = report("restarted");
+  CHECK(a["refine"]["neighbour_restarts"].empty());
+  CHECK(b["refine"]["neighbour_restarts"] == nlohmann::json::array({8, 4}));
+  const nlohmann::json& refine_a = a["stages"].back();
+  const nlohmann::json& refine_b = b["stages"].back();
+  REQUIRE(refine_b["name"] == "refine");
+  CHECK(refine_a["steps"] == 60);
+  CHECK(refine_b["steps"] == 3 * 60);
+  REQUIRE(refine_b["restart_replaced_fractions"].size() == 2);
+  for (const auto& f : refine_b["restart_replaced_fractions"]) {
+    CHECK(f.get<double>() >= 0.0);
+    CHECK(f.get<double>() <= 1.0);
+  }
+  // The first 60 steps are the single start's; the rounds only ever keep a lower loss.
+  CHECK(refine_b["loss"].get<double>() <= refine_a["loss"].get<double>() * (1 + 1e-6));
+  // "none" is no restarts: the single start's result.
+  r = run("capture syn/capture.json -o none --stages refine --steps 60 --neighbour-restarts none --no-view", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(report("none")["stages"].back()["loss"] == refine_a["loss"]);
+}
+
 TEST_CASE("synthesize --shot-noise: inputs are the exact renders plus non-negative noise of the stated size") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 24 --height 20 --images 4 --seed 3 --shot-noise 0.05", t.path).status == 0);
@@ -471,6 +505,9 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"capture syn/capture.json -o out --stages refine --freeze nan", "--freeze"},
       {"capture syn/capture.json -o out --stages refine --refine-stop nan", "--refine-stop"},
       {"capture syn/capture.json -o out --finetune-lr inf", "--finetune-lr"},
+      {"capture syn/capture.json -o out --stages refine --neighbour-restarts 0", "--neighbour-restarts"},
+      {"capture syn/capture.json -o out --stages refine --neighbour-restarts 8,x", "'x' is not a radius"},
+      {"eval -o out --count 1 --neighbour-restarts 4,", "--neighbour-restarts"},
       {"capture syn/capture.json -o out --preset huge", "--preset"},
       {"capture syn/capture.json -o out --models nowhere_models", "nowhere_models"},
       {"train-estimator --out out --steps -1", "--steps"},
