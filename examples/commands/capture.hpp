@@ -113,6 +113,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const bool networks = o.stages.networks();
   if (networks && s.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
   refine_alone_schedule(o, *parsed);
+  resolve_neighbour_restarts(o, *parsed);
   resolve_second_run(s.models, o.stages, *parsed);
   o.checkpoint = {s.out / ".checkpoint", s.resume};
   o.finetune.progress_every = 25;

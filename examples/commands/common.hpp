@@ -353,6 +353,17 @@ inline void refine_alone_schedule(capture_options& o, const CLI::App& parsed) {
   if (parsed.count("--lr") == 0) o.refine.learning_rate = refine_options{}.learning_rate;
 }
 
+/// The neighbour restarts' default, unless `parsed` (the command) gave --neighbour-restarts: one
+/// round at radius 8 after the network stages (studies/README.md "Neighbour restarts"); none with
+/// --schedule paper, and none where the refine starts from the first guess, where each round would
+/// be another whole refine and nothing was measured.
+inline void resolve_neighbour_restarts(capture_options& o, const CLI::App& parsed) {
+  if (parsed.count("--neighbour-restarts") > 0) return;
+  const bool paper = parsed.count("--schedule") > 0 && parsed.get_option("--schedule")->as<std::string>() == "paper";
+  if (o.stages.networks() && o.stages.refine && !paper) o.neighbour_restarts = {8};
+  else o.neighbour_restarts.clear();
+}
+
 /// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
 /// comes first so that options after it on the command line refine it.
 inline void add_optimiser_options(CLI::App* c, capture_options& o) {
@@ -400,9 +411,9 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option_function<std::string>(
        "--neighbour-restarts", [&o](const std::string& list) { o.neighbour_restarts = parse_restart_radii(list); },
        "after the refine, for each radius R in turn (comma-separated texels), refine again from the maps' means over (2R+1)^2 "
-       "windows and keep per 64-texel group the fit with the lower loss (none: no restarts; docs/method.md section 8.4)")
-      ->type_name("R,...|none")
-      ->default_str(restart_radii_text(o.neighbour_restarts));
+       "windows and keep per 64-texel group the fit with the lower loss (none: no restarts; default 8 after the network stages, none "
+       "for the refine alone and with --schedule paper; docs/method.md section 8.4)")
+      ->type_name("R,...|none");
   c->add_option("--freeze", o.refine.freeze_tolerance, "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
        "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },

@@ -176,6 +176,7 @@ inline void add_eval_command(CLI::App& app) {
     capture_options o = *options;
     o.stages = pipeline_stages::parse(e->stages);
     refine_alone_schedule(o, *c);
+    resolve_neighbour_restarts(o, *c);
     model_choice m = *models;
     resolve_second_run(m, o.stages, *c);
     eval_command(*e, m, o);

@@ -235,6 +235,18 @@ TEST_CASE("capture --neighbour-restarts: one refine per radius after the refine,
   r = run("capture syn/capture.json -o none --stages refine --steps 60 --neighbour-restarts none --no-view", t.path);
   REQUIRE(r.status == 0);
   CHECK(report("none")["stages"].back()["loss"] == refine_a["loss"]);
+  // The default: one round at radius 8 after the network stages; none with --schedule paper (and,
+  // above, none for the refine alone).
+  r = run("capture syn/capture.json -o networks --stages all --finetune-steps 4 --steps 5 --no-view", t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json n = report("networks");
+  CHECK(n["refine"]["neighbour_restarts"] == nlohmann::json::array({8}));
+  CHECK(n["stages"].back()["steps"] == 2 * 5);
+  CHECK(n["stages"].back()["restart_replaced_fractions"].size() == 1);
+  r = run("capture syn/capture.json -o paper --stages all --schedule paper --finetune-steps 4 --steps 5 --no-view", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(report("paper")["refine"]["neighbour_restarts"].empty());
+  CHECK(report("paper")["stages"].back()["steps"] == 5);
 }
 
 TEST_CASE("synthesize --shot-noise: inputs are the exact renders plus non-negative noise of the stated size") {
