@@ -93,7 +93,8 @@ struct capture_options {
   /// texel group the fit with the lower loss (refine_two_starts). 0: one start.
   float second_start_lobe_width = 0.0f;
   /// After the refine, one neighbourhood restart per radius, in this order
-  /// (refine_neighbour_restarts). Empty: none.
+  /// (refine_neighbour_restarts). Empty: none. The program sets {8} where the network stages run
+  /// (its measured default, docs/method.md 8.4); a library caller asks for it here.
   std::vector<int> neighbour_restarts;
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
