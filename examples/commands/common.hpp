@@ -243,14 +243,6 @@ inline std::vector<int> parse_restart_radii(const std::string& list) {
   return radii;
 }
 
-/// `radii` as --neighbour-restarts takes them.
-inline std::string restart_radii_text(const std::vector<int>& radii) {
-  if (radii.empty()) return "none";
-  std::string text;
-  for (int r : radii) text += (text.empty() ? "" : ",") + std::to_string(r);
-  return text;
-}
-
 /// Checks a comma-separated list of family names (material_kinds_from_names), naming the unknown one.
 inline CLI::Validator family_list_check() {
   return CLI::Validator(

@@ -206,10 +206,7 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
 TEST_CASE("capture --neighbour-restarts: one refine per radius after the refine, the loss never above the single start's") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 64 --height 64 --images 6 --seed 8 --kind spun --materials extended", t.path).status == 0);
-  auto report = [&](const char* folder) {
-    std::ifstream in(t.path / folder / "report.json");
-    return nlohmann::json::parse(in);
-  };
+  auto report = [&](const char* folder) { return nlohmann::json::parse(read_text(t.path / folder / "report.json")); };
   auto r = run("capture syn/capture.json -o one --stages refine --steps 60 --no-view", t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
