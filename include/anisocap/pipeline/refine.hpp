@@ -385,8 +385,7 @@ neighbour_restart_result refine_neighbour_restarts(material_maps& maps, const ca
   neighbour_restart_result result;
   const double groups = double(texel_groups::count(maps));
   for (int r : radii) {
-    material_maps candidate = neighbourhood_mean(maps, r);
-    restrict_to_features(candidate, F);
+    material_maps candidate = neighbourhood_mean(maps, r);  // refine restricts it to F's planes
     const refine_result round = refine<F>(candidate, cap, targets, options);
     result.steps += round.steps;
     const std::size_t replaced = keep_lower_loss_groups<F>(maps, candidate, cap, targets, options.placement, options.render);
