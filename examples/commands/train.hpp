@@ -34,9 +34,9 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
-                    "read from a doubled-angle vector) and compact-orientation (each photo's structure-tensor orientation as 3 "
-                    "more input channels)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation"}));
+                    "read from a doubled-angle vector), compact-orientation (each photo's structure-tensor orientation as 3 "
+                    "more input channels) and compact-orientation-doubled-angle (both)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation", "compact-orientation-doubled-angle"}));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
@@ -239,7 +239,8 @@ inline void add_train_commands(CLI::App& app) {
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
     train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>,
-                           estimation_network<estimator_compact_doubled_angle>, estimation_network<estimator_compact_orientation>>(
+                           estimation_network<estimator_compact_doubled_angle>, estimation_network<estimator_compact_orientation>,
+                           estimation_network<estimator_compact_orientation_doubled_angle>>(
         *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();

@@ -856,9 +856,11 @@ TEST_CASE("compact variants: train-estimator --init from a compact estimator, th
   REQUIRE(run("train-estimator --preset compact --out base --steps 1 --size 64 --batch 1 --validate-every 1000 --validation-count 1",
               t.path).status == 0);
   const fs::path compact_file = t.path / "base/estimator.safetensors";
-  struct variant { std::string preset, fresh; };
-  for (const variant& v : {variant{"compact-doubled-angle", "initialised afresh: track2.reduce2.weight, track2.reduce2.bias"},
-                           variant{"compact-orientation", "initialised afresh: enc0.weight)"}}) {
+  struct variant { std::string preset, fresh; bool head_start; };
+  for (const variant& v : {variant{"compact-doubled-angle", "initialised afresh: track2.reduce2.weight, track2.reduce2.bias)", true},
+                           variant{"compact-orientation", "initialised afresh: enc0.weight)", false},
+                           variant{"compact-orientation-doubled-angle",
+                                   "initialised afresh: enc0.weight, track2.reduce2.weight, track2.reduce2.bias)", true}}) {
     CAPTURE(v.preset);
     const std::string out = "run_" + v.preset, folder = "models_" + v.preset;
     auto r = run("train-estimator --preset " + v.preset + " --out " + out + " --steps 1 --size 64 --batch 1 --validate-every 1000 "
@@ -866,6 +868,8 @@ TEST_CASE("compact variants: train-estimator --init from a compact estimator, th
     INFO(r.output);
     REQUIRE(r.status == 0);
     CHECK(r.output.find(v.fresh) != std::string::npos);
+    // A doubled-angle head starts from the compact file's tanh head (start_doubled_angle_head).
+    CHECK((r.output.find("doubled-angle head starts from the file's tanh head") != std::string::npos) == v.head_start);
     // The variant's file in a compact models folder: capture builds that variant for it (the
     // plain compact estimator would refuse the file's shapes).
     fs::create_directories(t.path / folder / "compact");

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <numbers>
 #include <vector>
 
 #include "anisocap/core/random.hpp"
@@ -122,6 +124,38 @@ TEST_CASE("estimator, doubled-angle preset: maps in range, alpha starts at 0, st
   nn::linear<4, 4> other("unrelated", 2);
   nn::save_weights(file, other);
   CHECK_THROWS_WITH_AS(nn::load_matching_weights(file, net), doctest::Contains("no tensor matches"), std::runtime_error);
+  std::filesystem::remove(file);
+}
+
+TEST_CASE("estimator, doubled-angle preset started from a tanh file: normals and track 1 as they were, alpha / (pi/2) = atan(pi z) / pi") {
+  Net plain(11);
+  // Spread the tanh head's pre-activations z over a range where tanh is far from linear.
+  for (std::size_t i = 0; i < plain.head2.c2.weight.size(); ++i) plain.head2.c2.weight.value[i] *= 6.0f;
+  plain.head2.c2.bias.value[2] = 0.3f;
+  const auto file = std::filesystem::temp_directory_path() / "anisocap_doubled_angle_start.safetensors";
+  nn::save_weights(file, plain);
+  estimation_network<testing::estimator_tiny_doubled_angle> net(3);
+  REQUIRE(!nn::load_matching_weights(file, net).empty());
+  REQUIRE(start_doubled_angle_head(file, net));
+  const auto photos = random_photos(3, 40, 30, 21);
+  const material_maps a = plain.estimate(photos), b = net.estimate(photos);
+  double largest_u = 0;
+  for (int y = 0; y < a.height(); ++y)
+    for (int x = 0; x < a.width(); ++x) {
+      for (int k = 0; k < parameter_count; ++k)
+        if (k != rotation) REQUIRE(b.at(k, x, y) == doctest::Approx(a.at(k, x, y)).epsilon(1e-5));
+      const double u = a.at(rotation, x, y) / (std::numbers::pi / 2);
+      if (std::abs(u) > 0.95) continue;  // tanh's tail: atanh of a float there is too inexact to compare
+      largest_u = std::max(largest_u, std::abs(u));
+      const double expected = std::atan(std::numbers::pi * std::atanh(u)) / std::numbers::pi;
+      REQUIRE(b.at(rotation, x, y) / (std::numbers::pi / 2) == doctest::Approx(expected).epsilon(1e-4).scale(1));
+    }
+  CHECK(largest_u > 0.3);  // the check covered the non-linear range
+  // A file whose last layer already has 4 outputs is not a tanh head: nothing changes.
+  nn::save_weights(file, net);
+  const float c_bias = net.head2.c2.bias.value[2] = 0.5f;
+  CHECK_FALSE(start_doubled_angle_head(file, net));
+  CHECK(net.head2.c2.bias.value[2] == c_bias);
   std::filesystem::remove(file);
 }
 

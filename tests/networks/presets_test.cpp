@@ -44,7 +44,8 @@ TEST_CASE("weights_preset reads the preset entry, empty when there is none") {
 TEST_CASE("the compact estimator dispatch picks the type the file names") {
   const auto call = [](const fs::path& file) {
     return with_compact_estimator_preset(file, []<class P>() {
-      if constexpr (std::is_same_v<P, estimator_compact_orientation>) return 2;
+      if constexpr (std::is_same_v<P, estimator_compact_orientation_doubled_angle>) return 3;
+      else if constexpr (std::is_same_v<P, estimator_compact_orientation>) return 2;
       else if constexpr (std::is_same_v<P, estimator_compact_doubled_angle>) return 1;
       else if constexpr (std::is_same_v<P, estimator_compact>) return 0;
       else return -1;
@@ -54,6 +55,8 @@ TEST_CASE("the compact estimator dispatch picks the type the file names") {
   CHECK(call(weights_with("e1.safetensors", {{"preset", "compact-doubled-angle"}})) == 1);
   CHECK(call(weights_with("e2.safetensors", {{"preset", "compact-orientation"}})) == 2);
   CHECK(call(weights_with("e3.safetensors", {})) == 0);
+  CHECK(call(weights_with("e4.safetensors", {{"preset", "compact-orientation-doubled-angle"}})) == 3);
+  CHECK_THROWS_WITH_AS(call(weights_with("e5.safetensors", {{"preset", "paper"}})), doctest::Contains("e5.safetensors"), std::invalid_argument);
 }
 
 TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {

@@ -4,6 +4,11 @@
 /// multi-image, with compile-time width presets `estimator_paper` (the paper's widths) and
 /// `estimator_compact` (trains on 2 CPU cores; the shipped weights in models/compact/). It works on
 /// NHWC tensors in network space (networks/network_space.hpp).
+#include <cstring>
+#include <filesystem>
+#include <numbers>
+#include <vector>
+
 #include "anisocap/networks/network_layers.hpp"
 
 namespace anisocap {
@@ -42,6 +47,16 @@ struct estimator_compact_doubled_angle : estimator_compact {
 struct estimator_compact_orientation : estimator_compact {
   static constexpr int input_channels = 6;                         ///< RGB and 3 orientation channels
   static constexpr const char* name = "compact-orientation";       ///< preset name in files
+};
+
+/// The orientation inputs of `estimator_compact_orientation` with the doubled-angle rotation output
+/// of `estimator_compact_doubled_angle`: the structure tensor gives each photo's orientation as a
+/// doubled angle, and the head can pass it on through the wrap at alpha = +-pi/2, which a tanh
+/// output of alpha / (pi/2) cannot (experimental; models/README.md "Run 22").
+struct estimator_compact_orientation_doubled_angle : estimator_compact {
+  static constexpr int input_channels = 6;                                    ///< RGB and 3 orientation channels
+  static constexpr bool doubled_angle = true;                                 ///< rotation as a doubled-angle vector
+  static constexpr const char* name = "compact-orientation-doubled-angle";    ///< preset name in files
 };
 
 /// Input channels per photograph of a preset (presets without the member: 3, RGB).
@@ -333,5 +348,41 @@ class estimation_network {
     if (Head::channels == 3 && h.c2.bias.size() == 4) h.c2.bias.value[2] = T(1);
   }
 };
+
+/// Starts the doubled-angle head of `net` from the tanh head in `file`, a weight file of a preset
+/// without the doubled angle (its "track2.reduce2" has the 3 outputs n_x, n_y, alpha / (pi/2)), so
+/// that a run begun with `--init` from such a file keeps what its rotation had learnt:
+/// n_x and n_y take the file's weights; s takes pi times the file's alpha weights and bias (its
+/// pre-activation z), c weights 0 and bias 1. The head then outputs alpha / (pi/2) =
+/// atan2(pi z, 1) / pi, which equals the file's tanh(z) to first order (within 0.003 for |z| <= 0.1,
+/// 0.05 for |z| <= 0.3), has its sign beyond, and passes +-1/2 only once training turns c (a linear
+/// layer cannot give c = cos(pi tanh z)). Returns false, and changes
+/// nothing, when the file has no such layer (for example a file of a doubled-angle preset).
+template <class P, class T>
+  requires(has_doubled_angle<P>())
+bool start_doubled_angle_head(const std::filesystem::path& file, estimation_network<P, T>& net) {
+  const nn::safetensors_file contents = nn::read_safetensors(file);
+  auto& c2 = net.head2.c2;
+  const int D = c2.weight.shape[2];
+  const auto* w = contents.find(c2.weight.name);
+  const auto* b = contents.find(c2.bias.name);
+  if (!w || !b || w->dtype != nn::safetensors_dtype<T>() || b->dtype != w->dtype ||
+      w->shape != std::vector<std::int64_t>{1, 1, D, 3} || b->shape != std::vector<std::int64_t>{3})
+    return false;
+  std::vector<T> old_w(w->count()), old_b(3);
+  std::memcpy(old_w.data(), contents.bytes(*w).data(), old_w.size() * sizeof(T));
+  std::memcpy(old_b.data(), contents.bytes(*b).data(), old_b.size() * sizeof(T));
+  const T pi = T(std::numbers::pi);
+  for (int i = 0; i < D; ++i) {  // weight layout [1][1][D][Out]
+    for (int k = 0; k < 2; ++k) c2.weight.value[i * 4 + k] = old_w[i * 3 + k];
+    c2.weight.value[i * 4 + 2] = T(0);
+    c2.weight.value[i * 4 + 3] = pi * old_w[i * 3 + 2];
+  }
+  c2.bias.value[0] = old_b[0];
+  c2.bias.value[1] = old_b[1];
+  c2.bias.value[2] = T(1);
+  c2.bias.value[3] = pi * old_b[2];
+  return true;
+}
 
 }  // namespace anisocap

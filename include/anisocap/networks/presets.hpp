@@ -28,8 +28,8 @@ inline std::string weights_preset(const std::filesystem::path& file) {
 }
 
 /// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names:
-/// estimator_compact (also for a file without a preset), estimator_compact_orientation or
-/// estimator_compact_doubled_angle. Throws std::invalid_argument naming the file for any other
+/// estimator_compact (also for a file without a preset), estimator_compact_orientation,
+/// estimator_compact_doubled_angle or estimator_compact_orientation_doubled_angle. Throws std::invalid_argument naming the file for any other
 /// preset (e.g. "paper", whose weights do not fit a compact network).
 template <class F>
 decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, F&& f) {
@@ -37,8 +37,11 @@ decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, 
   if (preset.empty() || preset == estimator_compact::name) return f.template operator()<estimator_compact>();
   if (preset == estimator_compact_orientation::name) return f.template operator()<estimator_compact_orientation>();
   if (preset == estimator_compact_doubled_angle::name) return f.template operator()<estimator_compact_doubled_angle>();
+  if (preset == estimator_compact_orientation_doubled_angle::name)
+    return f.template operator()<estimator_compact_orientation_doubled_angle>();
   throw std::invalid_argument(file.string() + ": an estimator of preset \"" + preset +
-                              "\", not a compact one (compact, compact-orientation, compact-doubled-angle)");
+                              "\", not a compact one (compact, compact-orientation, compact-doubled-angle, "
+                              "compact-orientation-doubled-angle)");
 }
 
 /// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names:

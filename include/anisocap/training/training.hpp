@@ -641,6 +641,9 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
       for (const auto& name : fresh) note += (note.empty() ? "" : ", ") + name;
       o.log(kind + ": starting from the weights in " + o.init_weights.string() +
             (fresh.empty() ? "" : " (not in the file with this shape, initialised afresh: " + note + ")"));
+      if constexpr (requires { start_doubled_angle_head(o.init_weights, net); })
+        if (!fresh.empty() && start_doubled_angle_head(o.init_weights, net))
+          o.log(kind + ": the doubled-angle head starts from the file's tanh head (normals as they were, alpha to first order)");
     }
     std::filesystem::create_directories(o.out_dir);
     std::filesystem::remove(csv);
