@@ -88,6 +88,14 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
         ->check(CLI::IsMember({"truth", "estimates"}));
     cmd->add_option("--input-estimator", s.input_estimator, "estimator weights for --inputs estimates (default: the shipped ones)")
         ->check(CLI::ExistingFile);
+  } else {
+    cmd->add_option("--shot-noise", o.input_noise.shot,
+                    "sensor shot noise on the training photographs: each material's get noise at a fraction, uniform in [0, 1], "
+                    "of this level (relative standard deviation at pixel value 1; validation photographs stay exact)")
+        ->check(finite_number(false));
+    cmd->add_option("--read-noise", o.input_noise.read,
+                    "sensor read noise on the training photographs, scaled by the same fraction as --shot-noise")
+        ->check(finite_number(false));
   }
 }
 
@@ -126,6 +134,7 @@ struct network_eval_settings {
   std::string markdown;
   material_mix mix = material_mix::original;  ///< the mix the validation materials' kinds are drawn from
   std::string families;  ///< non-empty: comma-separated families, material i gets the (i mod n)-th
+  sensor_noise noise;    ///< simulated sensor noise on the estimator's inputs (none: exact renders)
 };
 
 inline std::string row(const char* name, const parameter_errors& e) {
@@ -152,6 +161,7 @@ void evaluate_networks_with(const network_eval_settings& s) {
     options.kind = evaluation_kind(i, seed, families, s.mix);
     kinds.push_back(*options.kind);
     samples.push_back(training::make_sample(seed, s.size, true, options));
+    add_sensor_noise(samples.back().photos, s.noise, hash64(seed ^ 0x6e6574776f726b73ULL));
   }
   // The baseline: the per-texel mean of the validation set's true maps.
   material_maps mean(s.size, s.size);
@@ -185,13 +195,21 @@ void evaluate_networks_with(const network_eval_settings& s) {
   }
   const parameter_errors est = average_errors(est_all).mean, base = average_errors(base_all).mean,
                          ae = average_errors(ae_all).mean, start = average_errors(start_all).mean;
+  const auto number = [](double v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", v);
+    return std::string(text);
+  };
   std::string md = "Validation materials: " + std::to_string(s.count) + " (seeds 2^62 + 0 ... ; " +
                    (families.empty() ? std::string(material_mix_name(s.mix)) + " mix" : "families " + s.families) + "), " +
                    std::to_string(s.size) + " x " + std::to_string(s.size) +
                    (s.window > 0 ? ", the estimator over " + std::to_string(s.window) + " x " + std::to_string(s.window) + " windows (stride " +
                                        std::to_string(s.windows().stride) + ", as the pipeline's estimate)"
                                  : std::string()) +
-                   ", 5 inputs (training set); MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
+                   ", 5 inputs (training set)" +
+                   (s.noise.enabled() ? " with sensor noise (shot " + number(s.noise.shot) + ", read " + number(s.noise.read) + ")"
+                                      : std::string()) +
+                   "; MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
                    "and over the anisotropic texels of the materials that have them)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
   md += row(("estimator (" + std::string(EstimatorPreset::name) + ")").c_str(), est);
@@ -275,6 +293,7 @@ inline void add_train_commands(CLI::App& app) {
   ev_cmd->add_option("--families", ev->families,
                      "evaluate these families only, comma-separated (e.g. leather,printed); material i gets the (i mod n)-th")
       ->check(family_list_check());
+  add_noise_options(ev_cmd, ev->noise);
   ev_cmd->callback([ev] { evaluate_networks(*ev); });
 }
 

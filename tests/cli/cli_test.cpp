@@ -528,6 +528,10 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"train-estimator --out out --emphasis brushed,linen", "linen"},
       {"train-estimator --out out --emphasis leather", "held-out family 'leather'"},
       {"train-autoencoder --out out --emphasis spun --emphasis-share 1.5", "--emphasis-share"},
+      {"train-estimator --out out --shot-noise -0.01", "--shot-noise"},
+      {"train-estimator --out out --read-noise nan", "--read-noise"},
+      {"train-autoencoder --out out --shot-noise 0.01", "--shot-noise"},
+      {"eval-networks --read-noise -1", "--read-noise"},
   };
   for (const auto& c : cases) {
     CAPTURE(c.args);
@@ -695,6 +699,13 @@ TEST_CASE("families: new kinds synthesize, the held-out families evaluate per fa
     CHECK(estimator_row(one.output) == estimator_row(whole.output));
     CHECK(estimator_row(small.output) != estimator_row(whole.output));
     CHECK(small.output.find("64 x 64 windows (stride 32") != std::string::npos);
+    // Sensor noise on the estimator's inputs changes its errors and is named in the table's heading.
+    const auto noisy = run("eval-networks --shot-noise 0.05 --read-noise 0.01" + nets, t.path);
+    REQUIRE(noisy.status == 0);
+    CHECK(noisy.output.find("with sensor noise (shot 0.05, read 0.01)") != std::string::npos);
+    CHECK(whole.output.find("sensor noise") == std::string::npos);
+    CHECK_FALSE(estimator_row(noisy.output).empty());
+    CHECK(estimator_row(noisy.output) != estimator_row(whole.output));
     CHECK(run("eval-networks --window 96" + nets, t.path).output.find("multiple of 64") != std::string::npos);
     CHECK(run("eval-networks --window 64 --stride 80" + nets, t.path).output.find("larger than its window") != std::string::npos);
   }

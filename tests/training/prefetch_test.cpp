@@ -3,6 +3,8 @@
 // exception as itself; a prefetching trainer ends with exactly the weights of one that builds each
 // batch in turn, straight and after a resume.
 #include <doctest/doctest.h>
+#include <algorithm>
+#include <cmath>
 
 #include <filesystem>
 #include <fstream>
@@ -139,6 +141,48 @@ TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, st
   }
   // Different steps and entries draw different materials.
   CHECK_FALSE(std::equal(batch[0].truth_net.data(), batch[0].truth_net.data() + batch[0].truth_net.size(), batch[1].truth_net.data()));
+}
+
+TEST_CASE("make_batch with input noise: each material's photographs get noise at its own fraction of the levels, the truth stays") {
+  training::train_options o;
+  o.size = 32;
+  o.batch = 4;
+  o.seed = 11;
+  const auto clean = training::make_batch(o, 4, true);
+  o.input_noise = {0.05, 0.01};
+  const auto noisy = training::make_batch(o, 4, true), again = training::make_batch(o, 4, true);
+  REQUIRE(noisy.size() == clean.size());
+  std::vector<double> fractions;
+  for (int b = 0; b < o.batch; ++b) {
+    const auto& c = clean[b];
+    const auto& n = noisy[b];
+    CHECK(std::equal(n.truth_net.data(), n.truth_net.data() + n.truth_net.size(), c.truth_net.data()));
+    // The drawn levels: one fraction in [0, 1) of both.
+    const sensor_noise level = training::training_input_noise(o, training::training_seed(11, 4, b));
+    CHECK(level.shot >= 0);
+    CHECK(level.shot < 0.05);
+    CHECK(level.read == doctest::Approx(level.shot / 5));
+    fractions.push_back(level.shot / 0.05);
+    // Exactly the sensor model at that level on the clean photographs, deterministic, never negative.
+    for (std::size_t i = 0; i < c.photos.size(); ++i) {
+      const float* p = n.photos[i].plane(0);
+      const float* q = c.photos[i].plane(0);
+      const float* r = again[b].photos[i].plane(0);
+      double change = 0;
+      for (int k = 0; k < 32 * 32; ++k) {
+        REQUIRE(p[k] >= 0);
+        REQUIRE(p[k] == r[k]);
+        change += std::abs(double(p[k]) - q[k]);
+      }
+      CHECK(change > 0);
+    }
+    std::vector<image> expected = c.photos;
+    add_sensor_noise(expected, level, hash64(training::training_seed(11, 4, b) ^ 0x6e6f697365ULL));
+    for (std::size_t i = 0; i < c.photos.size(); ++i)
+      CHECK(std::equal(expected[i].plane(2), expected[i].plane(2) + 32 * 32, n.photos[i].plane(2)));
+  }
+  // The fractions differ between materials.
+  CHECK(*std::max_element(fractions.begin(), fractions.end()) - *std::min_element(fractions.begin(), fractions.end()) > 0.05);
 }
 
 /// Trains Net (built from a seed) serially, with prefetching, and with prefetching stopped after

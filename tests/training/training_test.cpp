@@ -739,6 +739,18 @@ TEST_CASE("training: checkpoints as earlier versions wrote them resume with thei
   given["emphasis"] = "";
   given["emphasis_share"] = 0.0;
   CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
+  // A checkpoint without input noise trained on exact renders: a resume with noise is another run.
+  given["shot_noise"] = 0.02;
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
+                       doctest::Contains("trained with shot_noise 0, not 0.02; resume it with --shot-noise 0"), std::runtime_error);
+  json noisy = saved;
+  noisy["read_noise"] = 0.002;
+  given["shot_noise"] = 0.0;
+  CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(noisy, given, "checkpoint.json"),
+                       doctest::Contains("resume it with --read-noise 0.002"), std::runtime_error);
+  given["read_noise"] = 0.002;
+  CHECK_NOTHROW(training::detail::check_resume_settings(noisy, given, "checkpoint.json"));
+  given.erase("read_noise");
   json wrong = saved;
   wrong["seed"] = "4";
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(wrong, given, "checkpoint.json"), doctest::Contains("malformed \"seed\""),

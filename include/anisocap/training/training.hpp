@@ -39,6 +39,7 @@
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/evaluate.hpp"
 #include "anisocap/render/renderer.hpp"
+#include "anisocap/render/sensor_noise.hpp"
 #include "anisocap/training/prefetch.hpp"
 
 namespace anisocap::training {
@@ -252,6 +253,11 @@ struct train_options {
   /// the rest from `mix` (material_options_for_seed). Empty: `mix` alone. Never a held-out family.
   std::vector<material_kind> emphasis;
   double emphasis_share = 0.5;  ///< fraction of the materials drawn from `emphasis`, in [0, 1]
+  /// Sensor noise on the training photographs (`--shot-noise`, `--read-noise`; render/sensor_noise.hpp):
+  /// each training material's photographs get noise at a fraction of these levels drawn uniformly
+  /// in [0, 1] per material (training_input_noise), so that a run sees exact renders and noisy
+  /// ones alike. Validation photographs stay exact, so runs compare row for row. None: exact renders.
+  sensor_noise input_noise;
   /// A cosine decay of the learning rate at the end of a run (`--lr-decay-from/--lr-decay-to/--lr-end`):
   /// with lr_decay_to > 0 the rate is constant up to optimiser step lr_decay_from, then falls along half
   /// a cosine to lr_end times itself at step lr_decay_to, and stays there
@@ -288,6 +294,8 @@ struct train_options {
     }
     if (!(emphasis_share >= 0 && emphasis_share <= 1))
       throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
+    if (!(input_noise.shot >= 0 && std::isfinite(input_noise.shot)) || !(input_noise.read >= 0 && std::isfinite(input_noise.read)))
+      throw std::invalid_argument("the training inputs' sensor noise (--shot-noise, --read-noise) must be finite and not negative");
     for (material_kind k : emphasis)
       if (is_held_out(k))
         throw std::invalid_argument(std::string("training: --emphasis names the held-out family '") + material_kind_name(k) +
@@ -323,7 +331,15 @@ inline procedural_options material_options_for_seed(const train_options& o, std:
   return options;
 }
 
-/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b).
+/// The sensor noise training material `seed`'s photographs get: o.input_noise scaled by a fraction
+/// drawn uniformly in [0, 1) from the seed (none when o.input_noise is none).
+inline sensor_noise training_input_noise(const train_options& o, std::uint64_t seed) {
+  const double f = double(hash64(seed ^ 0x6e6f6973656c766cULL) >> 11) * 0x1.0p-53;
+  return {o.input_noise.shot * f, o.input_noise.read * f};
+}
+
+/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b),
+/// its photographs with training_input_noise.
 /// The entries are built in turn; each one's renders run on every OpenMP thread (building the
 /// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
 inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos) {
@@ -331,6 +347,7 @@ inline std::vector<sample> make_batch(const train_options& o, long step, bool wi
   for (int b = 0; b < o.batch; ++b) {
     const std::uint64_t seed = training_seed(o.seed, step, b);
     samples.push_back(make_sample(seed, o.size, with_photos, material_options_for_seed(o, seed)));
+    if (with_photos) add_sensor_noise(samples.back().photos, training_input_noise(o, seed), hash64(seed ^ 0x6e6f697365ULL));
   }
   return samples;
 }
@@ -512,10 +529,11 @@ inline std::string setting_text(const json& value) {
 
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
-/// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight or emphasis: such
+/// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input noise: such
 /// a run would silently continue as another one. Older checkpoints lack "materials" (the original
 /// mix), "render_weight" (1), "lobe_weight" (1), "sigma_weight" (0), "emphasis" ("": none),
-/// "emphasis_share" (0), "trainable" ("all") and "inputs" ("truth"); other entries a checkpoint
+/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise" and "read_noise" (0);
+/// other entries a checkpoint
 /// lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
@@ -525,7 +543,8 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
       {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"},
-      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"}};
+      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"},
+      {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}};
   // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
@@ -533,7 +552,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
     if (key == "render_weight" || key == "lobe_weight") return json(1.0);
     if (key == "sigma_weight") return json(0.0);
     if (key == "emphasis") return json("");
-    if (key == "emphasis_share") return json(0.0);
+    if (key == "emphasis_share" || key == "shot_noise" || key == "read_noise") return json(0.0);
     if (key == "trainable") return json("all");
     if (key == "inputs") return json("truth");
     return json();
@@ -583,6 +602,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
   info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
+  info["shot_noise"] = o.input_noise.shot;
+  info["read_noise"] = o.input_noise.read;
   info["trainable"] = o.encoder_only ? "encoder" : "all";
   info["inputs"] = o.inputs_are_estimates ? "estimates" : "truth";
   auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
