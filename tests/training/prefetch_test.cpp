@@ -124,12 +124,19 @@ TEST_CASE("training with prefetching: an exception in the step's thread leaves t
   fs::remove_all(dir);
 }
 
-TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, step, b)") {
+namespace {
+/// Options of the make_batch tests: 32 x 32 materials, run seed 11, `batch` per step.
+training::train_options batch_options(int batch) {
   training::train_options o;
   o.size = 32;
-  o.batch = 3;
+  o.batch = batch;
   o.seed = 11;
-  const auto batch = training::make_batch(o, 4, true);
+  return o;
+}
+}  // namespace
+
+TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, step, b)") {
+  const auto batch = training::make_batch(batch_options(3), 4, true);
   REQUIRE(batch.size() == 3);
   for (int b = 0; b < 3; ++b) {
     const auto expected = training::make_sample(training::training_seed(11, 4, b), 32, true);
@@ -144,10 +151,7 @@ TEST_CASE("make_batch: entry b of a step is the sample of training_seed(seed, st
 }
 
 TEST_CASE("make_batch with input noise: each material's photographs get noise at its own fraction of the levels, the truth stays") {
-  training::train_options o;
-  o.size = 32;
-  o.batch = 4;
-  o.seed = 11;
+  training::train_options o = batch_options(4);
   const auto clean = training::make_batch(o, 4, true);
   o.input_noise = {0.05, 0.01};
   const auto noisy = training::make_batch(o, 4, true), again = training::make_batch(o, 4, true);

@@ -356,8 +356,8 @@ class estimation_network {
 /// pre-activation z), c weights 0 and bias 1. The head then outputs alpha / (pi/2) =
 /// atan2(pi z, 1) / pi, which equals the file's tanh(z) to first order (within 0.003 for |z| <= 0.1,
 /// 0.05 for |z| <= 0.3), has its sign beyond, and passes +-1/2 only once training turns c (a linear
-/// layer cannot give c = cos(pi tanh z)). Returns false, and changes
-/// nothing, when the file has no such layer (for example a file of a doubled-angle preset).
+/// layer cannot give c = cos(pi tanh z)). Returns false, and changes nothing, when the file has no
+/// such layer (for example a file of a doubled-angle preset).
 template <class P, class T>
   requires(has_doubled_angle<P>())
 bool start_doubled_angle_head(const std::filesystem::path& file, estimation_network<P, T>& net) {

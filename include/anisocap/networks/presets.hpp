@@ -29,8 +29,9 @@ inline std::string weights_preset(const std::filesystem::path& file) {
 
 /// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names:
 /// estimator_compact (also for a file without a preset), estimator_compact_orientation,
-/// estimator_compact_doubled_angle or estimator_compact_orientation_doubled_angle. Throws std::invalid_argument naming the file for any other
-/// preset (e.g. "paper", whose weights do not fit a compact network).
+/// estimator_compact_doubled_angle or estimator_compact_orientation_doubled_angle. Throws
+/// std::invalid_argument naming the file for any other preset (e.g. "paper", whose weights do not
+/// fit a compact network).
 template <class F>
 decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
