@@ -54,6 +54,10 @@ ESTIMATOR_PRESETS = {
     "compact-orientation": dict(encoder=[16, 32, 64, 64, 64, 64], track1=[64, 64, 64, 32, 16, 16],
                                 track2=[32, 32, 32, 16, 8, 8], inputs=6),
 }
+# The doubled-angle presets: track 2's head has 4 raw outputs (n_x, n_y, c, s) and alpha / (pi/2)
+# is atan2(s, c) / pi (network_detail::normals_and_doubled_angle).
+ESTIMATOR_PRESETS["compact-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact"], doubled_angle=True)
+ESTIMATOR_PRESETS["compact-orientation-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact-orientation"], doubled_angle=True)
 AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 64, 128, 256, 256]}
 
 
@@ -172,8 +176,9 @@ class AutoEncoder(nn.Module):
 class Track(nn.Module):
     """network_detail::decoder_track and reducing_head of one track."""
 
-    def __init__(self, e, d, out):
+    def __init__(self, e, d, out, doubled_angle=False):
         super().__init__()
+        self.doubled_angle = doubled_angle
         skips = [None, e[4], e[3], e[2], e[1], e[0]]
         for i in range(6):
             cin = e[5] if i == 0 else d[i - 1] + skips[i]
@@ -196,7 +201,10 @@ class Track(nn.Module):
     def head(self, f, g):
         h = lrelu(self.reduce0(f) + self.reduce_global(g)[:, :, None, None])
         h = lrelu(self.reduce1(h))
-        return torch.tanh(self.reduce2(h))
+        z = self.reduce2(h)
+        if self.doubled_angle:  # (tanh z_x, tanh z_y, atan2(s, c) / pi)
+            return torch.cat([torch.tanh(z[:, 0:2]), torch.atan2(z[:, 3:4], z[:, 2:3]) / math.pi], 1)
+        return torch.tanh(z)
 
 
 class Estimator(nn.Module):
@@ -214,7 +222,8 @@ class Estimator(nn.Module):
         for i in range(1, 6):
             setattr(self, f"global{i}", nn.Linear(e[i - 1] + e[i], e[i]))
         self.track1 = Track(e, p["track1"], 9)
-        self.track2 = Track(e, p["track2"], 3)
+        doubled = p.get("doubled_angle", False)
+        self.track2 = Track(e, p["track2"], 4 if doubled else 3, doubled)
 
     def forward(self, x, images_per_set):
         h0 = self.enc0(x)
@@ -301,6 +310,16 @@ def orientation_channels(x):
     trace = j[:, 0:1] + j[:, 2:3]
     c5 = 2 * (torch.log(trace + 1e-4) - math.log(1e-4)) / (-math.log(1e-4)) - 1
     return torch.cat([(j[:, 0:1] - j[:, 2:3]) / (trace + 1e-6), 2 * j[:, 1:2] / (trace + 1e-6), c5], 1)
+
+
+def add_sensor_noise(photos, shot, read):
+    """render/sensor_noise.hpp's model on a batch of photographs (B, n, H, W, 3), at a fraction of
+    the levels drawn uniformly in [0, 1) per material as training_input_noise does: each pixel gets
+    a normal deviate of standard deviation sqrt(shot^2 max(v, 0) + read^2), and the result is
+    clamped at 0. (PyTorch's random stream, not the library's: the same distribution.)"""
+    f = torch.rand(photos.shape[0], 1, 1, 1, 1, device=photos.device, dtype=photos.dtype)
+    sigma = torch.sqrt((shot * f) ** 2 * torch.clamp(photos, min=0.0) + (read * f) ** 2)
+    return torch.clamp(photos + sigma * torch.randn_like(photos), min=0.0)
 
 
 def estimator_inputs(photos, channels):
@@ -493,12 +512,14 @@ def make_net(network, preset):
 
 
 def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3, source=None, lobe_weight=1.0,
-           sigma_weight=0.0):
+           sigma_weight=0.0, noise=(0.0, 0.0)):
     """Returns (total, l1, render) for one batch of network-space truth maps and configurations.
     For the auto-encoder, `source` (an estimator, not trained) replaces the encoder's input by its
     estimate from the 5 training inputs (train-autoencoder --inputs estimates). `lobe_weight`
     weighs the lobe widths' and rotation's L1 (train --lobe-weight; validation uses 1), `sigma_weight`
-    the lobe widths' squared error (train --sigma-weight; validation uses 0)."""
+    the lobe widths' squared error (train --sigma-weight; validation uses 0). `noise` (shot, read)
+    puts add_sensor_noise on the estimator's 5 inputs (train-estimator --shot-noise/--read-noise;
+    validation uses none)."""
     with torch.no_grad():
         truth_maps = network_to_maps(maps)
         targets = torch.log(render_batch(truth_maps, conf[:, 5:9]) + ward.LOG_EPS)
@@ -516,7 +537,10 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
             total = total + smoothness * (y - y2).abs().mean()
     else:
         with torch.no_grad():
-            x = estimator_inputs(render_batch(truth_maps, conf[:, 0:5]), channels)
+            photos = render_batch(truth_maps, conf[:, 0:5])
+            if noise[0] > 0 or noise[1] > 0:
+                photos = add_sensor_noise(photos, noise[0], noise[1])
+            x = estimator_inputs(photos, channels)
         y = net(x, 5)
         l1, rl = map_l1(y, maps, lobe_weight, sigma_weight), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
@@ -552,6 +576,10 @@ def train(args):
     torch.backends.cuda.matmul.allow_tf32 = True
     torch.backends.cudnn.allow_tf32 = True
     torch.manual_seed(args.seed)
+    if not (args.shot_noise >= 0 and args.read_noise >= 0 and math.isfinite(args.shot_noise + args.read_noise)):
+        raise SystemExit("--shot-noise and --read-noise must be finite and not negative")
+    if args.network != "estimator" and (args.shot_noise > 0 or args.read_noise > 0):
+        raise SystemExit("--shot-noise/--read-noise are for the estimator's photographs")
     _, meta, _ = read_safetensors(args.init)
     if meta.get("network") != args.network:
         raise SystemExit(f"{args.init}: holds {meta.get('network')} weights, not {args.network}")
@@ -620,7 +648,8 @@ def train(args):
             g["lr"] = lr
         maps, conf = pool.batch(args.batch)
         total, l1, rl, _ = losses(net, args.network, maps, conf, args.render_weight, channels=channels, source=source,
-                                   lobe_weight=args.lobe_weight, sigma_weight=args.sigma_weight)
+                                   lobe_weight=args.lobe_weight, sigma_weight=args.sigma_weight,
+                                   noise=(args.shot_noise, args.read_noise))
         opt.zero_grad(set_to_none=True)
         total.backward()
         opt.step()
@@ -647,7 +676,8 @@ def train(args):
         json.dump({"network": args.network, "preset": preset, "init": args.init, "steps": step, "batch": args.batch,
                    "materials_drawn": pool.used, "materials_generated": producer.generated, "seconds": time.time() - start,
                    "lr": args.lr, "lr_end": args.lr_end, "decay": args.decay, "warmup": args.warmup, "seed": args.seed,
-                   "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight, "emphasis": args.emphasis,
+                   "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight,
+                   "shot_noise": args.shot_noise, "read_noise": args.read_noise, "emphasis": args.emphasis,
                    "emphasis_share": args.emphasis_share, "trainable": args.trainable, "inputs": args.inputs,
                    "input_estimator": args.input_estimator, "device": torch.cuda.get_device_name() if device.type == "cuda" else "cpu",
                    "torch": torch.__version__}, f, indent=1)
@@ -729,6 +759,9 @@ def main():
     t.add_argument("--render-weight", type=float, default=0.1)
     t.add_argument("--lobe-weight", type=float, default=1.0, help="weight of the lobe widths' and rotation's L1 (validation: 1)")
     t.add_argument("--sigma-weight", type=float, default=0.0, help="weight of the lobe widths' squared error, original range (validation: 0)")
+    t.add_argument("--shot-noise", type=float, default=0.0,
+                   help="sensor noise on the estimator's training inputs (as train-estimator --shot-noise)")
+    t.add_argument("--read-noise", type=float, default=0.0, help="as train-estimator --read-noise")
     t.add_argument("--seed", type=int, default=1013)
     t.add_argument("--first", type=int, default=0, help="first material index (a continued run takes new materials)")
     t.add_argument("--emphasis", default="")
