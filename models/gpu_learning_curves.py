@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Learning curves of runs trained on a GPU with studies/train_torch.py: each network's validation
-(64 validation materials at 128 x 128, the errors of compare_maps) against materials drawn, one
+(64 validation materials at the runs' training size, --size, the errors of compare_maps) against materials drawn, one
 line per network, with the runs of a chain (each continuing the previous one's weights) laid end
 to end and their boundaries marked.
 
@@ -43,6 +43,7 @@ def read_chain(spec):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("-o", "--out", required=True)
+    parser.add_argument("--size", type=int, default=128, help="the runs' training and validation size (the title's)")
     parser.add_argument("chains", nargs="+", help="KIND:CSV,CSV,...")
     args = parser.parse_args()
     chains = [read_chain(c) for c in args.chains]
@@ -60,7 +61,7 @@ def main():
             ax.grid(alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
     axes[-1].legend(handles, labels, loc="center")
-    fig.suptitle("GPU training (studies/train_torch.py): validation on 64 materials, 128 x 128\ndotted lines: a new run "
+    fig.suptitle(f"GPU training (studies/train_torch.py): validation on 64 materials, {args.size} x {args.size}\ndotted lines: a new run "
                  "from the previous one's weights (learning rate warmed up again, then decayed)", fontsize=11)
     fig.tight_layout()
     fig.savefig(args.out, dpi=90)
