@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Learning curves of runs trained on a GPU with studies/train_torch.py: each network's validation
-(64 validation materials at the runs' training size, --size, the errors of compare_maps) against materials drawn, one
-line per network, with the runs of a chain (each continuing the previous one's weights) laid end
-to end and their boundaries marked.
+(64 validation materials at the runs' training size, --size, default 128; the errors of
+compare_maps) against materials drawn, one line per network, with the runs of a chain (each
+continuing the previous one's weights) laid end to end and their boundaries marked.
 
     H=models/compact/history
     /usr/bin/python3 models/gpu_learning_curves.py -o models/run13_gpu.png \
