@@ -1,6 +1,7 @@
 #!/bin/sh
 # Training throughput (samples/s) of `anisocap train-estimator` and `train-autoencoder`, 128 x 128
-# materials, batch 2, at 1 and 2 OpenMP threads, for several variants of the command: the median
+# materials, batch 2, at 1 and 2 OpenMP threads (THREADS in the environment: other counts, for
+# example THREADS="1 2 4 8 16"), for several variants of the command: the median
 # of REPEATS runs (the rate of each run's final progress line, which counts every step, the first
 # included). The runs of all rows are interleaved, so that a change in the machine's load hits
 # every row alike; compare rows of one run of this script.
@@ -20,7 +21,7 @@ for r in $(seq "$repeats"); do
   for network in estimator autoencoder; do
     n=$steps
     [ "$network" = autoencoder ] && n=$((3 * steps))
-    for threads in 1 2; do
+    for threads in ${THREADS:-1 2}; do
       for v in $variants; do
         name=${v%%=*}
         set -- $(echo "${v#*=}" | tr ',' ' ')
@@ -41,7 +42,7 @@ done
 echo "| network | OpenMP threads | variant | samples/s (median of $repeats) | runs |"
 echo "|---|---|---|---|---|"
 for network in estimator autoencoder; do
-  for threads in 1 2; do
+  for threads in ${THREADS:-1 2}; do
     for v in $variants; do
       name=${v%%=*}
       f="$out/$network-$threads-$name"
