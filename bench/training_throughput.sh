@@ -15,13 +15,14 @@ program=${1:-build/anisocap}
 steps=${2:-20}
 repeats=${3:-3}
 variants=${4:-"serial=--prefetch,false prefetch=--prefetch,true"}
+thread_counts=${THREADS:-1 2}
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for r in $(seq "$repeats"); do
   for network in estimator autoencoder; do
     n=$steps
     [ "$network" = autoencoder ] && n=$((3 * steps))
-    for threads in ${THREADS:-1 2}; do
+    for threads in $thread_counts; do
       for v in $variants; do
         name=${v%%=*}
         set -- $(echo "${v#*=}" | tr ',' ' ')
@@ -42,7 +43,7 @@ done
 echo "| network | OpenMP threads | variant | samples/s (median of $repeats) | runs |"
 echo "|---|---|---|---|---|"
 for network in estimator autoencoder; do
-  for threads in ${THREADS:-1 2}; do
+  for threads in $thread_counts; do
     for v in $variants; do
       name=${v%%=*}
       f="$out/$network-$threads-$name"
