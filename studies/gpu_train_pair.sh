@@ -21,8 +21,8 @@ cd "$(dirname "$0")"
 T=../.gpu/anisocap_study_torch_training_data
 nvidia-smi --query-gpu=name --format=csv,noheader
 if [ "$2" != - ]; then
-python3 train_torch.py train --network autoencoder --init "../$2" --out "$OUT/ae" \
-    --tool $T --minutes "$4" --batch "$6" --lr "$7" --workers 7 --seed $((1000 + $8)) --first "$3" ${AE_ARGS:-} > "$OUT/ae.log" 2>&1 &
+    python3 train_torch.py train --network autoencoder --init "../$2" --out "$OUT/ae" \
+        --tool $T --minutes "$4" --batch "$6" --lr "$7" --workers 7 --seed $((1000 + $8)) --first "$3" ${AE_ARGS:-} > "$OUT/ae.log" 2>&1 &
 fi
 python3 train_torch.py train --network estimator --init "../$1" --out "$OUT/est" \
     --tool $T --minutes "$4" --batch "$5" --lr 3e-4 --workers 7 --seed $((2000 + $8)) --first "$3" ${EST_ARGS:-} > "$OUT/est.log" 2>&1 &
