@@ -12,7 +12,7 @@
 # run's train_torch.py options and override them (for example EST_ARGS="--size 256 --lr 3e-5
 # --shot-noise 0.02 --read-noise 0.004 --workers 8"). On the lent 16-core machine the estimator at
 # 256, batch 16, drew 108 materials/s alone with --workers 8, 86 with 8 beside the auto-encoder's 7,
-# and 16 alone with --workers 14: keep the estimator's workers at 8.
+# and 16 alone with --workers 14: keep the estimator's workers at 8 or fewer.
 # Expects the statically linked generator in .gpu/ (models/README.md "Run 13") and writes
 # $OUT/est/, $OUT/ae/ (weights, validation.csv, run.json) and both logs to $OUT.
 set -euo pipefail
