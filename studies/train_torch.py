@@ -58,7 +58,8 @@ ESTIMATOR_PRESETS = {
 # is atan2(s, c) / pi (network_detail::normals_and_doubled_angle).
 ESTIMATOR_PRESETS["compact-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact"], doubled_angle=True)
 ESTIMATOR_PRESETS["compact-orientation-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact-orientation"], doubled_angle=True)
-AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 64, 128, 256, 256]}
+AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 64, 128, 256, 256],
+                       "compact-fine": [32, 64, 128, 128]}  # four levels: latent (H/16) x (W/16)
 
 
 # ---- safetensors in the C++ layout -------------------------------------------------------------
@@ -151,26 +152,30 @@ def up(cin, cout):
 
 
 class AutoEncoder(nn.Module):
+    """auto_encoder<Preset>: one stride-2 level per encoder width (enc0..., dec0...)."""
+
     def __init__(self, preset):
         super().__init__()
         e = AUTOENCODER_PRESETS[preset]
-        self.enc0, self.enc1, self.enc2, self.enc3, self.enc4 = conv(12, e[0]), conv(e[0], e[1]), conv(e[1], e[2]), conv(e[2], e[3]), conv(e[3], e[4])
-        self.latent_norm = nn.BatchNorm2d(e[4], eps=1e-5, momentum=0.1)
-        self.dec0, self.dec1, self.dec2, self.dec3, self.dec4 = up(e[4], e[3]), up(e[3], e[2]), up(e[2], e[1]), up(e[1], e[0]), up(e[0], 12)
+        self.levels = len(e)
+        for i in range(self.levels):
+            setattr(self, f"enc{i}", conv(12 if i == 0 else e[i - 1], e[i]))
+            setattr(self, f"dec{i}", up(e[-1 - i], 12 if i + 1 == self.levels else e[-2 - i]))
+        self.latent_norm = nn.BatchNorm2d(e[-1], eps=1e-5, momentum=0.1)
+
+    def decoder_layers(self):
+        return [getattr(self, f"dec{i}") for i in range(self.levels)]
 
     def encode(self, x):
-        h = lrelu(self.enc0(x))
-        h = lrelu(self.enc1(h))
-        h = lrelu(self.enc2(h))
-        h = lrelu(self.enc3(h))
-        return self.latent_norm(self.enc4(h))
+        for i in range(self.levels - 1):
+            x = lrelu(getattr(self, f"enc{i}")(x))
+        return self.latent_norm(getattr(self, f"enc{self.levels - 1}")(x))
 
     def decode(self, z):
-        h = lrelu(self.dec0(z))
-        h = lrelu(self.dec1(h))
-        h = lrelu(self.dec2(h))
-        h = lrelu(self.dec3(h))
-        return torch.tanh(self.dec4(h))
+        layers = self.decoder_layers()
+        for layer in layers[:-1]:
+            z = lrelu(layer(z))
+        return torch.tanh(layers[-1](z))
 
 
 class Track(nn.Module):
@@ -602,7 +607,7 @@ def train(args):
     if args.trainable == "encoder":
         if args.network != "autoencoder":
             raise SystemExit("--trainable encoder is for the auto-encoder")
-        for layer in (net.dec0, net.dec1, net.dec2, net.dec3, net.dec4):
+        for layer in net.decoder_layers():
             layer.requires_grad_(False)
         trained = [p for p in net.parameters() if p.requires_grad]
     os.makedirs(args.out, exist_ok=True)

@@ -29,8 +29,9 @@ struct train_settings {
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   training::train_options& o = s.options;
   if (autoencoder)
-    cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-wide"}));
+    cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent) "
+                   "and compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-wide", "compact-fine"}));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
@@ -266,7 +267,8 @@ inline void add_train_commands(CLI::App& app) {
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>>(
+    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>,
+                           auto_encoder<autoencoder_compact_fine>>(
         *ae, [&s = *ae](const training::train_options& o, auto& net) {
           if (s.inputs == "truth") return training::train_autoencoder(o, net);
           with_compact_estimator_preset(s.input_estimator, [&]<class P>() {

@@ -928,6 +928,37 @@ TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped 
   CHECK(r.output.find("auto-encoder reconstruction") != std::string::npos);
 }
 
+TEST_CASE("compact-fine auto-encoder: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
+  temp_dir t;
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
+  // 80 x 48 texels: 5 x 3 latent cells of 16 (the compact auto-encoder would pad to 96 x 64).
+  REQUIRE(run("synthesize -o syn --width 80 --height 48 --images 4 --seed 5", t.path).status == 0);
+  auto r = run("train-autoencoder --preset compact-fine --out fine --steps 1 --size 32 --batch 2 --validate-every 1000 "
+               "--validation-count 1 --init " + (models / "autoencoder.safetensors").string(), t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  // enc0-enc3, the batch norm and dec0 have the compact file's shapes; dec1-dec3 do not.
+  CHECK(r.output.find("initialised afresh: dec1.weight, dec1.bias, dec2.weight, dec2.bias, dec3.weight, dec3.bias") != std::string::npos);
+  std::string preset;
+  for (const auto& [key, value] : anisocap::nn::read_safetensors(t.path / "fine/autoencoder.safetensors").metadata)
+    if (key == "preset") preset = value;
+  CHECK(preset == "compact-fine");
+  fs::create_directories(t.path / "models_fine/compact");
+  fs::copy_file(t.path / "fine/autoencoder.safetensors", t.path / "models_fine/compact/autoencoder.safetensors");
+  fs::copy_file(models / "estimator.safetensors", t.path / "models_fine/compact/estimator.safetensors");
+  r = run("capture syn/capture.json -o out --stages all --models models_fine --finetune-steps 3 --finetune-crop 2 --steps 1 --no-view",
+          t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const anisocap::material_maps written = anisocap::read_maps(t.path / "out");
+  CHECK(written.width() == 80);
+  CHECK(written.height() == 48);
+  r = run("eval-networks --count 1 --size 64 --autoencoder fine/autoencoder.safetensors", t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+  CHECK(r.output.find("auto-encoder reconstruction (compact-fine)") != std::string::npos);
+}
+
 TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder learns from the shipped estimator's estimates") {
   temp_dir t;
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";

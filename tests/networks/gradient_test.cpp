@@ -4,6 +4,7 @@
 
 #include <functional>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "anisocap/core/random.hpp"
@@ -124,8 +125,11 @@ TEST_CASE("doubled angle: alpha / (pi/2) = atan2(s, c) / pi, continuous across a
   }
 }
 
-TEST_CASE("auto-encoder gradient: end to end in double, and a frozen encoder gets no gradient") {
-  auto_encoder<anisocap::testing::autoencoder_tiny, double> net(8);
+TEST_CASE_TEMPLATE("auto-encoder gradient: end to end in double, and a frozen encoder gets no gradient", P,
+                   anisocap::testing::autoencoder_tiny, anisocap::testing::autoencoder_tiny_four_levels) {
+  using net_type = auto_encoder<P, double>;
+  constexpr std::size_t last = net_type::levels - 1;
+  net_type net(8);
   random_generator rng(22);
   tensor<parameter_count, double> input(2, 64, 32);
   for (std::size_t i = 0; i < input.size(); ++i) input.data()[i] = rng.uniform() * 2 - 1;
@@ -143,15 +147,20 @@ TEST_CASE("auto-encoder gradient: end to end in double, and a frozen encoder get
   };
   {
     ad::tape t;
-    auto y = net.decode(t, net.encode(t, t.leaf(input)));
+    auto z = net.encode(t, t.leaf(input));
+    CHECK(z.value.height() == 64 / net_type::size_multiple);
+    CHECK(z.value.width() == 32 / net_type::size_multiple);
+    auto y = net.decode(t, z);
+    REQUIRE(y.value.height() == 64);
+    REQUIRE(y.value.width() == 32);
     std::copy_n(weights.data(), weights.size(), y.grad.data());
     t.backward();
   }
-  check_parameter(net.enc0.weight, loss, 3);
-  check_parameter(net.enc4.weight, loss, 3);
+  check_parameter(net.template enc<0>().weight, loss, 3);
+  check_parameter(net.template enc<last>().weight, loss, 3);
   check_parameter(net.latent_norm.bias, loss, 3);
-  check_parameter(net.dec0.weight, loss, 3);
-  check_parameter(net.dec4.bias, loss, 3);
+  check_parameter(net.template dec<0>().weight, loss, 3);
+  check_parameter(net.template dec<last>().bias, loss, 3);
   net.for_each_parameter([](auto& p) { p.zero_grad(); });
   net.freeze_encoder();
   {
@@ -163,8 +172,31 @@ TEST_CASE("auto-encoder gradient: end to end in double, and a frozen encoder get
     t.backward();
   }
   bool encoder_zero = true, decoder_nonzero = false;
-  for (double g : net.enc2.weight.grad) encoder_zero &= g == 0;
-  for (double g : net.dec1.weight.grad) decoder_nonzero |= g != 0;
+  for (double g : net.template enc<2>().weight.grad) encoder_zero &= g == 0;
+  for (double g : net.latent_norm.weight.grad) encoder_zero &= g == 0;
+  for (double g : net.template dec<1>().weight.grad) decoder_nonzero |= g != 0;
   CHECK(encoder_zero);
   CHECK(decoder_nonzero);
+}
+
+TEST_CASE("auto-encoder layers: named enc0... and dec0... in file order, the widths of the preset") {
+  std::vector<std::string> names;
+  auto_encoder<autoencoder_compact_fine> fine(1);
+  fine.for_each_parameter([&](nn::basic_parameter<float>& p) { names.push_back(p.name); });
+  const std::vector<std::string> expected{"enc0.weight", "enc0.bias", "enc1.weight", "enc1.bias", "enc2.weight", "enc2.bias",
+                                          "enc3.weight", "enc3.bias", "latent_norm.weight", "latent_norm.bias", "dec0.weight",
+                                          "dec0.bias", "dec1.weight", "dec1.bias", "dec2.weight", "dec2.bias", "dec3.weight", "dec3.bias"};
+  CHECK(names == expected);
+  CHECK(auto_encoder<autoencoder_compact_fine>::size_multiple == 16);
+  CHECK(auto_encoder<autoencoder_compact>::size_multiple == 32);
+  CHECK(auto_encoder<autoencoder_compact_fine>::latent_channels == 128);
+  // The compact preset's five levels: enc4 reads 128 channels, dec4 writes the 12 maps.
+  auto_encoder<autoencoder_compact> compact(1);
+  CHECK(compact.enc<4>().weight.shape == std::vector<int>{4, 4, 128, 128});
+  CHECK(compact.dec<4>().weight.shape == std::vector<int>{4, 4, 32, parameter_count});
+  CHECK(fine.dec<0>().weight.shape == std::vector<int>{4, 4, 128, 128});
+  CHECK(fine.dec<3>().weight.shape == std::vector<int>{4, 4, 32, parameter_count});
+  std::size_t count = 0;
+  fine.for_each_parameter([&](nn::basic_parameter<float>& p) { count += p.size(); });
+  CHECK(count == 865'100);  // 0.87 M: 432 736 in the encoder and its batch norm, 432 364 in the decoder
 }

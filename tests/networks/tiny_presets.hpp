@@ -30,4 +30,10 @@ struct autoencoder_tiny {
   static constexpr const char* name = "tiny";
 };
 
+/// The tiny auto-encoder with four levels (like compact-fine): a latent cell per 16 x 16 texels.
+struct autoencoder_tiny_four_levels {
+  static constexpr std::array<int, 4> encoder{4, 4, 8, 8};
+  static constexpr const char* name = "tiny-four-levels";
+};
+
 }  // namespace anisocap::testing

@@ -33,9 +33,9 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
   o.finetune.steps = 8;
   estimation_network<estimator_tiny> estimator(1);
   auto_encoder<autoencoder_tiny> straight(2);
-  const auto encoder_before = straight.enc0.weight.value;
+  const auto encoder_before = straight.enc<0>().weight.value;
   const capture_result a = capture_material(s.cap, s.photos, estimator, straight, o);
-  for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc0.weight.value[i] == encoder_before[i]);
+  for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc<0>().weight.value[i] == encoder_before[i]);
   o.finetune.observer = nullptr;
 
   std::filesystem::remove_all(o.checkpoint.folder);
@@ -48,8 +48,8 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
   const capture_result b = capture_material(s.cap, s.photos, estimator, second, o);
   CHECK(b.stages[2].resumed);
   CHECK(b.stages[2].steps == 3);
-  for (std::size_t i = 0; i < straight.dec4.weight.value.size(); ++i)
-    REQUIRE(second.dec4.weight.value[i] == doctest::Approx(straight.dec4.weight.value[i]).epsilon(1e-5));
+  for (std::size_t i = 0; i < straight.dec<4>().weight.value.size(); ++i)
+    REQUIRE(second.dec<4>().weight.value[i] == doctest::Approx(straight.dec<4>().weight.value[i]).epsilon(1e-5));
   CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
   std::filesystem::remove_all(o.checkpoint.folder);
 }
@@ -131,17 +131,21 @@ TEST_CASE("fine-tune residual start: the fine-tune starts at the estimate itself
   check_fine_tune_resumes(s, o);
 }
 
-TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed over all windows, losses and gradients are the whole tile's") {
-  // 100 x 70 texels pad to 128 x 96: 4 x 3 latent cells; crops of 2 x 2 cells (one-cell margins
-  // where the grid goes on), clipped at the borders and at the material's edge.
+TEST_CASE_TEMPLATE("fine-tune crops: every window's maps are the whole decode's; summed over all windows, losses and gradients are the whole tile's",
+                   P, autoencoder_tiny, autoencoder_tiny_four_levels) {
+  // 100 x 70 texels pad to 128 x 96 (4 x 3 latent cells of 32) with five levels, to 112 x 80 (7 x 5
+  // cells of 16) with four; crops of 2 x 2 cells (one-cell margins where the grid goes on), clipped
+  // at the borders and at the material's edge.
   const scene s(100, 70);
   const loss_targets targets = make_loss_targets(s.photos);
-  auto_encoder<autoencoder_tiny> ae(3);
-  constexpr int M = auto_encoder<autoencoder_tiny>::size_multiple;
+  auto_encoder<P> ae(3);
+  constexpr int M = auto_encoder<P>::size_multiple;
   const auto z = encode(ae, s.truth);
   ae.freeze_encoder(true);
-  REQUIRE(z.height() == 3);
-  REQUIRE(z.width() == 4);
+  const int cy = (70 + M - 1) / M, cx = (100 + M - 1) / M;
+  REQUIRE(z.height() == cy);
+  REQUIRE(z.width() == cx);
+  CHECK(cy == (M == 32 ? 3 : 5));
   std::vector<nn::parameter*> params;
   ae.for_each_decoder_parameter([&](nn::parameter& p) { params.push_back(&p); });
   auto gradients = [&]() {
@@ -171,15 +175,15 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
   int windows = 0;
   finetune_crops::scratch scratch;
   const int k = 2;
-  for (int sy = -(k - 1); sy < 3; ++sy)
-    for (int sx = -(k - 1); sx < 4; ++sx) {
-      const auto win = finetune_crops::clipped_window(3, 4, k, k, sy, sx);
+  for (int sy = -(k - 1); sy < cy; ++sy)
+    for (int sx = -(k - 1); sx < cx; ++sx) {
+      const auto win = finetune_crops::clipped_window(cy, cx, k, k, sy, sx);
       // The window's decode equals the whole decode on its texels.
       {
         ad::tape tw;
         ad::tape::no_grad_guard guard(tw);
         const int mr = win.r0 > 0, mc = win.c0 > 0;
-        const int lr1 = std::min(win.r1 + 1, 3), lc1 = std::min(win.c1 + 1, 4);
+        const int lr1 = std::min(win.r1 + 1, cy), lc1 = std::min(win.c1 + 1, cx);
         auto yw = ae.decode(tw, tw.leaf(z.tile(win.r0 - mr, win.c0 - mc, lr1 - (win.r0 - mr), lc1 - (win.c0 - mc)).clone()));
         const int h = std::min(win.r1 * M, 70) - win.r0 * M, w = std::min(win.c1 * M, 100) - win.c0 * M;
         for (int yy = 0; yy < h; ++yy)
@@ -194,7 +198,7 @@ TEST_CASE("fine-tune crops: every window's maps are the whole decode's; summed o
       loss_sum += l * h * w / double(k * k * M * M);
       ++windows;
     }
-  CHECK(windows == (3 + k - 1) * (4 + k - 1));
+  CHECK(windows == (cy + k - 1) * (cx + k - 1));
   const double factor = 100.0 * 70.0 / (M * M);
   CHECK(loss_sum == doctest::Approx(factor * whole_loss).epsilon(1e-5));
   const std::vector<double> crop_grad = gradients();

@@ -127,12 +127,12 @@ TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights
   REQUIRE(decoder_before.size() == decoder_after.size());
   CHECK(decoder_before == decoder_after);  // bit for bit
   int encoder_changed = 0;
-  for (std::size_t i = 0; i < straight.enc0.weight.size(); ++i) encoder_changed += straight.enc0.weight.value[i] != source.enc0.weight.value[i];
-  CHECK(encoder_changed > int(straight.enc0.weight.size()) / 2);
+  for (std::size_t i = 0; i < straight.enc<0>().weight.size(); ++i) encoder_changed += straight.enc<0>().weight.value[i] != source.enc<0>().weight.value[i];
+  CHECK(encoder_changed > int(straight.enc<0>().weight.size()) / 2);
   // The saved file holds the same decoder.
   auto_encoder<testing::autoencoder_tiny> saved(12);
   nn::load_weights(a / "autoencoder.safetensors", saved);
-  CHECK(saved.dec4.weight.value[0] == source.dec4.weight.value[0]);
+  CHECK(saved.dec<4>().weight.value[0] == source.dec<4>().weight.value[0]);
   // Stopped and resumed, the run ends with the straight run's weights (the decoder stays frozen).
   {
     auto_encoder<testing::autoencoder_tiny> killed(11);
@@ -196,8 +196,8 @@ TEST_CASE("training: an auto-encoder on the estimator's estimates keeps its deco
   };
   auto_encoder<testing::autoencoder_tiny> straight(11);
   training::train_autoencoder(options(a), straight, estimator);
-  CHECK(straight.dec2.weight.value[7] == source.dec2.weight.value[7]);
-  CHECK(straight.enc1.weight.value[7] != source.enc1.weight.value[7]);
+  CHECK(straight.dec<2>().weight.value[7] == source.dec<2>().weight.value[7]);
+  CHECK(straight.enc<1>().weight.value[7] != source.enc<1>().weight.value[7]);
   CHECK(training::read_checkpoint_description(a).at("inputs") == "estimates");
   // The CSV's validation is of D(E(estimate)): recompute its first material's L1 term.
   {

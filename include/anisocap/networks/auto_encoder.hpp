@@ -2,7 +2,13 @@
 /// @file
 /// The map auto-encoder of the paper (docs/method.md section 7, after Gao 2019), with compile-time
 /// width presets `autoencoder_paper`, `autoencoder_compact` (latent (H/32) x (W/32) x 128; the
-/// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide`.
+/// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide` and
+/// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128).
+#include <cstddef>
+#include <string>
+#include <tuple>
+#include <utility>
+
 #include "anisocap/networks/network_layers.hpp"
 
 namespace anisocap {
@@ -20,83 +26,104 @@ struct autoencoder_compact {
 };
 
 /// An experimental compact variant with twice the latent: (H/32) x (W/32) x 256, the last two
-/// encoder layers (and the first two decoder layers) 256 wide. The compact latent holds 80 input
-/// values per latent value, this one 40 (the paper's 10); 3.5 M parameters against 1.4 M
+/// encoder layers (and the first two decoder layers) 256 wide. The compact latent holds 96 input
+/// values per latent value, this one 48 (the paper's 12); 3.5 M parameters against 1.4 M
 /// (models/README.md, "A wider latent").
 struct autoencoder_compact_wide {
   static constexpr std::array<int, 5> encoder{32, 64, 128, 256, 256};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-wide";                   ///< preset name in files
 };
 
-/// The map auto-encoder (docs/method.md section 7, after Gao 2019): five 4x4 stride-2 convolutions with leaky
-/// ReLU between them and one batch normalisation at the end give the latent code z
-/// (H/32 x W/32 x Preset::encoder[4]); five 4x4 stride-2 transposed convolutions decode it back to
-/// 12 channels in network space (tanh). encode() and decode() are separate so that the pipeline
+/// An experimental compact variant with a four times finer latent: four levels instead of five,
+/// latent (H/16) x (W/16) x 128, the compact widths without the last level. It holds 24 input values
+/// per latent value (the compact preset 96, compact-wide 48, the paper's 12) with fewer parameters
+/// (0.87 M against 1.4 M): the spatial detail of weaves and printed patterns that a cell of 32 x 32
+/// texels loses (models/README.md, "A finer latent").
+struct autoencoder_compact_fine {
+  static constexpr std::array<int, 4> encoder{32, 64, 128, 128};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact-fine";              ///< preset name in files
+};
+
+/// The map auto-encoder (docs/method.md section 7, after Gao 2019): L = Preset::encoder.size()
+/// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
+/// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
+/// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
+/// presets have L = 5, `compact-fine` 4. encode() and decode() are separate so that the pipeline
 /// can fine-tune the decoder with z fixed and the encoder frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {
   static constexpr auto E = Preset::encoder;
+  static constexpr std::size_t L = E.size();
+  static_assert(L >= 2 && L <= 6, "auto_encoder: 2 to 6 levels");
+  // Channels into encoder layer i, and out of decoder layer i.
+  static constexpr int encoder_in(std::size_t i) { return i == 0 ? parameter_count : E[i - 1]; }
+  static constexpr int decoder_out(std::size_t i) { return i + 1 == L ? parameter_count : E[L - 2 - i]; }
+  template <std::size_t... I>
+  static auto encoder_types(std::index_sequence<I...>) -> std::tuple<nn::conv2d<encoder_in(I), E[I], 4, 2, 1, T>...>;
+  template <std::size_t... I>
+  static auto decoder_types(std::index_sequence<I...>) -> std::tuple<nn::conv_transpose2d<E[L - 1 - I], decoder_out(I), T>...>;
+  using encoder_layers = decltype(encoder_types(std::make_index_sequence<L>{}));
+  using decoder_layers = decltype(decoder_types(std::make_index_sequence<L>{}));
+  template <class Tuple, std::size_t... I>
+  static Tuple named_layers(const std::string& prefix, std::index_sequence<I...>) {
+    return Tuple(std::tuple_element_t<I, Tuple>(prefix + std::to_string(I))...);
+  }
 
  public:
   using preset = Preset;  ///< the widths
+  /// Stride-2 levels of the encoder (and of the decoder).
+  static constexpr int levels = int(L);
   /// Latent channels.
-  static constexpr int latent_channels = E[4];
-  /// Side lengths encode() accepts are multiples of this.
-  static constexpr int size_multiple = 32;
+  static constexpr int latent_channels = E[L - 1];
+  /// Side lengths encode() accepts are multiples of this (2^levels); one latent cell covers
+  /// size_multiple x size_multiple texels.
+  static constexpr int size_multiple = 1 << L;
 
-  nn::conv2d<parameter_count, E[0], 4, 2, 1, T> enc0;  ///< encoder layer 0 (4x4, stride 2)
-  nn::conv2d<E[0], E[1], 4, 2, 1, T> enc1;  ///< encoder layer 1 (4x4, stride 2)
-  nn::conv2d<E[1], E[2], 4, 2, 1, T> enc2;  ///< encoder layer 2 (4x4, stride 2)
-  nn::conv2d<E[2], E[3], 4, 2, 1, T> enc3;  ///< encoder layer 3 (4x4, stride 2)
-  nn::conv2d<E[3], E[4], 4, 2, 1, T> enc4;  ///< encoder layer 4 (4x4, stride 2)
-  nn::batch_norm<E[4], T> latent_norm;  ///< the batch norm that ends the encoder
-  nn::conv_transpose2d<E[4], E[3], T> dec0;  ///< decoder layer 0 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[3], E[2], T> dec1;  ///< decoder layer 1 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[2], E[1], T> dec2;  ///< decoder layer 2 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[1], E[0], T> dec3;  ///< decoder layer 3 (4x4 transposed, stride 2)
-  nn::conv_transpose2d<E[0], parameter_count, T> dec4;  ///< decoder layer 4 (4x4 transposed, stride 2)
+ private:
+  encoder_layers encoder_;  // enc0 ... enc{L-1}: 4x4, stride 2
+  decoder_layers decoder_;  // dec0 ... dec{L-1}: 4x4 transposed, stride 2
 
-  /// A network with seeded He-uniform weights.
+ public:
+  nn::batch_norm<latent_channels, T> latent_norm;  ///< the batch norm that ends the encoder
+
+  /// A network with seeded He-uniform weights (Xavier for the last, tanh-activated layer).
   explicit auto_encoder(std::uint64_t seed = 1)
-      : enc0("enc0"), enc1("enc1"), enc2("enc2"), enc3("enc3"), enc4("enc4"), latent_norm("latent_norm"),
-        dec0("dec0"), dec1("dec1"), dec2("dec2"), dec3("dec3"), dec4("dec4") {
+      : encoder_(named_layers<encoder_layers>("enc", std::make_index_sequence<L>{})),
+        decoder_(named_layers<decoder_layers>("dec", std::make_index_sequence<L>{})),
+        latent_norm("latent_norm") {
     using network_detail::init_conv;
-    init_conv(enc0, 16 * parameter_count, seed);
-    init_conv(enc1, 16 * E[0], seed);
-    init_conv(enc2, 16 * E[1], seed);
-    init_conv(enc3, 16 * E[2], seed);
-    init_conv(enc4, 16 * E[3], seed);
-    init_conv(dec0, 4 * E[4], seed);
-    init_conv(dec1, 4 * E[3], seed);
-    init_conv(dec2, 4 * E[2], seed);
-    init_conv(dec3, 4 * E[1], seed);
-    nn::xavier_uniform(dec4.weight, 4 * E[0], 4 * parameter_count, seed);
-    nn::constant_init(dec4.bias, T(0));
+    [&]<std::size_t... I>(std::index_sequence<I...>) {
+      (init_conv(std::get<I>(encoder_), 16 * encoder_in(I), seed), ...);
+      (init_conv(std::get<I>(decoder_), 4 * E[L - 1 - I], seed), ...);
+    }(std::make_index_sequence<L - 1>{});
+    init_conv(std::get<L - 1>(encoder_), 16 * encoder_in(L - 1), seed);
+    auto& last = std::get<L - 1>(decoder_);
+    nn::xavier_uniform(last.weight, 4 * E[0], 4 * parameter_count, seed);
+    nn::constant_init(last.bias, T(0));
   }
 
-  /// z from network-space maps (batch x H x W x 12, H and W multiples of 32). Batch norm uses the
-  /// batch's statistics while `training`, the running ones otherwise.
+  /// Encoder layer I ("enc<I>" in weight files).
+  template <std::size_t I>
+  auto& enc() noexcept { return std::get<I>(encoder_); }
+  /// Decoder layer I ("dec<I>" in weight files; dec0 reads z).
+  template <std::size_t I>
+  auto& dec() noexcept { return std::get<I>(decoder_); }
+
+  /// z from network-space maps (batch x H x W x 12, H and W multiples of size_multiple). Batch norm
+  /// uses the batch's statistics while `training`, the running ones otherwise.
   ad::variable<latent_channels, T> encode(ad::tape& t, const ad::variable<parameter_count, T>& maps) {
     if (maps.value.height() % size_multiple != 0 || maps.value.width() % size_multiple != 0 || maps.value.height() == 0 ||
         maps.value.width() == 0)
       throw std::invalid_argument("auto_encoder::encode: map size " + std::to_string(maps.value.height()) + "x" +
-                                  std::to_string(maps.value.width()) + " is not a positive multiple of 32 (pad it)");
-    const T s = T(network_detail::leaky_slope);
-    auto h = nn::leaky_relu(t, enc0(t, maps), s);
-    auto h1 = nn::leaky_relu(t, enc1(t, h), s);
-    auto h2 = nn::leaky_relu(t, enc2(t, h1), s);
-    auto h3 = nn::leaky_relu(t, enc3(t, h2), s);
-    return latent_norm(t, enc4(t, h3));
+                                  std::to_string(maps.value.width()) + " is not a positive multiple of " +
+                                  std::to_string(size_multiple) + " (pad it)");
+    return encode_from<0>(t, maps);
   }
 
-  /// Network-space maps (batch x 32 h x 32 w x 12, in (-1, 1)) from z (batch x h x w x latent).
+  /// Network-space maps (batch x size_multiple h x size_multiple w x 12, in (-1, 1)) from z
+  /// (batch x h x w x latent).
   ad::variable<parameter_count, T> decode(ad::tape& t, const ad::variable<latent_channels, T>& z) {
-    const T s = T(network_detail::leaky_slope);
-    auto h = nn::leaky_relu(t, dec0(t, z), s);
-    auto h1 = nn::leaky_relu(t, dec1(t, h), s);
-    auto h2 = nn::leaky_relu(t, dec2(t, h1), s);
-    auto h3 = nn::leaky_relu(t, dec3(t, h2), s);
-    return nn::tanh(t, dec4(t, h3));
+    return decode_from<0>(t, z);
   }
 
   /// Batch norm mode: batch statistics (training) or running statistics (inference).
@@ -105,7 +132,7 @@ class auto_encoder {
   /// Freezes (or unfreezes) the encoder and its batch norm: no gradients are computed for them.
   void freeze_encoder(bool frozen = true) {
     auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
-    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm);
+    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
   }
 
   /// Freezes (or unfreezes) the decoder: no gradients are computed for its weights, while
@@ -114,10 +141,11 @@ class auto_encoder {
     for_each_decoder_parameter([frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; });
   }
 
-  /// Visits every trainable parameter.
+  /// Visits every trainable parameter: the encoder's, the batch norm's, the decoder's.
   template <class F>
   void for_each_parameter(F&& f) {
-    network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, latent_norm, dec0, dec1, dec2, dec3, dec4);
+    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
+    for_each_decoder_parameter(f);
   }
   /// Visits the saved, untrained state (the batch norm's running statistics).
   template <class F>
@@ -127,7 +155,21 @@ class auto_encoder {
   /// Visits the decoder's parameters only (what the pipeline fine-tunes).
   template <class F>
   void for_each_decoder_parameter(F&& f) {
-    network_detail::visit(f, dec0, dec1, dec2, dec3, dec4);
+    std::apply([&](auto&... layers) { network_detail::visit(f, layers...); }, decoder_);
+  }
+
+ private:
+  template <std::size_t I, int C>
+  ad::variable<latent_channels, T> encode_from(ad::tape& t, const ad::variable<C, T>& h) {
+    auto y = std::get<I>(encoder_)(t, h);
+    if constexpr (I + 1 == L) return latent_norm(t, y);
+    else return encode_from<I + 1>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
+  }
+  template <std::size_t I, int C>
+  ad::variable<parameter_count, T> decode_from(ad::tape& t, const ad::variable<C, T>& h) {
+    auto y = std::get<I>(decoder_)(t, h);
+    if constexpr (I + 1 == L) return nn::tanh(t, y);
+    else return decode_from<I + 1>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
   }
 };
 
