@@ -9,7 +9,7 @@ compact's enc0-enc3, and its decoder layers dec0-dec3 are compact's dec1-dec4 (t
 dec0 reads 128 channels at H/16, as compact's dec1 does). Compact's enc4 and dec0 are left out; the
 batch norm that ends the encoder starts as the identity (scale 1, shift 0, running mean 0, variance
 1), since it now normalises enc3's output. The file is an `--init` for
-`anisocap train-autoencoder --preset compact-fine` (models/README.md, "A finer latent")."""
+`anisocap train-autoencoder --preset compact-fine` (models/README.md, "Run 25")."""
 import sys
 
 import numpy as np

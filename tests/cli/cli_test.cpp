@@ -898,65 +898,62 @@ TEST_CASE("compact variants: train-estimator --init from a compact estimator, th
   }
 }
 
-TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped one, then capture and eval-networks read it from its file") {
-  temp_dir t;
+namespace {
+/// Trains a one-step auto-encoder of `preset` from the shipped compact file in t/`preset`/, checks
+/// the layers it reports as started afresh and the preset in its file, puts it beside the shipped
+/// estimator in t/models_`preset`/compact/, runs `capture syn/capture.json` with it and
+/// `capture_options`, and eval-networks on it. Returns the capture's output folder.
+fs::path check_autoencoder_variant(const temp_dir& t, const std::string& preset, const std::string& afresh,
+                                   const std::string& capture_options) {
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
-  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 4 --seed 3", t.path).status == 0);
-  auto r = run("train-autoencoder --preset compact-wide --out wide --steps 1 --size 32 --batch 2 --validate-every 1000 "
+  auto r = run("train-autoencoder --preset " + preset + " --out " + preset + " --steps 1 --size 32 --batch 2 --validate-every 1000 "
                "--validation-count 1 --init " + (models / "autoencoder.safetensors").string(), t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
-  // The layers whose widths change start afresh; the others come from the compact file.
-  CHECK(r.output.find("initialised afresh: enc3.weight, enc3.bias, enc4.weight") != std::string::npos);
-  CHECK(r.output.find("enc2.weight") == std::string::npos);
-  std::string preset;
-  for (const auto& [key, value] : anisocap::nn::read_safetensors(t.path / "wide/autoencoder.safetensors").metadata)
-    if (key == "preset") preset = value;
-  CHECK(preset == "compact-wide");
-  // In a compact models folder: capture builds the wide auto-encoder for it (the compact one
+  CHECK(r.output.find("initialised afresh: " + afresh + ")") != std::string::npos);
+  const fs::path file = t.path / preset / "autoencoder.safetensors";
+  std::string written;
+  for (const auto& [key, value] : anisocap::nn::read_safetensors(file).metadata)
+    if (key == "preset") written = value;
+  CHECK(written == preset);
+  // In a compact models folder: capture builds the auto-encoder the file names (the compact one
   // would refuse the file's shapes), and so does eval-networks.
-  fs::create_directories(t.path / "models_wide/compact");
-  fs::copy_file(t.path / "wide/autoencoder.safetensors", t.path / "models_wide/compact/autoencoder.safetensors");
-  fs::copy_file(models / "estimator.safetensors", t.path / "models_wide/compact/estimator.safetensors");
-  r = run("capture syn/capture.json -o out --stages all --models models_wide --finetune-steps 1 --steps 1", t.path);
+  const fs::path folder = t.path / ("models_" + preset) / "compact";
+  fs::create_directories(folder);
+  fs::copy_file(file, folder / "autoencoder.safetensors");
+  fs::copy_file(models / "estimator.safetensors", folder / "estimator.safetensors");
+  r = run("capture syn/capture.json -o out_" + preset + " --stages all --models models_" + preset + " " + capture_options, t.path);
   INFO(r.output);
   CHECK(r.status == 0);
-  CHECK(fs::exists(t.path / "out"));
-  r = run("eval-networks --count 1 --size 64 --autoencoder wide/autoencoder.safetensors", t.path);
+  r = run("eval-networks --count 1 --size 64 --autoencoder " + (file).string(), t.path);
   INFO(r.output);
   CHECK(r.status == 0);
-  CHECK(r.output.find("auto-encoder reconstruction") != std::string::npos);
+  CHECK(r.output.find("auto-encoder reconstruction (" + preset + ")") != std::string::npos);
+  return t.path / ("out_" + preset);
+}
+}  // namespace
+
+TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped one, then capture and eval-networks read it from its file") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 4 --seed 3", t.path).status == 0);
+  // The layers whose widths change start afresh; the others come from the compact file.
+  const fs::path out = check_autoencoder_variant(
+      t, "compact-wide", "enc3.weight, enc3.bias, enc4.weight, enc4.bias, latent_norm.weight, latent_norm.bias, dec0.weight, dec0.bias, dec1.weight, "
+      "latent_norm.running_mean, latent_norm.running_var",
+      "--finetune-steps 1 --steps 1");
+  CHECK(fs::exists(out / "diffuse.exr"));
 }
 
 TEST_CASE("compact-fine auto-encoder: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
   temp_dir t;
-  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
   // 80 x 48 texels: 5 x 3 latent cells of 16 (the compact auto-encoder would pad to 96 x 64).
   REQUIRE(run("synthesize -o syn --width 80 --height 48 --images 4 --seed 5", t.path).status == 0);
-  auto r = run("train-autoencoder --preset compact-fine --out fine --steps 1 --size 32 --batch 2 --validate-every 1000 "
-               "--validation-count 1 --init " + (models / "autoencoder.safetensors").string(), t.path);
-  INFO(r.output);
-  REQUIRE(r.status == 0);
   // enc0-enc3, the batch norm and dec0 have the compact file's shapes; dec1-dec3 do not.
-  CHECK(r.output.find("initialised afresh: dec1.weight, dec1.bias, dec2.weight, dec2.bias, dec3.weight, dec3.bias") != std::string::npos);
-  std::string preset;
-  for (const auto& [key, value] : anisocap::nn::read_safetensors(t.path / "fine/autoencoder.safetensors").metadata)
-    if (key == "preset") preset = value;
-  CHECK(preset == "compact-fine");
-  fs::create_directories(t.path / "models_fine/compact");
-  fs::copy_file(t.path / "fine/autoencoder.safetensors", t.path / "models_fine/compact/autoencoder.safetensors");
-  fs::copy_file(models / "estimator.safetensors", t.path / "models_fine/compact/estimator.safetensors");
-  r = run("capture syn/capture.json -o out --stages all --models models_fine --finetune-steps 3 --finetune-crop 2 --steps 1 --no-view",
-          t.path);
-  INFO(r.output);
-  REQUIRE(r.status == 0);
-  const anisocap::material_maps written = anisocap::read_maps(t.path / "out");
+  const fs::path out = check_autoencoder_variant(t, "compact-fine", "dec1.weight, dec1.bias, dec2.weight, dec2.bias, dec3.weight, dec3.bias",
+                                                 "--finetune-steps 3 --finetune-crop 2 --steps 1 --no-view");
+  const anisocap::material_maps written = anisocap::read_maps(out);
   CHECK(written.width() == 80);
   CHECK(written.height() == 48);
-  r = run("eval-networks --count 1 --size 64 --autoencoder fine/autoencoder.safetensors", t.path);
-  INFO(r.output);
-  CHECK(r.status == 0);
-  CHECK(r.output.find("auto-encoder reconstruction (compact-fine)") != std::string::npos);
 }
 
 TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder learns from the shipped estimator's estimates") {

@@ -38,7 +38,7 @@ struct autoencoder_compact_wide {
 /// latent (H/16) x (W/16) x 128, the compact widths without the last level. It holds 24 input values
 /// per latent value (the compact preset 96, compact-wide 48, the paper's 12) with fewer parameters
 /// (0.87 M against 1.4 M): the spatial detail of weaves and printed patterns that a cell of 32 x 32
-/// texels loses (models/README.md, "A finer latent").
+/// texels loses (models/README.md, "Run 25").
 struct autoencoder_compact_fine {
   static constexpr std::array<int, 4> encoder{32, 64, 128, 128};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-fine";              ///< preset name in files
