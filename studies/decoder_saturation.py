@@ -18,8 +18,7 @@ import tempfile
 
 import torch
 
-from train_torch import (Estimator, AutoEncoder, estimator_inputs, load_cpp, network_to_maps, read_chunk,
-                         read_safetensors, render_batch)
+from train_torch import estimator_inputs, load_cpp, make_net, network_to_maps, read_chunk, read_safetensors, render_batch
 
 MAPS = [("a_d", [0, 1, 2]), ("a'_s", [3, 4, 5]), ("n_s", [6, 7]), ("sigma", [8, 9]), ("alpha", [10]), ("F0", [11])]
 
@@ -27,6 +26,14 @@ MAPS = [("a_d", [0, 1, 2]), ("a'_s", [3, 4, 5]), ("n_s", [6, 7]), ("sigma", [8, 
 def summary(u):
     """(mean of 1 - u^2, share of |u| > 0.99) per map of a (B, 12, H, W) tensor."""
     return [((1 - u[:, c] ** 2).mean().item(), (u[:, c].abs() > 0.99).float().mean().item()) for _, c in MAPS]
+
+
+def from_file(network, path):
+    """The PyTorch port of the network in a C++ weight file (its preset from the file), in eval mode."""
+    _, meta, _ = read_safetensors(path)
+    net = make_net(network, meta.get("preset", "compact"))
+    load_cpp(net, path)
+    return net.eval()
 
 
 def row(name, stats):
@@ -48,10 +55,7 @@ def main():
         rec = read_chunk(data)
     truth = torch.from_numpy(rec["maps"].astype("float32")).permute(0, 3, 1, 2)
     conf = torch.from_numpy(rec["conf"].astype("float32"))
-    _, meta, _ = read_safetensors(args.estimator)
-    estimator = Estimator(meta.get("preset", "compact"))
-    load_cpp(estimator, args.estimator)
-    estimator.eval()
+    estimator = from_file("estimator", args.estimator)
     estimates = []
     for b in range(truth.shape[0]):
         photos = render_batch(network_to_maps(truth[b:b + 1]), conf[b:b + 1])[:, 0:5]  # (1, 5, H, W, 3)
@@ -63,10 +67,7 @@ def main():
     print(row("true maps", summary(truth)))
     print(row("estimate", summary(estimate)))
     for path in args.autoencoders:
-        _, meta, _ = read_safetensors(path)
-        ae = AutoEncoder(meta.get("preset", "compact"))
-        load_cpp(ae, path)
-        ae.eval()
+        ae = from_file("autoencoder", path)
         name = os.path.relpath(path)
         print(row(f"D(E(truth)), {name}", summary(ae.decode(ae.encode(truth)))))
         print(row(f"D(E(estimate)), {name}", summary(ae.decode(ae.encode(estimate)))))

@@ -94,9 +94,10 @@ class auto_encoder {
     using network_detail::init_conv;
     [&]<std::size_t... I>(std::index_sequence<I...>) {
       (init_conv(std::get<I>(encoder_), 16 * encoder_in(I), seed), ...);
+    }(std::make_index_sequence<L>{});
+    [&]<std::size_t... I>(std::index_sequence<I...>) {  // all but the last, tanh-activated layer
       (init_conv(std::get<I>(decoder_), 4 * E[L - 1 - I], seed), ...);
     }(std::make_index_sequence<L - 1>{});
-    init_conv(std::get<L - 1>(encoder_), 16 * encoder_in(L - 1), seed);
     auto& last = std::get<L - 1>(decoder_);
     nn::xavier_uniform(last.weight, 4 * E[0], 4 * parameter_count, seed);
     nn::constant_init(last.bias, T(0));
@@ -131,8 +132,7 @@ class auto_encoder {
 
   /// Freezes (or unfreezes) the encoder and its batch norm: no gradients are computed for them.
   void freeze_encoder(bool frozen = true) {
-    auto f = [frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; };
-    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
+    for_each_encoder_parameter([frozen](nn::basic_parameter<T>& p) { p.frozen = frozen; });
   }
 
   /// Freezes (or unfreezes) the decoder: no gradients are computed for its weights, while
@@ -144,13 +144,18 @@ class auto_encoder {
   /// Visits every trainable parameter: the encoder's, the batch norm's, the decoder's.
   template <class F>
   void for_each_parameter(F&& f) {
-    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
+    for_each_encoder_parameter(f);
     for_each_decoder_parameter(f);
   }
   /// Visits the saved, untrained state (the batch norm's running statistics).
   template <class F>
   void for_each_buffer(F&& f) {
     latent_norm.for_each_buffer(f);
+  }
+  /// Visits the encoder's parameters and its batch norm's (what freeze_encoder freezes).
+  template <class F>
+  void for_each_encoder_parameter(F&& f) {
+    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
   }
   /// Visits the decoder's parameters only (what the pipeline fine-tunes).
   template <class F>
