@@ -40,7 +40,8 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
         ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation", "compact-orientation-doubled-angle"}));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
-  cmd->add_option("--size", o.size, std::string("material size in texels (square; multiple of ") + (autoencoder ? "32" : "64") + ")");
+  cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for compact-fine)"
+                                          : "material size in texels (square; multiple of 64)");
   cmd->add_option("--batch", o.batch, "materials per step");
   cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder; on --resume, the run's saved rate, "
                   "and another rate is logged and recorded in checkpoint.json)");

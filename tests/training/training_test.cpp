@@ -107,6 +107,23 @@ TEST_CASE("training: auto-encoder resume is exact too (batch-norm running statis
   fs::remove_all(b);
 }
 
+TEST_CASE("training: the auto-encoder's size is checked against its preset's latent cell") {
+  // Four stride-2 levels: 48 x 48 texels is 3 x 3 cells, and training runs; five levels refuse it.
+  const fs::path a = fresh_folder("networks_ae_cell_four"), b = fresh_folder("networks_ae_cell_five");
+  auto_encoder<testing::autoencoder_tiny_four_levels> four(3);
+  const auto before = all_weights(four);
+  training::train_autoencoder(tiny_options(a, 48), four);
+  CHECK(fs::exists(a / "autoencoder.safetensors"));
+  CHECK(all_weights(four) != before);
+  auto_encoder<testing::autoencoder_tiny> five(3);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(tiny_options(b, 48), five), doctest::Contains("multiple of 32"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(b / "autoencoder.safetensors"));
+  auto_encoder<testing::autoencoder_tiny_four_levels> odd(3);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(tiny_options(b, 40), odd), doctest::Contains("multiple of 16"), std::invalid_argument);
+  fs::remove_all(a);
+  fs::remove_all(b);
+}
+
 TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights, trains the encoder, resumes exactly") {
   const fs::path src = fresh_folder("networks_enc_source"), a = fresh_folder("networks_enc_straight"),
                  b = fresh_folder("networks_enc_resumed");

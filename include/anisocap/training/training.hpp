@@ -820,8 +820,11 @@ void train_autoencoder_on(const train_options& options, auto_encoder<Preset>& ne
   o.inputs_are_estimates = from_estimates;
   if (from_estimates && (o.size <= 0 || o.size % 64 != 0))
     throw std::invalid_argument("train-autoencoder: with estimates as inputs --size must be a positive multiple of 64 (the estimator's)");
-  if (o.size <= 0 || o.size % 32 != 0) throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of 32");
-  if (o.batch < 2 && o.size <= 32) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
+  constexpr int cell = auto_encoder<Preset>::size_multiple;  // texels per latent cell along each side
+  if (o.size <= 0 || o.size % cell != 0)
+    throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of " + std::to_string(cell) +
+                                " (one latent cell of this preset)");
+  if (o.batch < 2 && o.size <= cell) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
   o.validate();  // before the schedule is built from the options
   if (o.encoder_only && o.init_weights.empty() && !o.resume)
     throw std::invalid_argument("train-autoencoder: --trainable encoder trains against the decoder of the weights it starts from: "
