@@ -30,8 +30,9 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   training::train_options& o = s.options;
   if (autoencoder)
     cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent) "
-                   "and compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-wide", "compact-fine"}));
+                   "compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32) and compact-fine-wide (compact-fine with a "
+                   "256-wide latent: the paper's 12 map values per latent value)")
+        ->check(CLI::IsMember({"compact", "paper", "compact-wide", "compact-fine", "compact-fine-wide"}));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
@@ -40,7 +41,7 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
         ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation", "compact-orientation-doubled-angle"}));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
-  cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for compact-fine)"
+  cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for the compact-fine presets)"
                                           : "material size in texels (square; multiple of 64)");
   cmd->add_option("--batch", o.batch, "materials per step");
   cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder; on --resume, the run's saved rate, "
@@ -269,7 +270,7 @@ inline void add_train_commands(CLI::App& app) {
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
     train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>,
-                           auto_encoder<autoencoder_compact_fine>>(
+                           auto_encoder<autoencoder_compact_fine>, auto_encoder<autoencoder_compact_fine_wide>>(
         *ae, [&s = *ae](const training::train_options& o, auto& net) {
           if (s.inputs == "truth") return training::train_autoencoder(o, net);
           with_compact_estimator_preset(s.input_estimator, [&]<class P>() {

@@ -956,6 +956,19 @@ TEST_CASE("compact-fine auto-encoder: a latent cell per 16 texels, trained from 
   CHECK(written.height() == 48);
 }
 
+TEST_CASE("compact-fine-wide auto-encoder: a 256-wide latent per 16 texels, trained from the compact file, in capture") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 48 --height 32 --images 4 --seed 6", t.path).status == 0);
+  // Only enc0-enc2 and dec0's bias have the compact file's shapes.
+  const fs::path out = check_autoencoder_variant(
+      t, "compact-fine-wide", "enc3.weight, enc3.bias, latent_norm.weight, latent_norm.bias, dec0.weight, dec1.weight, dec1.bias, "
+      "dec2.weight, dec2.bias, dec3.weight, dec3.bias, latent_norm.running_mean, latent_norm.running_var",
+      "--finetune-steps 2 --steps 1 --no-view");
+  const anisocap::material_maps written = anisocap::read_maps(out);
+  CHECK(written.width() == 48);
+  CHECK(written.height() == 32);
+}
+
 TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder learns from the shipped estimator's estimates") {
   temp_dir t;
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";

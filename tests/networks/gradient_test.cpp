@@ -200,3 +200,21 @@ TEST_CASE("auto-encoder layers: named enc0... and dec0... in file order, the wid
   fine.for_each_parameter([&](nn::basic_parameter<float>& p) { count += p.size(); });
   CHECK(count == 865'100);  // 0.87 M: 432 736 in the encoder and its batch norm, 432 364 in the decoder
 }
+
+TEST_CASE("auto-encoder layers: compact-fine-wide is compact-fine with a 256-wide latent, the paper's 12 map values per latent value") {
+  using wide = auto_encoder<autoencoder_compact_fine_wide>;
+  CHECK(wide::size_multiple == 16);
+  CHECK(wide::latent_channels == 256);
+  // A cell of 16 x 16 texels holds 16 * 16 * 12 map values in 256 latent values, as the paper's
+  // 32 * 32 * 12 in 1024.
+  CHECK(16 * 16 * parameter_count / wide::latent_channels == 32 * 32 * parameter_count / auto_encoder<autoencoder_paper>::latent_channels);
+  wide net(1);
+  CHECK(net.enc<3>().weight.shape == std::vector<int>{4, 4, 128, 256});
+  CHECK(net.dec<0>().weight.shape == std::vector<int>{4, 4, 256, 128});
+  CHECK(net.dec<3>().weight.shape == std::vector<int>{4, 4, 32, parameter_count});
+  std::size_t count = 0;
+  net.for_each_parameter([&](nn::basic_parameter<float>& p) { count += p.size(); });
+  // compact-fine's 865 100 plus 128 more filters in enc3 (262 272), their batch norm (256) and
+  // dec0's weights for the 128 more latent channels (262 144).
+  CHECK(count == 865'100 + 262'272 + 256 + 262'144);
+}

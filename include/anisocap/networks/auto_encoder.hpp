@@ -3,7 +3,8 @@
 /// The map auto-encoder of the paper (docs/method.md section 7, after Gao 2019), with compile-time
 /// width presets `autoencoder_paper`, `autoencoder_compact` (latent (H/32) x (W/32) x 128; the
 /// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide` and
-/// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128).
+/// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128) and `autoencoder_compact_fine_wide`
+/// (latent (H/16) x (W/16) x 256).
 #include <cstddef>
 #include <string>
 #include <tuple>
@@ -44,11 +45,20 @@ struct autoencoder_compact_fine {
   static constexpr const char* name = "compact-fine";              ///< preset name in files
 };
 
+/// An experimental compact variant with the paper's compression: compact-fine's four levels with
+/// the deepest one 256 wide, latent (H/16) x (W/16) x 256, 12 input values per latent value as the
+/// paper's auto-encoder (1.4 M parameters). studies/widen_latent.py starts it from a compact-fine
+/// file with the same output (models/README.md, "Run 27").
+struct autoencoder_compact_fine_wide {
+  static constexpr std::array<int, 4> encoder{32, 64, 128, 256};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact-fine-wide";         ///< preset name in files
+};
+
 /// The map auto-encoder (docs/method.md section 7, after Gao 2019): L = Preset::encoder.size()
 /// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
-/// presets have L = 5, `compact-fine` 4. encode() and decode() are separate so that the pipeline
+/// presets have L = 5, `compact-fine` and `compact-fine-wide` 4. encode() and decode() are separate so that the pipeline
 /// can fine-tune the decoder with z fixed and the encoder frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {

@@ -5,7 +5,7 @@
 /// A weight file written by the trainer (training/training.hpp) names its preset in the
 /// safetensors metadata ("preset": "compact", "compact-orientation", ...). A folder of compact
 /// weights may hold an estimator of one of the compact variants, which all share the compact
-/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide or compact-fine preset; the
+/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine or compact-fine-wide preset; the
 /// program, the pipeline studies and the GPU training tool dispatch on the file through these.
 #include <filesystem>
 #include <stdexcept>
@@ -46,8 +46,8 @@ decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, 
 }
 
 /// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names:
-/// autoencoder_compact (also for a file without a preset), autoencoder_compact_wide or
-/// autoencoder_compact_fine. Throws
+/// autoencoder_compact (also for a file without a preset), autoencoder_compact_wide,
+/// autoencoder_compact_fine or autoencoder_compact_fine_wide. Throws
 /// std::invalid_argument naming the file for any other preset.
 template <class F>
 decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file, F&& f) {
@@ -55,8 +55,9 @@ decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file
   if (preset.empty() || preset == autoencoder_compact::name) return f.template operator()<autoencoder_compact>();
   if (preset == autoencoder_compact_wide::name) return f.template operator()<autoencoder_compact_wide>();
   if (preset == autoencoder_compact_fine::name) return f.template operator()<autoencoder_compact_fine>();
+  if (preset == autoencoder_compact_fine_wide::name) return f.template operator()<autoencoder_compact_fine_wide>();
   throw std::invalid_argument(file.string() + ": an auto-encoder of preset \"" + preset +
-                              "\", not a compact one (compact, compact-wide, compact-fine)");
+                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide)");
 }
 
 }  // namespace anisocap

@@ -1,0 +1,61 @@
+#!/usr/bin/env python3
+"""studies/widen_latent.py against the C++ library: the compact-fine-wide file it makes from a
+compact-fine one reconstructs the validation materials as the compact-fine file does, read by
+`anisocap eval-networks` (the C++ network); a file of another preset is refused with its name and
+nothing is written. Exits 77 (a skip) without PyTorch.
+
+    check_widen_latent.py ANISOCAP SOURCE_DIR"""
+import os
+import subprocess
+import sys
+import tempfile
+
+try:
+    import torch  # noqa: F401
+except ImportError:
+    print("PyTorch is not installed: skipped")
+    sys.exit(77)
+
+
+def reconstruction(program, weights):
+    """The auto-encoder reconstruction row of eval-networks: (preset, [a_d, ..., F0])."""
+    out = subprocess.run([program, "--threads", "1", "eval-networks", "--count", "2", "--size", "64", "--autoencoder", weights],
+                         capture_output=True, text=True, check=True).stdout
+    for line in out.splitlines():
+        if line.startswith("| auto-encoder reconstruction ("):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            return cells[0].split("(")[1].rstrip(")"), [float(c) for c in cells[1:]]
+    raise SystemExit(f"eval-networks printed no reconstruction row for {weights}:\n{out}")
+
+
+def main():
+    program, source_dir = sys.argv[1], sys.argv[2]
+    script = os.path.join(source_dir, "studies", "widen_latent.py")
+    fine = os.path.join(source_dir, "models", "next", "autoencoder_compact_fine_run39.safetensors")
+    failures = []
+    with tempfile.TemporaryDirectory() as tmp:
+        wide = os.path.join(tmp, "wide.safetensors")
+        subprocess.run([sys.executable, script, fine, wide], check=True)
+        (p_fine, e_fine), (p_wide, e_wide) = reconstruction(program, fine), reconstruction(program, wide)
+        if (p_fine, p_wide) != ("compact-fine", "compact-fine-wide"):
+            failures.append(f"presets {p_fine}, {p_wide}")
+        # eval-networks prints 4 significant digits; the sums over the extra zero-weighted channels
+        # may round differently in the last one.
+        for a, b in zip(e_fine, e_wide):
+            if abs(a - b) > 2e-3 * max(abs(a), 1e-12):
+                failures.append(f"reconstruction errors differ: {e_fine} against {e_wide}")
+                break
+        # The shipped compact auto-encoder is not compact-fine: refused, naming the file, no output.
+        compact = os.path.join(source_dir, "models", "compact", "autoencoder.safetensors")
+        refused = os.path.join(tmp, "refused.safetensors")
+        r = subprocess.run([sys.executable, script, compact, refused], capture_output=True, text=True)
+        if r.returncode == 0 or compact not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
+            failures.append(f"a compact file was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
+    print(f"compact-fine {e_fine}\ncompact-fine-wide {e_wide}")
+    if failures:
+        raise SystemExit("FAILED: " + "; ".join(failures))
+    print("passed")
+
+
+if __name__ == "__main__":
+    main()
