@@ -31,7 +31,7 @@ def reconstruction(program, weights):
 def main():
     program, source_dir = sys.argv[1], sys.argv[2]
     script = os.path.join(source_dir, "studies", "widen_latent.py")
-    fine = os.path.join(source_dir, "models", "next", "autoencoder_compact_fine_run39.safetensors")
+    fine = os.path.join(source_dir, "models", "next", "autoencoder_compact_fine_run41.safetensors")
     failures = []
     with tempfile.TemporaryDirectory() as tmp:
         wide = os.path.join(tmp, "wide.safetensors")
