@@ -944,29 +944,26 @@ TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped 
   CHECK(fs::exists(out / "diffuse.exr"));
 }
 
-TEST_CASE("compact-fine auto-encoder: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
+TEST_CASE("compact-fine and compact-fine-wide auto-encoders: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
   temp_dir t;
   // 80 x 48 texels: 5 x 3 latent cells of 16 (the compact auto-encoder would pad to 96 x 64).
   REQUIRE(run("synthesize -o syn --width 80 --height 48 --images 4 --seed 5", t.path).status == 0);
-  // enc0-enc3, the batch norm and dec0 have the compact file's shapes; dec1-dec3 do not.
-  const fs::path out = check_autoencoder_variant(t, "compact-fine", "dec1.weight, dec1.bias, dec2.weight, dec2.bias, dec3.weight, dec3.bias",
-                                                 "--finetune-steps 3 --finetune-crop 2 --steps 1 --no-view");
-  const anisocap::material_maps written = anisocap::read_maps(out);
-  CHECK(written.width() == 80);
-  CHECK(written.height() == 48);
-}
-
-TEST_CASE("compact-fine-wide auto-encoder: a 256-wide latent per 16 texels, trained from the compact file, in capture") {
-  temp_dir t;
-  REQUIRE(run("synthesize -o syn --width 48 --height 32 --images 4 --seed 6", t.path).status == 0);
-  // Only enc0-enc2 and dec0's bias have the compact file's shapes.
-  const fs::path out = check_autoencoder_variant(
-      t, "compact-fine-wide", "enc3.weight, enc3.bias, latent_norm.weight, latent_norm.bias, dec0.weight, dec1.weight, dec1.bias, "
-      "dec2.weight, dec2.bias, dec3.weight, dec3.bias, latent_norm.running_mean, latent_norm.running_var",
-      "--finetune-steps 2 --steps 1 --no-view");
-  const anisocap::material_maps written = anisocap::read_maps(out);
-  CHECK(written.width() == 48);
-  CHECK(written.height() == 32);
+  struct variant {
+    std::string preset, afresh;
+  };
+  const variant variants[] = {
+      // enc0-enc3, the batch norm and dec0 have the compact file's shapes; dec1-dec3 do not.
+      {"compact-fine", "dec1.weight, dec1.bias, dec2.weight, dec2.bias, dec3.weight, dec3.bias"},
+      // The 256-wide latent: only enc0-enc2 and dec0's bias have the compact file's shapes.
+      {"compact-fine-wide", "enc3.weight, enc3.bias, latent_norm.weight, latent_norm.bias, dec0.weight, dec1.weight, dec1.bias, "
+                            "dec2.weight, dec2.bias, dec3.weight, dec3.bias, latent_norm.running_mean, latent_norm.running_var"}};
+  for (const variant& v : variants) {
+    INFO(v.preset);
+    const fs::path out = check_autoencoder_variant(t, v.preset, v.afresh, "--finetune-steps 3 --finetune-crop 2 --steps 1 --no-view");
+    const anisocap::material_maps written = anisocap::read_maps(out);
+    CHECK(written.width() == 80);
+    CHECK(written.height() == 48);
+  }
 }
 
 TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder learns from the shipped estimator's estimates") {
