@@ -3,8 +3,8 @@
 library loads (models/README.md, "Training on a GPU").
 
 The networks are ports of networks/estimator.hpp (`compact`, `compact-orientation`) and
-networks/auto_encoder.hpp (`compact`, `compact-wide`, `compact-fine`, `compact-fine-wide`), layer for layer and with the C++ weight
-names; `--check` runs a weight file through both and compares the outputs. The losses are those
+networks/auto_encoder.hpp (`compact`, `compact-wide`, `compact-fine`, `compact-fine-wide`), layer
+for layer and with the C++ weight names; `--check` runs a weight file through both and compares the outputs. The losses are those
 of training/training.hpp: the L1 in network space with training::lobe_l1's symmetries, plus
 `--render-weight` times the render loss over the 4 render-loss configurations (renders by
 studies/reference/ward_reference.py, written independently of the C++ renderer), plus the

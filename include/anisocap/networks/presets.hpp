@@ -5,8 +5,9 @@
 /// A weight file written by the trainer (training/training.hpp) names its preset in the
 /// safetensors metadata ("preset": "compact", "compact-orientation", ...). A folder of compact
 /// weights may hold an estimator of one of the compact variants, which all share the compact
-/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine or compact-fine-wide preset; the
-/// program, the pipeline studies and the GPU training tool dispatch on the file through these.
+/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine or
+/// compact-fine-wide preset; the program, the pipeline studies and the GPU training tool dispatch
+/// on the file through these.
 #include <filesystem>
 #include <stdexcept>
 #include <string>
