@@ -4,15 +4,15 @@ library loads (models/README.md, "Training on a GPU").
 
 The networks are ports of networks/estimator.hpp (`compact`, `compact-orientation`) and
 networks/auto_encoder.hpp (`compact`, `compact-wide`, `compact-fine`, `compact-fine-wide`), layer
-for layer and with the C++ weight names; `--check` runs a weight file through both and compares the outputs. The losses are those
-of training/training.hpp: the L1 in network space with training::lobe_l1's symmetries, plus
-`--render-weight` times the render loss over the 4 render-loss configurations (renders by
-studies/reference/ward_reference.py, written independently of the C++ renderer), plus the
-auto-encoder's latent smoothness term. Training materials come from the C++ procedural
-generator: studies/torch_training_data.cpp writes chunks of network-space maps and the
-configurations training::make_sample draws for them, on every CPU core, while the GPU trains;
-the 5 input photographs and the render-loss targets are rendered on the GPU. A material is used
-again (flipped at random) when the GPU outruns the generators.
+for layer and with the C++ weight names; `--check` runs a weight file through both and compares the
+outputs. The losses are those of training/training.hpp: the L1 in network space with
+training::lobe_l1's symmetries, plus `--render-weight` times the render loss over the 4 render-loss
+configurations (renders by studies/reference/ward_reference.py, written independently of the C++
+renderer), plus the auto-encoder's latent smoothness term. Training materials come from the C++
+procedural generator: studies/torch_training_data.cpp writes chunks of network-space maps and the
+configurations training::make_sample draws for them, on every CPU core, while the GPU trains; the 5
+input photographs and the render-loss targets are rendered on the GPU. A material is used again
+(flipped at random) when the GPU outruns the generators.
 
     python3 studies/train_torch.py train --network autoencoder --init W.safetensors --out DIR
         --tool build/anisocap_study_torch_training_data [--minutes 9] [--batch 32] [--lr 4e-4]

@@ -10,8 +10,9 @@ filters start as PyTorch initialises a convolution (the batch norm's new channel
 identity), and dec0 reads the 128 new latent channels with weights of zero. The decoder therefore
 gives the compact-fine decoder's maps at the start, and training grows the new channels from
 there (a function-preserving widening, as Net2Net's). The script checks that on random maps in
-both batch-norm modes (on copies, since training mode moves the running statistics). The file is an `--init` for `train_torch.py train --network autoencoder`
-and `anisocap train-autoencoder --preset compact-fine-wide` (models/README.md, "Run 27")."""
+both batch-norm modes (on copies, since training mode moves the running statistics). The file is
+an `--init` for `train_torch.py train --network autoencoder` and `anisocap train-autoencoder
+--preset compact-fine-wide` (models/README.md, "Run 27")."""
 import argparse
 import copy
 import os
@@ -55,10 +56,8 @@ def main():
             if diff > 1e-12:
                 raise SystemExit(f"the widened network differs from {args.source} by {diff:.1e} (batch-norm training mode {mode})")
     wide.eval()
-    order = [n for n in names if n.startswith("enc") or n.startswith("latent_norm.weight") or n.startswith("latent_norm.bias")]
-    order += [n for n in names if n not in order]
     partial = args.target + ".partial"
-    save_cpp(wide.float(), partial, order,
+    save_cpp(wide.float(), partial, names,  # the two presets' tensors have the same names
              {"network": "autoencoder", "preset": "compact-fine-wide",
               "started_from": f"{args.source} (studies/widen_latent.py --seed {args.seed})"})
     os.replace(partial, args.target)
