@@ -108,6 +108,11 @@ int run(const study_options& o) {
                    " blocks of the 12 network-space channels (" + std::to_string(d) + " values), fitted on " + std::to_string(o.fit) +
                    " training materials (training mix); MSE in the original ranges (compare_maps)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
+  std::vector<std::pair<std::string, std::vector<family_errors>>> by_family;  // each row's per-family means
+  const auto add = [&](const std::string& name, const std::vector<material_errors>& all) {
+    md += row(name, average_errors(all).mean);
+    by_family.emplace_back(name, errors_by_family(all));
+  };
   if (!o.estimator.empty())
     with_compact_estimator_preset(o.estimator, [&]<class P>() {
       estimation_network<P> net;
@@ -115,7 +120,7 @@ int run(const study_options& o) {
       std::vector<material_errors> all;
       for (std::size_t i = 0; i < samples.size(); ++i)
         all.push_back({kinds[i], compare_maps(network_space::network_to_maps(training::estimator_output(net, samples[i]), 0), samples[i].truth)});
-      md += row("estimator (" + std::string(P::name) + ")", average_errors(all).mean);
+      add("estimator (" + std::string(P::name) + ")", all);
     });
   if (!o.autoencoder.empty())
     with_compact_autoencoder_preset(o.autoencoder, [&]<class A>() {
@@ -124,7 +129,7 @@ int run(const study_options& o) {
       std::vector<material_errors> all;
       for (std::size_t i = 0; i < samples.size(); ++i)
         all.push_back({kinds[i], compare_maps(network_space::network_to_maps(training::autoencoder_output(net, samples[i]), 0), samples[i].truth)});
-      md += row("auto-encoder reconstruction (" + std::string(A::name) + ")", average_errors(all).mean);
+      add("auto-encoder reconstruction (" + std::string(A::name) + ")", all);
     });
   const double total = variance.sum();
   for (int k : o.keep) {
@@ -141,8 +146,13 @@ int run(const study_options& o) {
     char name[160];
     std::snprintf(name, sizeof name, "linear code, %d per %d x %d block (%.3g map values per value; %.2f%% of the variance left)", k,
                   o.block, o.block, double(d) / k, 100.0 * (total - variance.head(k).sum()) / total);
-    md += row(name, average_errors(all).mean);
+    add(name, all);
   }
+  md += "\nPer family\n\n| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n";
+  for (std::size_t f = 0; f < by_family.front().second.size(); ++f)
+    for (const auto& [name, rows] : by_family)
+      md += row(std::string(material_kind_name(rows[f].kind)) + " | " + std::to_string(rows[f].count) + " | " + name, rows[f].mean);
   std::printf("%s", md.c_str());
   if (!o.markdown.empty()) {
     const std::string partial = o.markdown + ".partial";

@@ -322,6 +322,23 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
     else CHECK(diff == 0);
   }
   CHECK(width_channels_moved > int(texels));
+  // The other maps' squared error: 0 for the truth, reported unweighted, and its weight adds
+  // w.mse x terms.mse to the total and changes every channel's gradient but the lobe widths' and
+  // the rotation's.
+  CHECK(exact.mse < 1e-10);
+  CHECK(l.mse > 0);
+  tensor<parameter_count> grad_mse(1, 32, 32);
+  const auto l_mse = training::map_losses(off, s, &grad_mse, {.mse = 3.0});
+  CHECK(l_mse.mse == doctest::Approx(l.mse));
+  CHECK(l_mse.total == doctest::Approx(l.l1 + 3 * l.mse + l.render));
+  int mse_channels_moved = 0;
+  for (std::size_t i = 0; i < grad.size(); ++i) {
+    const int k = int(i % parameter_count);
+    const double diff = double(grad_mse.data()[i]) - grad.data()[i];
+    if (k == lobe_x || k == lobe_y || k == rotation) CHECK(diff == 0);
+    else mse_channels_moved += diff != 0;
+  }
+  CHECK(mse_channels_moved > 8 * int(texels));
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
@@ -363,6 +380,43 @@ TEST_CASE("training: the lobe widths' squared error is compare_maps' sigma error
     CHECK(std::abs(fd) > 1e-4);
   }
   CHECK(g[rotation] == 0);
+}
+
+TEST_CASE("training: the maps' squared error is compare_maps' a_d, a'_s, F0 and normal x, y errors, and its gradient matches finite differences") {
+  const auto truth = training::make_sample(training::validation_seed(1), 16, false).truth;
+  material_maps estimate = truth;
+  nn::random_generator rng(5);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < truth.texel_count(); ++i) estimate.plane(k)[i] += float(0.05 * rng.normal());
+  // compare_maps' normal error less its z term, from the same maps.
+  double z = 0;
+  for (std::size_t i = 0; i < truth.texel_count(); ++i) {
+    auto nz = [&](const material_maps& m) { return std::sqrt(std::max(0.0, 1.0 - std::pow(m.plane(normal_x)[i], 2) - std::pow(m.plane(normal_y)[i], 2))); };
+    z += std::pow(nz(estimate) - nz(truth), 2);
+  }
+  const parameter_errors e = compare_maps(estimate, truth);
+  const double expected = e.diffuse + e.specular + e.fresnel + e.normal - z / (3 * double(truth.texel_count()));
+  CHECK(training::map_squared_error(estimate, truth, nullptr, 1) == doctest::Approx(expected).epsilon(1e-6));
+  CHECK(training::map_squared_error(truth, truth, nullptr, 1) == 0);
+  // Gradient against central differences, on every plane it covers; zero on the lobes and the rotation.
+  material_maps g(16, 16);
+  training::map_squared_error(estimate, truth, &g, 2.0);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i : {std::size_t(0), std::size_t(37), std::size_t(255)}) {
+      const float h = 1e-3f, keep = estimate.plane(k)[i];
+      estimate.plane(k)[i] = keep + h;
+      const double plus = training::map_squared_error(estimate, truth, nullptr, 1);
+      estimate.plane(k)[i] = keep - h;
+      const double minus = training::map_squared_error(estimate, truth, nullptr, 1);
+      estimate.plane(k)[i] = keep;
+      const double fd = 2.0 * (plus - minus) / (2 * h);
+      if (k == lobe_x || k == lobe_y || k == rotation) {
+        CHECK(g.plane(k)[i] == 0);
+      } else {
+        CHECK(g.plane(k)[i] == doctest::Approx(fd).epsilon(2e-2).scale(1e-7));
+        CHECK(std::abs(fd) > 1e-7);
+      }
+    }
 }
 
 TEST_CASE("training: the lobe L1 respects the lobe's symmetries and its gradient matches finite differences") {
@@ -585,6 +639,9 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch or
   o = resume();
   o.sigma_weight = 2;
   refused([&] { training::train_autoencoder(o, net); }, "trained with sigma_weight 0, not 2; resume it with --sigma-weight 0");
+  o = resume();
+  o.mse_weight = 4;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with mse_weight 0, not 4; resume it with --mse-weight 0");
   o = resume();
   o.lobe_weight = 3;
   refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with --lobe-weight 1");

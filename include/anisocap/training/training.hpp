@@ -101,6 +101,7 @@ struct loss_terms {
   double l1 = 0;          ///< mean |u - u_true| in network space (unweighted)
   double lobe = 0;        ///< the lobe widths' and rotation's part of l1 (lobe_l1's, unweighted)
   double sigma = 0;       ///< mean squared error of the lobe widths in the original range (lobe_width_squared_error; unweighted)
+  double mse = 0;         ///< squared error of a_d, a'_s, F0 and the normal's x, y in the original ranges (map_squared_error; unweighted)
   double render = 0;      ///< render loss (sum over the 4 configurations of the mean log-image difference)
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
@@ -156,11 +157,38 @@ inline double lobe_width_squared_error(const float* p, const float* q, int form,
   return (sx - tx) * (sx - tx) + (sy - ty) * (sy - ty);
 }
 
+/// The squared error of a_d, a'_s, F0 and the shading normal's x and y in the original ranges,
+/// each map's mean as compare_maps takes it: compare_maps' diffuse + specular + fresnel errors plus
+/// its normal error without the z component's term (what evaluations measure of these maps, the
+/// lobe widths having lobe_width_squared_error and the rotation lobe_l1). When g is given (the
+/// maps' size), adds `scale` times the gradient with respect to `estimate` into g.
+inline double map_squared_error(const material_maps& estimate, const material_maps& truth, material_maps* g, double scale) {
+  const std::size_t n = truth.texel_count();
+  // Each plane's weight in the sum: 1 / (3n) for the RGB albedos and the normal (compare_maps
+  // averages over 3 components), 1 / n for F0.
+  static constexpr int planes[] = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, normal_x, normal_y, fresnel_f0};
+  double total = 0;
+  for (int k : planes) {
+    const double weight = (k == fresnel_f0 ? 1.0 : 1.0 / 3) / double(n);
+    const float *e = estimate.plane(k), *t = truth.plane(k);
+    float* gk = g ? g->plane(k) : nullptr;
+    double sum = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double d = double(e[i]) - t[i];
+      sum += d * d;
+      if (gk) gk[i] += float(scale * weight * 2 * d);
+    }
+    total += weight * sum;
+  }
+  return total;
+}
+
 /// The weights of map_losses' terms in the training loss (train_options::loss()).
 struct loss_weights {
   double render = 1.0;  ///< the render loss, against the L1 term (docs/method.md section 5: 1)
   double lobe = 1.0;    ///< the lobe widths' and rotation's L1 (lobe_l1) against the other channels'
   double sigma = 0.0;   ///< the lobe widths' squared error in the original range (lobe_width_squared_error)
+  double mse = 0.0;     ///< the other maps' squared error in the original ranges (map_squared_error)
 };
 
 /// L1 in network space plus `w.render` times the render loss (docs/method.md section 5: equal
@@ -168,9 +196,10 @@ struct loss_weights {
 /// d(loss)/du (the loss is the batch mean). The L1 of the lobe widths and the rotation is
 /// lobe_l1's, which respects the lobe's symmetries, weighted by `w.lobe` in the total and the
 /// gradient; the other channels take |u - u_true|. With w.sigma > 0 the total adds w.sigma times
-/// the mean over texels and the two widths of lobe_width_squared_error (terms.sigma). terms.l1,
-/// terms.lobe, terms.sigma and terms.render are unweighted; terms.total = l1 + (w.lobe - 1) lobe +
-/// w.sigma sigma + w.render render.
+/// the mean over texels and the two widths of lobe_width_squared_error (terms.sigma), with w.mse > 0
+/// w.mse times map_squared_error (terms.mse). terms.l1, terms.lobe, terms.sigma, terms.mse and
+/// terms.render are unweighted; terms.total = l1 + (w.lobe - 1) lobe + w.sigma sigma + w.mse mse +
+/// w.render render.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
                              tensor<parameter_count>* grad, const loss_weights& w = {}) {
   loss_terms terms;
@@ -207,8 +236,13 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     const double r = loss_and_gradient(maps, s.loss_configurations, s.targets, grad ? &grad_maps : nullptr);
     terms.render += r / B;
     if (grad) network_space::add_network_gradient(u, b, grad_maps, w.render / B, *grad);
+    const bool mse_gradient = grad && w.mse > 0;
+    material_maps grad_mse;
+    if (mse_gradient) grad_mse = material_maps(maps.width(), maps.height());
+    terms.mse += map_squared_error(maps, s.truth, mse_gradient ? &grad_mse : nullptr, 1.0) / B;
+    if (mse_gradient) network_space::add_network_gradient(u, b, grad_mse, w.mse / B, *grad);
   }
-  terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + w.sigma * terms.sigma + w.render * terms.render;
+  terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + w.sigma * terms.sigma + w.mse * terms.mse + w.render * terms.render;
   return terms;
 }
 
@@ -236,6 +270,10 @@ struct train_options {
   /// Weight of the lobe widths' squared error in the original range (lobe_width_squared_error) in
   /// the training loss (map_losses; `--sigma-weight`, default 0: none); validation losses use 0.
   double sigma_weight = 0.0;
+  /// Weight of the other maps' squared error in the original ranges (map_squared_error: a_d, a'_s,
+  /// F0, the normal) in the training loss (map_losses; `--mse-weight`, default 0: none); validation
+  /// losses use 0.
+  double mse_weight = 0.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   /// Auto-encoder: train the encoder (and its batch norm) only, against the decoder of the weights
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
@@ -285,6 +323,8 @@ struct train_options {
       throw std::invalid_argument("the lobe L1 weight (--lobe-weight) must be finite and positive");
     if (!(sigma_weight >= 0) || !std::isfinite(sigma_weight))
       throw std::invalid_argument("the lobe-width squared-error weight (--sigma-weight) must be finite and not negative");
+    if (!(mse_weight >= 0) || !std::isfinite(mse_weight))
+      throw std::invalid_argument("the maps' squared-error weight (--mse-weight) must be finite and not negative");
     if (lr_decay_to != 0 || lr_decay_from != 0) {
       if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
         throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
@@ -303,7 +343,7 @@ struct train_options {
   }
 
   /// The training loss's weights (map_losses).
-  loss_weights loss() const { return {render_weight, lobe_weight, sigma_weight}; }
+  loss_weights loss() const { return {render_weight, lobe_weight, sigma_weight, mse_weight}; }
 
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
   static train_options autoencoder() {
@@ -531,7 +571,7 @@ inline std::string setting_text(const json& value) {
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
 /// noise: such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight" (1), "lobe_weight" (1), "sigma_weight" (0), "emphasis" ("": none),
+/// original mix), "render_weight" (1), "lobe_weight" (1), "sigma_weight" and "mse_weight" (0), "emphasis" ("": none),
 /// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise" and "read_noise" (0);
 /// other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
@@ -541,7 +581,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
   static const std::pair<const char*, const char*> options[] = {
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
-      {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"},
+      {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"},
       {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}};
   // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
@@ -549,7 +589,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
     if (description.contains(std::string(key))) return description.at(std::string(key));
     if (key == "materials") return json("original");
     if (key == "render_weight" || key == "lobe_weight") return json(1.0);
-    if (key == "sigma_weight") return json(0.0);
+    if (key == "sigma_weight" || key == "mse_weight") return json(0.0);
     if (key == "emphasis") return json("");
     if (key == "emphasis_share" || key == "shot_noise" || key == "read_noise") return json(0.0);
     if (key == "trainable") return json("all");
@@ -597,6 +637,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["render_weight"] = o.render_weight;
   info["lobe_weight"] = o.lobe_weight;
   info["sigma_weight"] = o.sigma_weight;
+  info["mse_weight"] = o.mse_weight;
   std::string emphasis;
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
