@@ -109,7 +109,11 @@ int run(const study_options& o) {
                    " training materials (training mix); MSE in the original ranges (compare_maps)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
   std::vector<std::pair<std::string, std::vector<family_errors>>> by_family;  // each row's per-family means
-  const auto add = [&](const std::string& name, const std::vector<material_errors>& all) {
+  // One row: the mean errors of output(sample) (network space) over the validation materials.
+  const auto measure = [&](const std::string& name, auto output) {
+    std::vector<material_errors> all;
+    for (std::size_t i = 0; i < samples.size(); ++i)
+      all.push_back({kinds[i], compare_maps(network_space::network_to_maps(output(samples[i]), 0), samples[i].truth)});
     md += row(name, average_errors(all).mean);
     by_family.emplace_back(name, errors_by_family(all));
   };
@@ -117,36 +121,29 @@ int run(const study_options& o) {
     with_compact_estimator_preset(o.estimator, [&]<class P>() {
       estimation_network<P> net;
       nn::load_weights(o.estimator, net);
-      std::vector<material_errors> all;
-      for (std::size_t i = 0; i < samples.size(); ++i)
-        all.push_back({kinds[i], compare_maps(network_space::network_to_maps(training::estimator_output(net, samples[i]), 0), samples[i].truth)});
-      add("estimator (" + std::string(P::name) + ")", all);
+      measure("estimator (" + std::string(P::name) + ")", [&](const training::sample& s) { return training::estimator_output(net, s); });
     });
   if (!o.autoencoder.empty())
     with_compact_autoencoder_preset(o.autoencoder, [&]<class A>() {
       auto_encoder<A> net;
       nn::load_weights(o.autoencoder, net);
-      std::vector<material_errors> all;
-      for (std::size_t i = 0; i < samples.size(); ++i)
-        all.push_back({kinds[i], compare_maps(network_space::network_to_maps(training::autoencoder_output(net, samples[i]), 0), samples[i].truth)});
-      add("auto-encoder reconstruction (" + std::string(A::name) + ")", all);
+      measure("auto-encoder reconstruction (" + std::string(A::name) + ")",
+              [&](const training::sample& s) { return training::autoencoder_output(net, s); });
     });
   const double total = variance.sum();
   for (int k : o.keep) {
     const Eigen::MatrixXd p = basis.leftCols(k);
-    std::vector<material_errors> all;
-    for (std::size_t i = 0; i < samples.size(); ++i) {
-      for (int b = 0; b < blocks; ++b) gather(samples[i].truth_net, o.size, o.block, b, x.col(b).data());
+    char name[160];
+    std::snprintf(name, sizeof name, "linear code, %d per %d x %d block (%.3g map values per value; %.2f%% of the variance left)", k,
+                  o.block, o.block, double(d) / k, 100.0 * (total - variance.head(k).sum()) / total);
+    measure(name, [&](const training::sample& s) {
+      for (int b = 0; b < blocks; ++b) gather(s.truth_net, o.size, o.block, b, x.col(b).data());
       const Eigen::MatrixXd centred = x.colwise() - mean;
       const Eigen::MatrixXd r = (p * (p.transpose() * centred)).colwise() + mean;
       tensor<parameter_count> t(1, o.size, o.size);
       for (int b = 0; b < blocks; ++b) scatter(t, o.size, o.block, b, r.col(b).data());
-      all.push_back({kinds[i], compare_maps(network_space::network_to_maps(t, 0), samples[i].truth)});
-    }
-    char name[160];
-    std::snprintf(name, sizeof name, "linear code, %d per %d x %d block (%.3g map values per value; %.2f%% of the variance left)", k,
-                  o.block, o.block, double(d) / k, 100.0 * (total - variance.head(k).sum()) / total);
-    add(name, all);
+      return t;
+    });
   }
   md += "\nPer family\n\n| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n"
         "|---|---|---|---|---|---|---|---|---|---|\n";

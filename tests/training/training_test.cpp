@@ -306,39 +306,35 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
       }
     }
   CHECK(lobe_channels_moved > int(texels));
-  // The lobe widths' squared error: 0 for the truth, reported unweighted, and its weight adds
-  // w.sigma x terms.sigma to the total and changes the lobe width channels' gradient only.
-  CHECK(exact.sigma < 1e-10);
-  CHECK(l.sigma > 0);
-  tensor<parameter_count> grad_sigma(1, 32, 32);
-  const auto l_sigma = training::map_losses(off, s, &grad_sigma, {.sigma = 4.0});
-  CHECK(l_sigma.sigma == doctest::Approx(l.sigma));
-  CHECK(l_sigma.total == doctest::Approx(l.l1 + 4 * l.sigma + l.render));
-  int width_channels_moved = 0;
-  for (std::size_t i = 0; i < grad.size(); ++i) {
-    const int k = int(i % parameter_count);
-    const double diff = double(grad_sigma.data()[i]) - grad.data()[i];
-    if (k == lobe_x || k == lobe_y) width_channels_moved += diff != 0;
-    else CHECK(diff == 0);
+  // The squared-error terms: 0 for the truth and reported unweighted; a weight adds weight x term
+  // to the total and changes its own channels' gradient only (sigma: the lobe widths; mse: every
+  // channel but the lobe widths and the rotation).
+  struct squared_term {
+    training::loss_weights weights;
+    double weight;
+    double training::loss_terms::*term;
+    bool (*moves)(int channel);
+    int channels;
+  };
+  const squared_term squared_terms[] = {
+      {{.sigma = 4.0}, 4.0, &training::loss_terms::sigma, [](int k) { return k == lobe_x || k == lobe_y; }, 2},
+      {{.mse = 3.0}, 3.0, &training::loss_terms::mse, [](int k) { return k != lobe_x && k != lobe_y && k != rotation; }, 9}};
+  for (const auto& t : squared_terms) {
+    CHECK(exact.*t.term < 1e-10);
+    CHECK(l.*t.term > 0);
+    tensor<parameter_count> grad_w(1, 32, 32);
+    const auto lw = training::map_losses(off, s, &grad_w, t.weights);
+    CHECK(lw.*t.term == doctest::Approx(l.*t.term));
+    CHECK(lw.total == doctest::Approx(l.l1 + t.weight * l.*t.term + l.render));
+    int moved = 0;
+    for (std::size_t i = 0; i < grad.size(); ++i) {
+      const int k = int(i % parameter_count);
+      const double diff = double(grad_w.data()[i]) - grad.data()[i];
+      if (t.moves(k)) moved += diff != 0;
+      else CHECK(diff == 0);
+    }
+    CHECK(moved > (t.channels - 1) * int(texels));
   }
-  CHECK(width_channels_moved > int(texels));
-  // The other maps' squared error: 0 for the truth, reported unweighted, and its weight adds
-  // w.mse x terms.mse to the total and changes every channel's gradient but the lobe widths' and
-  // the rotation's.
-  CHECK(exact.mse < 1e-10);
-  CHECK(l.mse > 0);
-  tensor<parameter_count> grad_mse(1, 32, 32);
-  const auto l_mse = training::map_losses(off, s, &grad_mse, {.mse = 3.0});
-  CHECK(l_mse.mse == doctest::Approx(l.mse));
-  CHECK(l_mse.total == doctest::Approx(l.l1 + 3 * l.mse + l.render));
-  int mse_channels_moved = 0;
-  for (std::size_t i = 0; i < grad.size(); ++i) {
-    const int k = int(i % parameter_count);
-    const double diff = double(grad_mse.data()[i]) - grad.data()[i];
-    if (k == lobe_x || k == lobe_y || k == rotation) CHECK(diff == 0);
-    else mse_channels_moved += diff != 0;
-  }
-  CHECK(mse_channels_moved > 8 * int(texels));
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
