@@ -19,7 +19,6 @@
 
 #include <Eigen/Dense>
 #include <cstdio>
-#include <fstream>
 #include <string>
 #include <vector>
 
@@ -151,14 +150,7 @@ int run(const study_options& o) {
     for (const auto& [name, rows] : by_family)
       md += row(std::string(material_kind_name(rows[f].kind)) + " | " + std::to_string(rows[f].count) + " | " + name, rows[f].mean);
   std::printf("%s", md.c_str());
-  if (!o.markdown.empty()) {
-    const std::string partial = o.markdown + ".partial";
-    std::ofstream out(partial);
-    out << md;
-    out.close();
-    if (!out) throw std::runtime_error(o.markdown + ": cannot write");
-    std::filesystem::rename(partial, o.markdown);
-  }
+  if (!o.markdown.empty()) write_file_atomically(o.markdown, md);
   return 0;
 }
 
