@@ -3,10 +3,12 @@
 // (models/README.md, "Training on a GPU").
 //
 //   anisocap_study_torch_training_data materials --out FILE --seed S --first K --count N
-//       [--size 128] [--materials training] [--emphasis brushed,spun --emphasis-share P] [--validation]
+//       [--size 128] [--materials training] [--emphasis brushed,spun --emphasis-share P] [--validation | --evaluation]
 //     N procedural materials drawn as training::make_batch draws them: material m is
 //     training_seed(S, K + m, 0) (with --validation: validation_seed(K + m)) and its kind follows
-//     training::material_options_for_seed. Per material the file holds its maps in network space
+//     training::material_options_for_seed (with --evaluation: validation_seed(K + m) and the kind
+//     eval-networks gives its m-th material, evaluation_kind, so --materials original --first 0
+//     writes eval-networks' materials). Per material the file holds its maps in network space
 //     (size x size x 12, float16) and the 9 configurations make_sample renders (5 training inputs,
 //     training_set; 4 render-loss images, render_loss_set), each camera, light and intensity as 9
 //     floats. With --reference it also writes, for each material, the C++ renders of those 9
@@ -101,7 +103,8 @@ int materials(int argc, char** argv) {
   }
   o.emphasis_share = std::stod(option(argc, argv, "--emphasis-share", "0.5"));
   o.validate();
-  const bool validation = flag(argc, argv, "--validation"), reference = flag(argc, argv, "--reference");
+  const bool evaluation = flag(argc, argv, "--evaluation");
+  const bool validation = evaluation || flag(argc, argv, "--validation"), reference = flag(argc, argv, "--reference");
   const int S = o.size;
   const std::size_t map_values = std::size_t(S) * S * parameter_count;
   struct record {
@@ -114,7 +117,12 @@ int materials(int argc, char** argv) {
 #pragma omp parallel for schedule(dynamic)
   for (int m = 0; m < count; ++m) {
     const std::uint64_t seed = validation ? training::validation_seed(int(first + m)) : training::training_seed(o.seed, first + m, 0);
-    const procedural_options options = training::material_options_for_seed(o, seed);
+    procedural_options options = training::material_options_for_seed(o, seed);
+    if (evaluation) {
+      options = procedural_options{};
+      options.mix = o.mix;
+      options.kind = evaluation_kind(int(first + m), seed, {}, o.mix);
+    }
     const material_maps truth = generate_material(seed, S, S, options);
     tensor<parameter_count> net(1, S, S);
     network_space::maps_to_network(truth, net, 0);
