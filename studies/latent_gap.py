@@ -69,6 +69,8 @@ def row(name, e):
 def study(path, truth, args, log):
     _, meta, _ = tt.read_safetensors(path)
     preset = meta.get("preset", "compact")
+    if meta.get("network", "autoencoder") != "autoencoder" or preset not in tt.AUTOENCODER_PRESETS:
+        raise SystemExit(f"latent_gap: {path}: not a compact auto-encoder file (preset {preset})")
     net = tt.make_net("autoencoder", preset)
     tt.load_cpp(net, path)
     net.eval()
@@ -119,6 +121,8 @@ def main():
     for p in args.autoencoder:
         if not os.path.isfile(p):
             raise SystemExit(f"latent_gap: {p}: no such file")
+    if not (os.path.isfile(args.tool) and os.access(args.tool, os.X_OK)):
+        raise SystemExit(f"latent_gap: {args.tool}: not an executable (build anisocap_study_torch_training_data)")
     if args.count < 1 or args.size < 32 or args.size % 32 or args.steps < 0 or args.lr <= 0 or args.batch < 1:
         raise SystemExit("latent_gap: --count >= 1, --size a positive multiple of 32, --steps >= 0, --lr > 0, --batch >= 1")
     torch.set_num_threads(args.threads)
