@@ -81,8 +81,10 @@ def study(path, truth, args, log):
         z0 = torch.cat([net.encode(truth[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
         d0 = torch.cat([net.decode(z0[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
     lines = [row(f"{label} ({preset}): D(E(x))", errors(d0, truth))]
+    rms = z0.pow(2).mean().sqrt().item()
+    lr = args.lr_relative * rms if args.lr_relative else args.lr
     z = z0.clone().requires_grad_(True)
-    opt = torch.optim.Adam([z], lr=args.lr)
+    opt = torch.optim.Adam([z], lr=lr)
     start = time.time()
     for step in range(1, args.steps + 1):
         opt.zero_grad()
@@ -100,7 +102,8 @@ def study(path, truth, args, log):
     with torch.no_grad():
         d1 = torch.cat([net.decode(z[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
         moved = ((z - z0).norm() / z0.norm()).item()
-    lines.append(row(f"{label}: D(z*), {args.steps} latent steps (latent moved {100 * moved:.0f}% of its norm)", errors(d1, truth)))
+    lines.append(row(f"{label}: D(z*), {args.steps} latent steps at {lr:.3g} (latent RMS {rms:.3g}, moved {100 * moved:.0f}% of its norm)",
+                     errors(d1, truth)))
     return lines
 
 
@@ -111,7 +114,10 @@ def main():
     ap.add_argument("--count", type=int, default=30, help="validation materials (eval-networks' --count)")
     ap.add_argument("--size", type=int, default=256, help="material side, texels (a multiple of 32)")
     ap.add_argument("--steps", type=int, default=200, help="Adam steps on the latent")
-    ap.add_argument("--lr", type=float, default=0.05, help="Adam's learning rate on the latent")
+    ap.add_argument("--lr", type=float, default=0.03, help="Adam's learning rate on the latent, in the latent's units")
+    ap.add_argument("--lr-relative", type=float, default=0.0,
+                    help="instead of --lr: this fraction of the latent's RMS over the materials (the shipped compact "
+                         "auto-encoder's latent RMS is about a tenth of the compact-fine-wide one's)")
     ap.add_argument("--batch", type=int, default=5, help="materials per forward pass (memory only)")
     ap.add_argument("--sigma-weight", type=float, default=5.0, help="the objective's lobe-width squared-error weight")
     ap.add_argument("--mse-weight", type=float, default=10.0, help="the objective's a_d, a'_s, F0, normal squared-error weight")
@@ -123,13 +129,13 @@ def main():
             raise SystemExit(f"latent_gap: {p}: no such file")
     if not (os.path.isfile(args.tool) and os.access(args.tool, os.X_OK)):
         raise SystemExit(f"latent_gap: {args.tool}: not an executable (build anisocap_study_torch_training_data)")
-    if args.count < 1 or args.size < 32 or args.size % 32 or args.steps < 0 or args.lr <= 0 or args.batch < 1:
-        raise SystemExit("latent_gap: --count >= 1, --size a positive multiple of 32, --steps >= 0, --lr > 0, --batch >= 1")
+    if args.count < 1 or args.size < 32 or args.size % 32 or args.steps < 0 or args.lr <= 0 or args.lr_relative < 0 or args.batch < 1:
+        raise SystemExit("latent_gap: --count >= 1, --size a positive multiple of 32, --steps >= 0, --lr > 0, --lr-relative >= 0, --batch >= 1")
     torch.set_num_threads(args.threads)
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     truth = materials(args.tool, args.count, args.size)
     md = (f"Validation materials: {args.count} (eval-networks' seeds and kinds, original mix), {args.size} x {args.size}, maps "
-          f"through float16; latent optimised by Adam at {args.lr} on L1 + {args.sigma_weight} x sigma SE + {args.mse_weight} x "
+          f"through float16; latent optimised by Adam on L1 + {args.sigma_weight} x sigma SE + {args.mse_weight} x "
           f"(a_d, a'_s, F0, normal) SE; MSE in the original ranges (compare_maps)\n\n"
           "| reconstruction | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n")
     for p in args.autoencoder:
