@@ -62,6 +62,11 @@ def errors(u, truth):
     return out
 
 
+def in_batches(f, t, batch):
+    """f over t's materials, `batch` at a time, concatenated (memory only: the networks run in inference mode)."""
+    return torch.cat([f(t[i:i + batch]) for i in range(0, t.shape[0], batch)])
+
+
 def row(name, e):
     return "| " + name + " | " + " | ".join(f"{e[k]:.4g}" for k in ORDER) + " |\n"
 
@@ -78,8 +83,8 @@ def study(path, truth, args, log):
         p.requires_grad_(False)
     label = os.path.basename(path)
     with torch.no_grad():
-        z0 = torch.cat([net.encode(truth[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
-        d0 = torch.cat([net.decode(z0[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
+        z0 = in_batches(net.encode, truth, args.batch)
+        d0 = in_batches(net.decode, z0, args.batch)
     lines = [row(f"{label} ({preset}): D(E(x))", errors(d0, truth))]
     rms = z0.pow(2).mean().sqrt().item()
     lr = args.lr_relative * rms if args.lr_relative else args.lr
@@ -100,7 +105,7 @@ def study(path, truth, args, log):
         if step % max(1, args.steps // 10) == 0 or step == 1:
             log(f"{label}: latent step {step}/{args.steps}  objective {total:.5f}  {time.time() - start:.0f} s")
     with torch.no_grad():
-        d1 = torch.cat([net.decode(z[i:i + args.batch]) for i in range(0, truth.shape[0], args.batch)])
+        d1 = in_batches(net.decode, z, args.batch)
         moved = ((z - z0).norm() / z0.norm()).item()
     lines.append(row(f"{label}: D(z*), {args.steps} latent steps at {lr:.3g} (latent RMS {rms:.3g}, moved {100 * moved:.0f}% of its norm)",
                      errors(d1, truth)))

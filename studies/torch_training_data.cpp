@@ -117,11 +117,12 @@ int materials(int argc, char** argv) {
 #pragma omp parallel for schedule(dynamic)
   for (int m = 0; m < count; ++m) {
     const std::uint64_t seed = validation ? training::validation_seed(int(first + m)) : training::training_seed(o.seed, first + m, 0);
-    procedural_options options = training::material_options_for_seed(o, seed);
+    procedural_options options;
     if (evaluation) {
-      options = procedural_options{};
       options.mix = o.mix;
       options.kind = evaluation_kind(int(first + m), seed, {}, o.mix);
+    } else {
+      options = training::material_options_for_seed(o, seed);
     }
     const material_maps truth = generate_material(seed, S, S, options);
     tensor<parameter_count> net(1, S, S);
