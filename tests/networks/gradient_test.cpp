@@ -218,3 +218,22 @@ TEST_CASE("auto-encoder layers: compact-fine-wide is compact-fine with a 256-wid
   // dec0's weights for the 128 more latent channels (262 144).
   CHECK(count == 865'100 + 262'272 + 256 + 262'144);
 }
+
+TEST_CASE("auto-encoder layers: compact-fine-wider is compact-fine-wide with the levels above the latent twice as wide") {
+  using wider = auto_encoder<autoencoder_compact_fine_wider>;
+  CHECK(wider::size_multiple == 16);
+  CHECK(wider::latent_channels == auto_encoder<autoencoder_compact_fine_wide>::latent_channels);
+  wider net(1);
+  CHECK(net.enc<0>().weight.shape == std::vector<int>{4, 4, parameter_count, 64});
+  CHECK(net.enc<3>().weight.shape == std::vector<int>{4, 4, 256, 256});
+  CHECK(net.dec<0>().weight.shape == std::vector<int>{4, 4, 256, 256});
+  CHECK(net.dec<3>().weight.shape == std::vector<int>{4, 4, 64, parameter_count});
+  std::size_t count = 0;
+  net.for_each_parameter([&](nn::basic_parameter<float>& p) { count += p.size(); });
+  // Encoder 12-64-128-256-256 (weights and biases), the batch norm's 256 scales and shifts, and
+  // the mirrored decoder 256-256-128-64-12.
+  const std::size_t encoder = (12 * 64 + 64 * 128 + 128 * 256 + 256 * 256) * 16 + (64 + 128 + 256 + 256);
+  const std::size_t decoder = (256 * 256 + 256 * 128 + 128 * 64 + 64 * 12) * 16 + (256 + 128 + 64 + 12);
+  CHECK(count == encoder + 2 * 256 + decoder);
+  CHECK(count == 3'434'124);
+}

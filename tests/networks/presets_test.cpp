@@ -65,6 +65,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
       if constexpr (std::is_same_v<P, autoencoder_compact_wide>) return 1;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine>) return 2;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wide>) return 3;
+      else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wider>) return 4;
       else if constexpr (std::is_same_v<P, autoencoder_compact>) return 0;
       else return -1;
     });
@@ -74,6 +75,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
   CHECK(call(weights_with("a2.safetensors", {})) == 0);
   CHECK(call(weights_with("a3.safetensors", {{"preset", "compact-fine"}})) == 2);
   CHECK(call(weights_with("a4.safetensors", {{"preset", "compact-fine-wide"}})) == 3);
+  CHECK(call(weights_with("a5.safetensors", {{"preset", "compact-fine-wider"}})) == 4);
 }
 
 TEST_CASE("a preset that is not compact, and a missing file, are refused with the file's name") {

@@ -3,8 +3,9 @@
 /// The map auto-encoder of the paper (docs/method.md section 7, after Gao 2019), with compile-time
 /// width presets `autoencoder_paper`, `autoencoder_compact` (latent (H/32) x (W/32) x 128; the
 /// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide` and
-/// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128) and `autoencoder_compact_fine_wide`
-/// (latent (H/16) x (W/16) x 256).
+/// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128), `autoencoder_compact_fine_wide`
+/// (latent (H/16) x (W/16) x 256) and `autoencoder_compact_fine_wider` (the same latent, the levels
+/// above it twice as wide).
 #include <cstddef>
 #include <string>
 #include <tuple>
@@ -54,11 +55,21 @@ struct autoencoder_compact_fine_wide {
   static constexpr const char* name = "compact-fine-wide";         ///< preset name in files
 };
 
+/// An experimental variant of `compact-fine-wide` with the three levels above the latent twice as
+/// wide, 64-128-256-256: the same latent and compression (12 map values per latent value), a decoder
+/// whose last layers have twice the channels to draw the maps' detail from, and an encoder with twice
+/// the filters to find the code (3.4 M parameters, 13.7 MB). studies/widen_latent.py starts it from a
+/// compact-fine-wide (or compact-fine) file with the same output (models/README.md, "Run 30").
+struct autoencoder_compact_fine_wider {
+  static constexpr std::array<int, 4> encoder{64, 128, 256, 256};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact-fine-wider";         ///< preset name in files
+};
+
 /// The map auto-encoder (docs/method.md section 7, after Gao 2019): L = Preset::encoder.size()
 /// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
-/// presets have L = 5, `compact-fine` and `compact-fine-wide` 4. encode() and decode() are separate
+/// presets have L = 5, `compact-fine`, `compact-fine-wide` and `compact-fine-wider` 4. encode() and decode() are separate
 /// so that the pipeline can fine-tune the decoder with z fixed and the encoder frozen
 /// (docs/method.md section 8).
 template <class Preset, class T = float>

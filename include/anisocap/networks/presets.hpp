@@ -5,8 +5,8 @@
 /// A weight file written by the trainer (training/training.hpp) names its preset in the
 /// safetensors metadata ("preset": "compact", "compact-orientation", ...). A folder of compact
 /// weights may hold an estimator of one of the compact variants, which all share the compact
-/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine or
-/// compact-fine-wide preset; the program, the pipeline studies and the GPU training tool dispatch
+/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine,
+/// compact-fine-wide or compact-fine-wider preset; the program, the pipeline studies and the GPU training tool dispatch
 /// on the file through these.
 #include <filesystem>
 #include <stdexcept>
@@ -48,7 +48,7 @@ decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, 
 
 /// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names:
 /// autoencoder_compact (also for a file without a preset), autoencoder_compact_wide,
-/// autoencoder_compact_fine or autoencoder_compact_fine_wide. Throws
+/// autoencoder_compact_fine, autoencoder_compact_fine_wide or autoencoder_compact_fine_wider. Throws
 /// std::invalid_argument naming the file for any other preset.
 template <class F>
 decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file, F&& f) {
@@ -57,8 +57,9 @@ decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file
   if (preset == autoencoder_compact_wide::name) return f.template operator()<autoencoder_compact_wide>();
   if (preset == autoencoder_compact_fine::name) return f.template operator()<autoencoder_compact_fine>();
   if (preset == autoencoder_compact_fine_wide::name) return f.template operator()<autoencoder_compact_fine_wide>();
+  if (preset == autoencoder_compact_fine_wider::name) return f.template operator()<autoencoder_compact_fine_wider>();
   throw std::invalid_argument(file.string() + ": an auto-encoder of preset \"" + preset +
-                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide)");
+                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide, compact-fine-wider)");
 }
 
 }  // namespace anisocap
