@@ -469,7 +469,11 @@ class Producer:
 
 class Pool:
     """A ring of the most recent `capacity` materials on the GPU (network-space maps in float16);
-    batches take fresh materials first and draw at random from the ring when none are left."""
+    batches take fresh materials first and draw at random from the ring when none are left. A batch
+    takes finished chunks from the generators only while fewer than two batches of fresh materials
+    are waiting: where the generators outpace the training step, the rest wait in the producer's
+    queue (and the generators for room in it) instead of costing the training loop their copies to
+    the GPU and then being overwritten unseen (models/README.md, "Run 30")."""
 
     def __init__(self, producer, capacity, size, device):
         self.producer, self.capacity, self.device = producer, capacity, device
@@ -495,6 +499,8 @@ class Pool:
         while self.filled < n:
             self.add(self.producer.take(True))
         for _ in range(4):  # what the generators finished since the last batch, a few chunks at most
+            if self.fresh >= 2 * n:
+                break
             r = self.producer.take(False)
             if r is None:
                 break
