@@ -273,12 +273,12 @@ struct model_choice {
   /// (`--also-models-above`; 0: always). At 0.1 it ran on 4 of the family comparison's 16
   /// materials and 7 of 8 spun tiles and kept the whole choice's gain (models/README.md "Run 16").
   double alternative_above = 0.1;
-  /// `--also-residual`: the second run starts its fine-tune at the estimate itself
-  /// (finetune_options::residual), with the alternative folder's weights or, without one, the same.
+  /// `--also-residual`: a second run on the same weights starts its fine-tune at the estimate itself
+  /// (finetune_options::residual); with `--also-models` the alternative folder's run comes after it
+  /// (run_capture).
   /// Kept where it fits better: with run 18's estimator it took the family comparison's novel-view
   /// error from 0.033 to 0.023 (models/README.md "Run 19"). On by default where the encode and
-  /// fine-tune stages run and no `--also-models` is given (resolve_second_run); `--no-also-residual`
-  /// turns it off.
+  /// fine-tune stages run (resolve_second_run); `--no-also-residual` turns it off.
   bool alternative_residual = true;
   /// The residual start's second run on the same weights happens only where the first run's
   /// auto-encoder projection of the estimate fits the photographs at least this many times worse
@@ -288,7 +288,7 @@ struct model_choice {
   double residual_ratio = 1.4;
   /// Whether a second run is asked for (`--also-models` or `--also-residual`).
   bool second_run() const { return !alternative.empty() || alternative_residual; }
-  /// The choice of the second run's weights: the alternative folder's, or these without
+  /// The weights of the last run run_capture may add: the alternative folder's, or these without
   /// `--also-models` (same preset, no second run of its own).
   model_choice alternative_choice() const {
     model_choice m = *this;
@@ -304,17 +304,18 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");
   c->add_option("--also-models", m.alternative,
                 "a second such folder: run the network stages with both and keep the result that fits the photographs better "
-                "(twice the time; e.g. models/next for spun metal, models/README.md \"Run 16\")")
+                "(twice the time; e.g. models/next for spun metal, models/README.md \"Run 16\"); the residual start's second run "
+                "(--also-residual) on the first folder's weights comes before it and takes part in the choice")
       ->check(CLI::ExistingDirectory);
   c->add_option("--also-models-above", m.alternative_above,
                 "with --also-models or --also-residual: run the second time only when the first run's final image loss is above this "
                 "(0: always)")
       ->check(CLI::NonNegativeNumber);
   c->add_flag("--also-residual,!--no-also-residual", m.alternative_residual,
-              "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual), with "
-              "the --also-models weights if given, and keep the result that fits the photographs better (models/README.md \"Run 19\"); "
-              "on by default where the fine-tune runs and no --also-models is given, subject to --also-models-above and "
-              "--also-residual-ratio");
+              "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual) and "
+              "keep the result that fits the photographs better (models/README.md \"Run 19\"); with --also-models, before the "
+              "other folder's run (models/README.md \"Run 30\"); on by default where the fine-tune runs, subject to "
+              "--also-models-above and --also-residual-ratio");
   c->add_option("--also-residual-ratio", m.residual_ratio,
                 "with --also-residual on the same weights: run the second time only where the auto-encoder's projection of the "
                 "estimate fits the photographs at least this many times worse than the estimate (0: wherever --also-models-above "
@@ -324,11 +325,10 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
 
 /// The residual start's second run is on by default (model_choice::alternative_residual) but only
 /// where it can differ from the first: unless `parsed` (the command) gave `--also-residual`, it is
-/// turned off when `stages` leave out the encode or fine-tune stage or when `--also-models` names
-/// other weights (whose second run then has the standard start, as that option says).
+/// turned off when `stages` leave out the encode or fine-tune stage.
 inline void resolve_second_run(model_choice& m, const pipeline_stages& stages, const CLI::App& parsed) {
   if (parsed.count("--also-residual") > 0) return;
-  if (!stages.encode || !stages.finetune || !m.alternative.empty()) m.alternative_residual = false;
+  if (!stages.encode || !stages.finetune) m.alternative_residual = false;
 }
 
 /// How many times worse the auto-encoder projection of the estimate (the encode stage) fits the
@@ -453,20 +453,25 @@ struct model_selection {
   double projection_ratio = 0;     ///< the first run's projection_ratio (NaN when its network stages did not both run)
 };
 
-/// run_capture_once with `models`, and when a second run is asked for (`models.second_run()`) and
-/// that run's final image loss is above `models.alternative_above`, again with the alternative
-/// folder's weights and/or the residual start (check-points in o.checkpoint.folder/alternative).
-/// The residual start on the same weights runs only where the first run did not already have it
-/// and its projection_ratio is at least `models.residual_ratio` (a ratio that cannot be measured,
-/// without the estimate stage, does not hold it back);
-/// returns the result with the lower final image loss (the first on a tie) and says in
-/// `selection` (when given) which it kept and whether the second ran. A second run without the
-/// network stages in `o.stages` is refused (std::invalid_argument).
+/// run_capture_once with `models`, and where a second start or a second prior is asked for
+/// (`models.second_run()`), the better fit of up to three whole runs:
+/// - the residual start on the same weights (`models.alternative_residual`), where the first run's
+///   final image loss is above `models.alternative_above`, the first run did not have that start
+///   already, and its projection_ratio is at least `models.residual_ratio` (a ratio that cannot be
+///   measured, without the estimate stage, does not hold it back); check-points in
+///   o.checkpoint.folder/alternative;
+/// - then the alternative folder's weights (`models.alternative`, the standard start), where the
+///   better of the runs so far ends above `models.alternative_above`; check-points in
+///   o.checkpoint.folder/also_models.
+/// Returns the result with the lowest final image loss (the earlier on a tie) and says in
+/// `selection` (when given) which it kept against the last choice's other run and whether that
+/// ran. A second run without the network stages in `o.stages` is refused (std::invalid_argument).
 inline capture_result run_capture(const capture& cap, const std::vector<image>& photos, const model_choice& models,
                                   const capture_options& o, const material_maps* start = nullptr, const std::vector<image>& masks = {},
                                   model_selection* selection = nullptr) {
   if (!models.second_run()) return run_capture_once(cap, photos, models, o, start, masks);
-  const char* option = models.alternative.empty() ? "--also-residual" : "--also-models";
+  const bool same_weights = models.alternative.empty();
+  const char* option = same_weights ? "--also-residual" : "--also-models";
   if (!o.stages.networks())
     throw std::invalid_argument(std::string(option) + " chooses between the network stages' results, and these stages do not run "
                                 "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
@@ -474,15 +479,30 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
   if (!other.present())
     throw std::invalid_argument("--also-models: no " + other.preset + " weights in " + (other.models / other.preset).string() +
                                 " (estimator.safetensors and autoencoder.safetensors)");
-  capture_options o2 = o;
-  if (models.alternative_residual) o2.finetune.residual = true;
-  const bool first_residual = o.finetune.residual, second_residual = o2.finetune.residual;
   auto name = [](const model_choice& m, bool residual) {
     return "the weights in " + m.models.string() + (residual ? " with the residual start" : "");
   };
-  const std::string first_name = name(models, first_residual), second_name = name(other, second_residual);
-  capture_result first = run_capture_once(cap, photos, models, o, start, masks);
-  const double ratio = projection_ratio(first);
+  // The first run: these weights alone or, with a second prior, these weights with their own
+  // choice of the residual start (the same-weights case below).
+  model_selection first_selection;
+  bool first_residual = o.finetune.residual, first_chose = false;
+  capture_result first = [&] {
+    if (same_weights) return run_capture_once(cap, photos, models, o, start, masks);
+    model_choice own = models;
+    own.alternative.clear();
+    if (!own.second_run()) return run_capture_once(cap, photos, own, o, start, masks);
+    capture_result r = run_capture(cap, photos, own, o, start, masks, &first_selection);
+    first_residual = first_selection.chosen_residual;
+    first_chose = first_selection.other_ran;
+    return r;
+  }();
+  const double ratio = !same_weights && models.alternative_residual ? first_selection.projection_ratio : projection_ratio(first);
+  capture_options o2 = o;
+  if (same_weights) o2.finetune.residual = true;
+  const bool second_residual = o2.finetune.residual;
+  const std::string first_name =
+      first_chose ? "the better of two starts with the weights in " + models.models.string() : name(models, first_residual);
+  const std::string second_name = name(other, second_residual);
   auto not_tried = [&](const std::string& why) {
     std::fprintf(stderr, "capture: %s fit the photographs to %.4f; %s: %s not tried\n", first_name.c_str(), first.loss, why.c_str(),
                  second_name.c_str());
@@ -495,7 +515,6 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     std::snprintf(why, sizeof why, "at most %g", models.alternative_above);
     return not_tried(why);
   }
-  const bool same_weights = models.alternative.empty();
   if (same_weights && first_residual) return not_tried("it had the residual start already");
   if (same_weights && models.residual_ratio > 0 && ratio < models.residual_ratio) {
     std::snprintf(why, sizeof why, "the auto-encoder's projection fits %.2fx worse than the estimate, under %g", ratio,
@@ -503,7 +522,7 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
     return not_tried(why);
   }
   std::fprintf(stderr, "capture: %s fit the photographs to %.4f; now %s\n", first_name.c_str(), first.loss, second_name.c_str());
-  if (!o2.checkpoint.folder.empty()) o2.checkpoint.folder /= "alternative";
+  if (!o2.checkpoint.folder.empty()) o2.checkpoint.folder /= same_weights ? "alternative" : "also_models";
   capture_result second = run_capture_once(cap, photos, other, o2, start, masks);
   const bool take_second = !first.stopped && !second.stopped && second.loss < first.loss;
   if (selection)

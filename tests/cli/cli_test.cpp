@@ -8,10 +8,12 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <random>
 #include <sstream>
 #include <string>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 #include <stb/stb_image_write.h>
@@ -1007,7 +1009,8 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
   const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
   const std::string both = " --models '" + models.string() + "' --also-models '" + (models / "next").string() + "'";
-  auto r = run(common + " -o both --also-models-above 0" + both, t.path);
+  // Without the residual start's run: a choice between the two folders' standard runs.
+  auto r = run(common + " -o both --no-also-residual --also-models-above 0" + both, t.path);
   INFO(r.output);
   REQUIRE(r.status == 0);
   const nlohmann::json report = nlohmann::json::parse(read_text(t.path / "both/report.json"));
@@ -1026,6 +1029,23 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
     const double alone = nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>();
     CHECK(alone == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
   }
+  // With the residual start's run on the first folder's weights as well (forced here by its
+  // conditions at 0), the best fit of three whole runs: the first folder with each start, then the
+  // second folder.
+  r = run(common + " -o three --also-residual --also-residual-ratio 0 --also-models-above 0" + both, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("now the weights in " + models.string() + " with the residual start") != std::string::npos);
+  CHECK(r.output.find("now the weights in " + (models / "next").string()) != std::string::npos);
+  double best = std::numeric_limits<double>::infinity();
+  for (const auto& [dir, options] : {std::pair<std::string, std::string>{"first_standard", " --models '" + models.string() + "'"},
+                                     {"first_residual", " --finetune-residual --models '" + models.string() + "'"},
+                                     {"second_standard", " --models '" + (models / "next").string() + "'"}}) {
+    r = run(common + " -o " + dir + " --no-also-residual" + options, t.path);
+    REQUIRE(r.status == 0);
+    best = std::min(best, nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>());
+  }
+  CHECK(nlohmann::json::parse(read_text(t.path / "three/report.json")).at("loss").get<double>() == best);
   // Above a threshold the first fit already meets, the second folder is not tried.
   r = run(common + " -o first_only --also-models-above 1e9" + both, t.path);
   REQUIRE(r.status == 0);
