@@ -460,8 +460,9 @@ struct model_selection {
 ///   already, and its projection_ratio is at least `models.residual_ratio` (a ratio that cannot be
 ///   measured, without the estimate stage, does not hold it back); check-points in
 ///   o.checkpoint.folder/alternative;
-/// - then the alternative folder's weights (`models.alternative`, the standard start), where the
-///   better of the runs so far ends above `models.alternative_above`; check-points in
+/// - then the alternative folder's weights (`models.alternative`, with `o`'s start: the standard
+///   one unless o.finetune.residual), where the better of the runs so far ends above
+///   `models.alternative_above`; check-points in
 ///   o.checkpoint.folder/also_models.
 /// Returns the result with the lowest final image loss (the earlier on a tie) and says in
 /// `selection` (when given) which it kept against the last choice's other run and whether that
