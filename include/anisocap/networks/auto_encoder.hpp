@@ -69,9 +69,9 @@ struct autoencoder_compact_fine_wider {
 /// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
-/// presets have L = 5, `compact-fine`, `compact-fine-wide` and `compact-fine-wider` 4. encode() and decode() are separate
-/// so that the pipeline can fine-tune the decoder with z fixed and the encoder frozen
-/// (docs/method.md section 8).
+/// presets have L = 5, `compact-fine`, `compact-fine-wide` and `compact-fine-wider` 4. encode() and
+/// decode() are separate so that the pipeline can fine-tune the decoder with z fixed and the encoder
+/// frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {
   static constexpr auto E = Preset::encoder;
