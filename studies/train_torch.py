@@ -4,7 +4,7 @@ library loads (models/README.md, "Training on a GPU").
 
 The networks are ports of networks/estimator.hpp (`compact`, `compact-orientation`) and
 networks/auto_encoder.hpp (`compact`, `compact-wide`, `compact-fine`, `compact-fine-wide`,
-`compact-fine-wider`), layer for layer and with the C++ weight names; `--check` runs a weight file through both and compares the
+`compact-fine-wider`, `compact-fine-widest`), layer for layer and with the C++ weight names; `--check` runs a weight file through both and compares the
 outputs. The losses are those of training/training.hpp: the L1 in network space with
 training::lobe_l1's symmetries, plus `--render-weight` times the render loss over the 4 render-loss
 configurations (renders by studies/reference/ward_reference.py, written independently of the C++
@@ -60,7 +60,8 @@ ESTIMATOR_PRESETS["compact-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact"], 
 ESTIMATOR_PRESETS["compact-orientation-doubled-angle"] = dict(ESTIMATOR_PRESETS["compact-orientation"], doubled_angle=True)
 AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 64, 128, 256, 256],
                        "compact-fine": [32, 64, 128, 128],  # four levels: latent (H/16) x (W/16)
-                       "compact-fine-wide": [32, 64, 128, 256], "compact-fine-wider": [64, 128, 256, 256]}
+                       "compact-fine-wide": [32, 64, 128, 256], "compact-fine-wider": [64, 128, 256, 256],
+                       "compact-fine-widest": [64, 128, 256, 384]}
 
 
 # ---- safetensors in the C++ layout -------------------------------------------------------------

@@ -3,10 +3,12 @@
 
     python3 studies/widen_latent.py SOURCE.safetensors OUT.safetensors [--to PRESET] [--seed 1]
 
-SOURCE is a `compact-fine` (32-64-128-128) or `compact-fine-wide` (32-64-128-256) file; `--to`
-names a four-level preset at least as wide at every level: `compact-fine-wide` (the default: the
-latent 256 wide, the paper's 12 map values per latent value, models/README.md "Run 27") or
-`compact-fine-wider` (64-128-256-256: the levels above the latent twice as wide, "Run 30").
+SOURCE is a four-level auto-encoder file: `compact-fine` (32-64-128-128), `compact-fine-wide`
+(32-64-128-256) or `compact-fine-wider` (64-128-256-256); `--to` names a four-level preset at least
+as wide at every level: `compact-fine-wide` (the default: the latent 256 wide, the paper's 12 map
+values per latent value, models/README.md "Run 27"), `compact-fine-wider` (64-128-256-256: the
+levels above the latent twice as wide, "Run 30") or `compact-fine-widest` (64-128-256-384: a
+384-wide latent, 8 map values per latent value, "Run 31").
 
 Every layer keeps the source's weights on the source's channels. A new output channel of a
 layer (a new filter) starts as PyTorch initialises a convolution, and the next layer reads it with
@@ -24,7 +26,7 @@ import torch
 
 from train_torch import AUTOENCODER_PRESETS, AutoEncoder, load_cpp, read_safetensors, save_cpp
 
-TARGETS = ("compact-fine-wide", "compact-fine-wider")
+TARGETS = ("compact-fine-wide", "compact-fine-wider", "compact-fine-widest")
 
 
 def widen_layer(old, new, transposed):
@@ -45,7 +47,7 @@ def widen_layer(old, new, transposed):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("source", help="a compact-fine or compact-fine-wide auto-encoder's weight file")
+    parser.add_argument("source", help="a four-level auto-encoder's weight file")
     parser.add_argument("target", help="the wider file to write")
     parser.add_argument("--to", default="compact-fine-wide", choices=TARGETS, help="the preset to write")
     parser.add_argument("--seed", type=int, default=1, help="seed of the new filters")
@@ -56,7 +58,7 @@ def main():
     target_widths = AUTOENCODER_PRESETS[args.to]
     if widths is None or len(widths) != len(target_widths) or any(a > b for a, b in zip(widths, target_widths)):
         raise SystemExit(f"{args.source}: holds {meta.get('network')} weights of preset {source_preset}, "
-                         f"not an auto-encoder that {args.to} widens (compact-fine, or compact-fine-wide for compact-fine-wider)")
+                         f"not a four-level auto-encoder at most as wide as {args.to} at every level")
     torch.manual_seed(args.seed)
     source, wide = AutoEncoder(source_preset).double(), AutoEncoder(args.to).double()
     load_cpp(source, args.source)

@@ -32,8 +32,10 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
     cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent) "
                    "compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32) and compact-fine-wide (compact-fine with a "
                    "256-wide latent: the paper's 12 map values per latent value) and compact-fine-wider (compact-fine-wide with "
-                   "the levels above the latent twice as wide)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-wide", "compact-fine", "compact-fine-wide", "compact-fine-wider"}));
+                   "the levels above the latent twice as wide) and compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
+                   "map values per latent value)")
+        ->check(CLI::IsMember(
+            {"compact", "paper", "compact-wide", "compact-fine", "compact-fine-wide", "compact-fine-wider", "compact-fine-widest"}));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
@@ -275,7 +277,7 @@ inline void add_train_commands(CLI::App& app) {
   ae_cmd->callback([ae] {
     train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>,
                            auto_encoder<autoencoder_compact_fine>, auto_encoder<autoencoder_compact_fine_wide>,
-                           auto_encoder<autoencoder_compact_fine_wider>>(
+                           auto_encoder<autoencoder_compact_fine_wider>, auto_encoder<autoencoder_compact_fine_widest>>(
         *ae, [&s = *ae](const training::train_options& o, auto& net) {
           if (s.inputs == "truth") return training::train_autoencoder(o, net);
           with_compact_estimator_preset(s.input_estimator, [&]<class P>() {

@@ -944,7 +944,7 @@ TEST_CASE("compact-wide auto-encoder: train-autoencoder --init from the shipped 
   CHECK(fs::exists(out / "diffuse.exr"));
 }
 
-TEST_CASE("compact-fine, compact-fine-wide and compact-fine-wider auto-encoders: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
+TEST_CASE("compact-fine, compact-fine-wide, compact-fine-wider and compact-fine-widest auto-encoders: a latent cell per 16 texels, trained from the compact file, in capture with crops") {
   temp_dir t;
   // 80 x 48 texels: 5 x 3 latent cells of 16 (the compact auto-encoder would pad to 96 x 64).
   REQUIRE(run("synthesize -o syn --width 80 --height 48 --images 4 --seed 5", t.path).status == 0);
@@ -960,7 +960,11 @@ TEST_CASE("compact-fine, compact-fine-wide and compact-fine-wider auto-encoders:
       // The levels above the latent twice as wide: dec1's bias (128) and dec2 (128 -> 64) keep compact's shapes.
       {"compact-fine-wider", "enc0.weight, enc0.bias, enc1.weight, enc1.bias, enc2.weight, enc2.bias, enc3.weight, enc3.bias, "
                              "latent_norm.weight, latent_norm.bias, dec0.weight, dec0.bias, dec1.weight, dec3.weight, dec3.bias, "
-                             "latent_norm.running_mean, latent_norm.running_var"}};
+                             "latent_norm.running_mean, latent_norm.running_var"},
+      // The 384-wide latent changes only layers that compact-fine-wider already had afresh.
+      {"compact-fine-widest", "enc0.weight, enc0.bias, enc1.weight, enc1.bias, enc2.weight, enc2.bias, enc3.weight, enc3.bias, "
+                              "latent_norm.weight, latent_norm.bias, dec0.weight, dec0.bias, dec1.weight, dec3.weight, dec3.bias, "
+                              "latent_norm.running_mean, latent_norm.running_var"}};
   for (const variant& v : variants) {
     INFO(v.preset);
     const fs::path out = check_autoencoder_variant(t, v.preset, v.afresh, "--finetune-steps 3 --finetune-crop 2 --steps 1 --no-view");

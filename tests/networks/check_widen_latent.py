@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """studies/widen_latent.py against the C++ library: the compact-fine-wide file it makes from a
-compact-fine one, and the compact-fine-wider file it makes from that, reconstruct the validation
-materials as the compact-fine file does, read by `anisocap eval-networks` (the C++ network); a file
+compact-fine one, the compact-fine-wider file it makes from that and the compact-fine-widest file
+it makes from that, reconstruct the validation materials as the compact-fine file does, read by `anisocap eval-networks` (the C++ network); a file
 of another preset is refused with its name and nothing is written. Exits 77 (a skip) without
 PyTorch.
 
@@ -37,14 +37,17 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         wide = os.path.join(tmp, "wide.safetensors")
         wider = os.path.join(tmp, "wider.safetensors")
+        widest = os.path.join(tmp, "widest.safetensors")
         subprocess.run([sys.executable, script, fine, wide], check=True)
         subprocess.run([sys.executable, script, wide, wider, "--to", "compact-fine-wider"], check=True)
-        (p_fine, e_fine), (p_wide, e_wide), (p_wider, e_wider) = (reconstruction(program, f) for f in (fine, wide, wider))
-        if (p_fine, p_wide, p_wider) != ("compact-fine", "compact-fine-wide", "compact-fine-wider"):
-            failures.append(f"presets {p_fine}, {p_wide}, {p_wider}")
+        subprocess.run([sys.executable, script, wider, widest, "--to", "compact-fine-widest"], check=True)
+        (p_fine, e_fine), (p_wide, e_wide), (p_wider, e_wider), (p_widest, e_widest) = (
+            reconstruction(program, f) for f in (fine, wide, wider, widest))
+        if (p_fine, p_wide, p_wider, p_widest) != ("compact-fine", "compact-fine-wide", "compact-fine-wider", "compact-fine-widest"):
+            failures.append(f"presets {p_fine}, {p_wide}, {p_wider}, {p_widest}")
         # eval-networks prints 4 significant digits; the sums over the extra zero-weighted channels
         # may round differently in the last one.
-        for name, errors in (("compact-fine-wide", e_wide), ("compact-fine-wider", e_wider)):
+        for name, errors in (("compact-fine-wide", e_wide), ("compact-fine-wider", e_wider), ("compact-fine-widest", e_widest)):
             if any(abs(a - b) > 2e-3 * max(abs(a), 1e-12) for a, b in zip(e_fine, errors)):
                 failures.append(f"{name}: reconstruction errors differ: {e_fine} against {errors}")
         # The shipped compact auto-encoder is not compact-fine: refused, naming the file, no output.
@@ -53,11 +56,13 @@ def main():
         r = subprocess.run([sys.executable, script, compact, refused], capture_output=True, text=True)
         if r.returncode == 0 or compact not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
             failures.append(f"a compact file was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
-        # Nor is a wider file narrowed: compact-fine-wider to compact-fine-wide is refused.
-        r = subprocess.run([sys.executable, script, wider, refused], capture_output=True, text=True)
-        if r.returncode == 0 or wider not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
-            failures.append(f"a compact-fine-wider file was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
-    print(f"compact-fine {e_fine}\ncompact-fine-wide {e_wide}\ncompact-fine-wider {e_wider}")
+        # Nor is a wider file narrowed: compact-fine-wider and compact-fine-widest to compact-fine-wide,
+        # and compact-fine-widest to compact-fine-wider, are refused.
+        for source, to in ((wider, "compact-fine-wide"), (widest, "compact-fine-wide"), (widest, "compact-fine-wider")):
+            r = subprocess.run([sys.executable, script, source, refused, "--to", to], capture_output=True, text=True)
+            if r.returncode == 0 or source not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
+                failures.append(f"{source} to {to} was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
+    print(f"compact-fine {e_fine}\ncompact-fine-wide {e_wide}\ncompact-fine-wider {e_wider}\ncompact-fine-widest {e_widest}")
     if failures:
         raise SystemExit("FAILED: " + "; ".join(failures))
     print("passed")

@@ -237,3 +237,21 @@ TEST_CASE("auto-encoder layers: compact-fine-wider is compact-fine-wide with the
   CHECK(count == encoder + 2 * 256 + decoder);
   CHECK(count == 3'434'124);
 }
+
+TEST_CASE("auto-encoder layers: compact-fine-widest is compact-fine-wider with a 384-wide latent") {
+  using widest = auto_encoder<autoencoder_compact_fine_widest>;
+  CHECK(widest::size_multiple == 16);
+  CHECK(widest::latent_channels == 384);
+  widest net(1);
+  CHECK(net.enc<2>().weight.shape == std::vector<int>{4, 4, 128, 256});
+  CHECK(net.enc<3>().weight.shape == std::vector<int>{4, 4, 256, 384});
+  CHECK(net.latent_norm.weight.size() == 384);
+  CHECK(net.dec<0>().weight.shape == std::vector<int>{4, 4, 384, 256});
+  CHECK(net.dec<3>().weight.shape == std::vector<int>{4, 4, 64, parameter_count});
+  std::size_t count = 0;
+  net.for_each_parameter([&](nn::basic_parameter<float>& p) { count += p.size(); });
+  // compact-fine-wider's 3 434 124 plus 128 more filters in enc3 (256 x 128 x 16 weights and 128
+  // biases), their batch norm (256) and dec0's weights for the 128 more latent channels.
+  CHECK(count == 3'434'124 + (256 * 128 * 16 + 128) + 256 + 128 * 256 * 16);
+  CHECK(count * 4 < 20'000'000);  // under the repository's 20 MB a weight file
+}

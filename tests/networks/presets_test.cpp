@@ -66,6 +66,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine>) return 2;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wide>) return 3;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wider>) return 4;
+      else if constexpr (std::is_same_v<P, autoencoder_compact_fine_widest>) return 5;
       else if constexpr (std::is_same_v<P, autoencoder_compact>) return 0;
       else return -1;
     });
@@ -76,6 +77,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
   CHECK(call(weights_with("a3.safetensors", {{"preset", "compact-fine"}})) == 2);
   CHECK(call(weights_with("a4.safetensors", {{"preset", "compact-fine-wide"}})) == 3);
   CHECK(call(weights_with("a5.safetensors", {{"preset", "compact-fine-wider"}})) == 4);
+  CHECK(call(weights_with("a6.safetensors", {{"preset", "compact-fine-widest"}})) == 5);
 }
 
 TEST_CASE("a preset that is not compact, and a missing file, are refused with the file's name") {

@@ -4,8 +4,9 @@
 /// width presets `autoencoder_paper`, `autoencoder_compact` (latent (H/32) x (W/32) x 128; the
 /// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide` and
 /// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128), `autoencoder_compact_fine_wide`
-/// (latent (H/16) x (W/16) x 256) and `autoencoder_compact_fine_wider` (the same latent, the levels
-/// above it twice as wide).
+/// (latent (H/16) x (W/16) x 256), `autoencoder_compact_fine_wider` (the same latent, the levels
+/// above it twice as wide) and `autoencoder_compact_fine_widest` (compact-fine-wider with a 384-wide
+/// latent).
 #include <cstddef>
 #include <string>
 #include <tuple>
@@ -65,13 +66,23 @@ struct autoencoder_compact_fine_wider {
   static constexpr const char* name = "compact-fine-wider";         ///< preset name in files
 };
 
+/// An experimental variant of `compact-fine-wider` with a 384-wide latent, 64-128-256-384: latent
+/// (H/16) x (W/16) x 384, 8 map values per latent value instead of the paper's 12, for the normals'
+/// and the diffuse albedo's detail that a code of the paper's size does not hold (models/README.md,
+/// "Run 28" and "Run 31"; 4.5 M parameters, 17.9 MB). studies/widen_latent.py starts it from a
+/// compact-fine-wider (or narrower four-level) file with the same output.
+struct autoencoder_compact_fine_widest {
+  static constexpr std::array<int, 4> encoder{64, 128, 256, 384};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact-fine-widest";        ///< preset name in files
+};
+
 /// The map auto-encoder (docs/method.md section 7, after Gao 2019): L = Preset::encoder.size()
 /// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
-/// presets have L = 5, `compact-fine`, `compact-fine-wide` and `compact-fine-wider` 4. encode() and
-/// decode() are separate so that the pipeline can fine-tune the decoder with z fixed and the encoder
-/// frozen (docs/method.md section 8).
+/// presets have L = 5, `compact-fine`, `compact-fine-wide`, `compact-fine-wider` and
+/// `compact-fine-widest` 4. encode() and decode() are separate so that the pipeline can fine-tune
+/// the decoder with z fixed and the encoder frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {
   static constexpr auto E = Preset::encoder;

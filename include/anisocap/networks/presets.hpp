@@ -48,8 +48,9 @@ decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, 
 
 /// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names:
 /// autoencoder_compact (also for a file without a preset), autoencoder_compact_wide,
-/// autoencoder_compact_fine, autoencoder_compact_fine_wide or autoencoder_compact_fine_wider. Throws
-/// std::invalid_argument naming the file for any other preset.
+/// autoencoder_compact_fine, autoencoder_compact_fine_wide, autoencoder_compact_fine_wider or
+/// autoencoder_compact_fine_widest. Throws std::invalid_argument naming the file for any other
+/// preset.
 template <class F>
 decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
@@ -58,8 +59,10 @@ decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file
   if (preset == autoencoder_compact_fine::name) return f.template operator()<autoencoder_compact_fine>();
   if (preset == autoencoder_compact_fine_wide::name) return f.template operator()<autoencoder_compact_fine_wide>();
   if (preset == autoencoder_compact_fine_wider::name) return f.template operator()<autoencoder_compact_fine_wider>();
+  if (preset == autoencoder_compact_fine_widest::name) return f.template operator()<autoencoder_compact_fine_widest>();
   throw std::invalid_argument(file.string() + ": an auto-encoder of preset \"" + preset +
-                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide, compact-fine-wider)");
+                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide, compact-fine-wider, "
+                              "compact-fine-widest)");
 }
 
 }  // namespace anisocap
