@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """studies/widen_latent.py against the C++ library: the compact-fine-wide file it makes from a
 compact-fine one, the compact-fine-wider file it makes from that and the compact-fine-widest file
-it makes from that, reconstruct the validation materials as the compact-fine file does, read by `anisocap eval-networks` (the C++ network); a file
-of another preset is refused with its name and nothing is written. Exits 77 (a skip) without
-PyTorch.
+it makes from that reconstruct the validation materials as the compact-fine file does, read by
+`anisocap eval-networks` (the C++ network); a file of another preset, and a narrowing, are refused
+with the file's name and nothing is written. Exits 77 (a skip) without PyTorch.
 
     check_widen_latent.py ANISOCAP SOURCE_DIR"""
 import os
