@@ -6,8 +6,8 @@
 /// safetensors metadata ("preset": "compact", "compact-orientation", ...). A folder of compact
 /// weights may hold an estimator of one of the compact variants, which all share the compact
 /// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine,
-/// compact-fine-wide or compact-fine-wider preset; the program, the pipeline studies and the GPU
-/// training tool dispatch on the file through these.
+/// compact-fine-wide, compact-fine-wider or compact-fine-widest preset; the program, the pipeline
+/// studies and the GPU training tool dispatch on the file through these.
 #include <filesystem>
 #include <stdexcept>
 #include <string>
