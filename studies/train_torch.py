@@ -342,15 +342,18 @@ def wrap(d):
     return d - 2 * torch.round(d / 2)
 
 
-def map_l1(u, truth, lobe_weight=1.0, sigma_weight=0.0, mse_weight=0.0):
+def map_l1(u, truth, lobe_weight=1.0, sigma_weight=0.0, mse_weight=0.0, diffuse_weight=1.0, normal_weight=1.0):
     """training::map_losses' L1 term (lobe_l1 for the lobes and the rotation, weighted by
     lobe_weight as train --lobe-weight does), batch mean; with sigma_weight > 0 plus sigma_weight
     times the lobe widths' squared error in the original range against lobe_l1's form of the truth
     (training::lobe_width_squared_error, mean over texels and the two widths; train --sigma-weight);
     with mse_weight > 0 plus mse_weight times the squared error of a_d, a'_s, F0 and the normal's x
-    and y in the original ranges (training::map_squared_error; train --mse-weight)."""
+    and y in the original ranges (training::map_squared_error; train --mse-weight). a_d's L1 and
+    squared error are weighted by diffuse_weight, the normal's by normal_weight (train
+    --diffuse-weight, --normal-weight)."""
+    weight = torch.tensor([diffuse_weight] * 3 + [1.0] * 3 + [1.0, normal_weight, normal_weight], dtype=u.dtype, device=u.device)
     other = [0, 1, 2, 3, 4, 5, 8, 9, 10]
-    total = (u[:, other] - truth[:, other]).abs().sum((1, 2, 3))
+    total = ((u[:, other] - truth[:, other]).abs() * weight.view(1, -1, 1, 1)).sum((1, 2, 3))
     px, py, pa = u[:, 6], u[:, 7], u[:, 11]
     qx, qy, qa = truth[:, 6], truth[:, 7], truth[:, 11]
     w = torch.clamp((qx - qy).abs() / ROTATION_RAMP, max=1.0)
@@ -366,8 +369,9 @@ def map_l1(u, truth, lobe_weight=1.0, sigma_weight=0.0, mse_weight=0.0):
         result = result + sigma_weight * sq.mean() / 2
     if mse_weight > 0:
         p, q = network_to_maps(u), network_to_maps(truth)
-        sq = (((p["diffuse"] - q["diffuse"]) ** 2).mean((1, 2, 3)) + ((p["specular"] - q["specular"]) ** 2).mean((1, 2, 3))
-              + ((p["f0"] - q["f0"]) ** 2).mean((1, 2)) + ((p["nx"] - q["nx"]) ** 2 + (p["ny"] - q["ny"]) ** 2).mean((1, 2)) / 3)
+        sq = (diffuse_weight * ((p["diffuse"] - q["diffuse"]) ** 2).mean((1, 2, 3)) + ((p["specular"] - q["specular"]) ** 2).mean((1, 2, 3))
+              + ((p["f0"] - q["f0"]) ** 2).mean((1, 2))
+              + normal_weight * ((p["nx"] - q["nx"]) ** 2 + (p["ny"] - q["ny"]) ** 2).mean((1, 2)) / 3)
         result = result + mse_weight * sq.mean()
     return result
 
@@ -532,13 +536,14 @@ def make_net(network, preset):
 
 
 def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise=0.1, channels=3, source=None, lobe_weight=1.0,
-           sigma_weight=0.0, noise=(0.0, 0.0), mse_weight=0.0):
+           sigma_weight=0.0, noise=(0.0, 0.0), mse_weight=0.0, diffuse_weight=1.0, normal_weight=1.0):
     """Returns (total, l1, render) for one batch of network-space truth maps and configurations.
     For the auto-encoder, `source` (an estimator, not trained) replaces the encoder's input by its
     estimate from the 5 training inputs (train-autoencoder --inputs estimates). `lobe_weight`
     weighs the lobe widths' and rotation's L1 (train --lobe-weight; validation uses 1), `sigma_weight`
     the lobe widths' squared error (train --sigma-weight; validation uses 0), `mse_weight` the other
-    maps' (train --mse-weight; validation uses 0). `noise` (shot, read)
+    maps' (train --mse-weight; validation uses 0), `diffuse_weight` and `normal_weight` a_d's and the
+    normal's terms (train --diffuse-weight, --normal-weight; validation uses 1). `noise` (shot, read)
     puts add_sensor_noise on the estimator's 5 inputs (train-estimator --shot-noise/--read-noise;
     validation uses none)."""
     with torch.no_grad():
@@ -551,7 +556,7 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
                 x = source(estimator_inputs(render_batch(truth_maps, conf[:, 0:5]), source.inputs), 5)
         z = net.encode(x)
         y = net.decode(z)
-        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight, mse_weight), render_loss(y, conf[:, 5:9], targets)
+        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight, mse_weight, diffuse_weight, normal_weight), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
         if smoothness > 0 and net.training:
             y2 = net.decode(z + latent_noise * torch.randn_like(z))
@@ -563,7 +568,7 @@ def losses(net, network, maps, conf, render_weight, smoothness=0.1, latent_noise
                 photos = add_sensor_noise(photos, noise[0], noise[1])
             x = estimator_inputs(photos, channels)
         y = net(x, 5)
-        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight, mse_weight), render_loss(y, conf[:, 5:9], targets)
+        l1, rl = map_l1(y, maps, lobe_weight, sigma_weight, mse_weight, diffuse_weight, normal_weight), render_loss(y, conf[:, 5:9], targets)
         total = l1 + render_weight * rl
     return total, l1, rl, y
 
@@ -670,6 +675,7 @@ def train(args):
         maps, conf = pool.batch(args.batch)
         total, l1, rl, _ = losses(net, args.network, maps, conf, args.render_weight, channels=channels, source=source,
                                    lobe_weight=args.lobe_weight, sigma_weight=args.sigma_weight, mse_weight=args.mse_weight,
+                                   diffuse_weight=args.diffuse_weight, normal_weight=args.normal_weight,
                                    noise=(args.shot_noise, args.read_noise))
         opt.zero_grad(set_to_none=True)
         total.backward()
@@ -698,7 +704,7 @@ def train(args):
                    "materials_drawn": pool.used, "materials_generated": producer.generated, "seconds": time.time() - start,
                    "lr": args.lr, "lr_end": args.lr_end, "decay": args.decay, "warmup": args.warmup, "seed": args.seed,
                    "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight,
-                   "mse_weight": args.mse_weight,
+                   "mse_weight": args.mse_weight, "diffuse_weight": args.diffuse_weight, "normal_weight": args.normal_weight,
                    "shot_noise": args.shot_noise, "read_noise": args.read_noise, "emphasis": args.emphasis,
                    "emphasis_share": args.emphasis_share, "trainable": args.trainable, "inputs": args.inputs,
                    "input_estimator": args.input_estimator, "device": torch.cuda.get_device_name() if device.type == "cuda" else "cpu",
@@ -783,6 +789,8 @@ def main():
     t.add_argument("--sigma-weight", type=float, default=0.0, help="weight of the lobe widths' squared error, original range (validation: 0)")
     t.add_argument("--mse-weight", type=float, default=0.0,
                    help="weight of a_d's, a'_s', F0's and the normal's squared error, original ranges (validation: 0)")
+    t.add_argument("--diffuse-weight", type=float, default=1.0, help="weight of a_d's L1 and squared error (validation: 1)")
+    t.add_argument("--normal-weight", type=float, default=1.0, help="weight of the normal's L1 and squared error (validation: 1)")
     t.add_argument("--shot-noise", type=float, default=0.0,
                    help="sensor noise on the estimator's training inputs (as train-estimator --shot-noise)")
     t.add_argument("--read-noise", type=float, default=0.0, help="as train-estimator --read-noise")

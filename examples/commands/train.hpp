@@ -82,6 +82,11 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--mse-weight", o.mse_weight,
                   "weight of a_d's, a'_s', F0's and the normal's squared error in the original ranges (what evaluations measure) added "
                   "to the training loss (0: none; validation always uses 0)");
+  cmd->add_option("--diffuse-weight", o.diffuse_weight,
+                  "weight of a_d's L1 and squared error against the other maps' in the training loss (validation always uses 1)");
+  cmd->add_option("--normal-weight", o.normal_weight,
+                  "weight of the normal's L1 and squared error against the other maps' in the training loss (validation always "
+                  "uses 1)");
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
   if (autoencoder) {
     cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");

@@ -525,6 +525,8 @@ TEST_CASE("impossible options and broken weights are refused before any output")
       {"train-autoencoder --out out --render-weight -0.5", "--render-weight"},
       {"train-estimator --out out --lobe-weight 0", "--lobe-weight"},
       {"train-estimator --out out --sigma-weight -1", "--sigma-weight"},
+      {"train-autoencoder --out out --diffuse-weight 0", "--diffuse-weight"},
+      {"train-estimator --out out --normal-weight inf", "--normal-weight"},
       {"train-estimator --out out --emphasis brushed,linen", "linen"},
       {"train-estimator --out out --emphasis leather", "held-out family 'leather'"},
       {"train-autoencoder --out out --emphasis spun --emphasis-share 1.5", "--emphasis-share"},

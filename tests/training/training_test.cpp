@@ -339,6 +339,65 @@ TEST_CASE("training: loss terms are zero for the truth and positive otherwise; s
   for (long step = 0; step < 50; ++step) CHECK(training::training_seed(1, step, 0) < training::validation_seed_base);
 }
 
+TEST_CASE("training: the a_d and normal weights scale those maps' L1 and squared error in the total and in their own channels' gradient only") {
+  std::vector<training::sample> s;
+  s.push_back(training::make_sample(training::validation_seed(2), 32, false));
+  tensor<parameter_count> off(1, 32, 32);
+  for (std::size_t i = 0; i < off.size(); ++i) off.data()[i] = s[0].truth_net.data()[i] * 0.5f + 0.05f;
+  const auto is_diffuse = [](int k) { return k == diffuse_r || k == diffuse_g || k == diffuse_b; };
+  const auto is_normal = [](int k) { return k == normal_x || k == normal_y; };
+  const std::size_t texels = std::size_t(32) * 32;
+  const float l1_step = float(1.0 / (double(texels) * parameter_count));
+  tensor<parameter_count> grad(1, 32, 32), grad_w(1, 32, 32);
+  const auto l = training::map_losses(off, s, &grad);
+  const auto lw = training::map_losses(off, s, &grad_w, {.diffuse = 2.5, .normal = 0.5});
+  // The parts: unweighted, each within l1, and a_d's is the mean |du| over its three channels.
+  double diffuse_l1 = 0, normal_l1 = 0;
+  for (std::size_t i = 0; i < off.size(); ++i) {
+    const double d = std::abs(double(off.data()[i]) - s[0].truth_net.data()[i]);
+    diffuse_l1 += is_diffuse(int(i % parameter_count)) ? d : 0;
+    normal_l1 += is_normal(int(i % parameter_count)) ? d : 0;
+  }
+  CHECK(l.diffuse == doctest::Approx(diffuse_l1 / double(off.size())));
+  CHECK(l.normal == doctest::Approx(normal_l1 / double(off.size())));
+  CHECK(l.diffuse > 0);
+  CHECK(l.normal > 0);
+  CHECK(l.diffuse + l.normal < l.l1);
+  CHECK(lw.l1 == doctest::Approx(l.l1));
+  CHECK(lw.diffuse == doctest::Approx(l.diffuse));
+  CHECK(lw.total == doctest::Approx(l.l1 + 1.5 * l.diffuse - 0.5 * l.normal + l.render));
+  int diffuse_moved = 0, normal_moved = 0;
+  for (std::size_t i = 0; i < grad.size(); ++i) {
+    const int k = int(i % parameter_count);
+    const double diff = double(grad_w.data()[i]) - grad.data()[i];
+    if (is_diffuse(k)) {
+      CHECK(std::abs(diff) <= 1.5 * l1_step * 1.0001 + 1e-5 * std::abs(grad.data()[i]));
+      diffuse_moved += std::abs(diff) > 1.4 * l1_step;
+    } else if (is_normal(k)) {
+      CHECK(std::abs(diff) <= 0.5 * l1_step * 1.0001 + 1e-5 * std::abs(grad.data()[i]));
+      normal_moved += std::abs(diff) > 0.4 * l1_step;
+    } else {
+      CHECK(diff == 0);
+    }
+  }
+  CHECK(diffuse_moved > 2 * int(texels));
+  CHECK(normal_moved > int(texels));
+  // With the squared error: its a_d and normal parts are compare_maps' (the normal's without the z
+  // term), and the weights multiply them in the total and in the gradient of those channels only.
+  const material_maps maps = network_space::network_to_maps(off, 0);
+  CHECK(l.mse_diffuse == doctest::Approx(compare_maps(maps, s[0].truth).diffuse));
+  CHECK(l.mse_normal > 0);
+  CHECK(l.mse_diffuse + l.mse_normal < l.mse);
+  tensor<parameter_count> grad_m(1, 32, 32), grad_mw(1, 32, 32);
+  const auto lm = training::map_losses(off, s, &grad_m, {.mse = 3.0});
+  const auto lmw = training::map_losses(off, s, &grad_mw, {.mse = 3.0, .diffuse = 2.0, .normal = 4.0});
+  CHECK(lmw.total == doctest::Approx(lm.total + l.diffuse + 3 * l.normal + 3 * (l.mse_diffuse + 3 * l.mse_normal)));
+  for (std::size_t i = 0; i < grad.size(); ++i) {
+    const int k = int(i % parameter_count);
+    if (!is_diffuse(k) && !is_normal(k)) CHECK(grad_mw.data()[i] == grad_m.data()[i]);
+  }
+}
+
 TEST_CASE("training: the lobe widths' squared error is compare_maps' sigma error, uses lobe_l1's form, and its gradient matches finite differences") {
   float q[parameter_count] = {}, p[parameter_count] = {};
   q[lobe_x] = 0.6f, q[lobe_y] = -0.2f, q[rotation] = 0.3f;
@@ -395,6 +454,12 @@ TEST_CASE("training: the maps' squared error is compare_maps' a_d, a'_s, F0 and 
   const double expected = e.diffuse + e.specular + e.fresnel + e.normal - z / (3 * double(truth.texel_count()));
   CHECK(training::map_squared_error(estimate, truth, nullptr, 1) == doctest::Approx(expected).epsilon(1e-6));
   CHECK(training::map_squared_error(truth, truth, nullptr, 1) == 0);
+  // The parts: a_d's is compare_maps' diffuse error, the normal's its normal error without the z term.
+  double diffuse_part = -1, normal_part = -1;
+  CHECK(training::map_squared_error(estimate, truth, nullptr, 1, 1, 1, &diffuse_part, &normal_part) ==
+        doctest::Approx(expected).epsilon(1e-6));
+  CHECK(diffuse_part == doctest::Approx(e.diffuse).epsilon(1e-6));
+  CHECK(normal_part == doctest::Approx(e.normal - z / (3 * double(truth.texel_count()))).epsilon(1e-6));
   // Gradient against central differences, on every plane it covers; zero on the lobes and the rotation.
   material_maps g(16, 16);
   training::map_squared_error(estimate, truth, &g, 2.0);
@@ -414,6 +479,13 @@ TEST_CASE("training: the maps' squared error is compare_maps' a_d, a'_s, F0 and 
         CHECK(std::abs(fd) > 1e-7);
       }
     }
+  // diffuse_scale and normal_scale multiply those planes' gradient, and no other plane's.
+  material_maps gs(16, 16);
+  training::map_squared_error(estimate, truth, &gs, 2.0, 3.0, 0.5);
+  for (int k = 0; k < parameter_count; ++k) {
+    const double factor = (k == diffuse_r || k == diffuse_g || k == diffuse_b) ? 3.0 : (k == normal_x || k == normal_y) ? 0.5 : 1.0;
+    for (std::size_t i = 0; i < truth.texel_count(); ++i) CHECK(gs.plane(k)[i] == doctest::Approx(factor * g.plane(k)[i]).epsilon(1e-5));
+  }
 }
 
 TEST_CASE("training: the lobe L1 respects the lobe's symmetries and its gradient matches finite differences") {
@@ -642,6 +714,12 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch or
   o = resume();
   o.lobe_weight = 3;
   refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with --lobe-weight 1");
+  o = resume();
+  o.diffuse_weight = 2;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with diffuse_weight 1, not 2; resume it with --diffuse-weight 1");
+  o = resume();
+  o.normal_weight = 0.5;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with normal_weight 1, not 0.5; resume it with --normal-weight 1");
   auto_encoder<autoencoder_tiny_renamed> renamed(3);
   o = resume();
   refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");

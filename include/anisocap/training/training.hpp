@@ -102,6 +102,10 @@ struct loss_terms {
   double lobe = 0;        ///< the lobe widths' and rotation's part of l1 (lobe_l1's, unweighted)
   double sigma = 0;       ///< mean squared error of the lobe widths in the original range (lobe_width_squared_error; unweighted)
   double mse = 0;         ///< squared error of a_d, a'_s, F0 and the normal's x, y in the original ranges (map_squared_error; unweighted)
+  double diffuse = 0;     ///< a_d's part of l1 (unweighted)
+  double normal = 0;      ///< the normal's part of l1 (unweighted)
+  double mse_diffuse = 0; ///< a_d's part of mse (unweighted)
+  double mse_normal = 0;  ///< the normal's part of mse (unweighted)
   double render = 0;      ///< render loss (sum over the 4 configurations of the mean log-image difference)
   double smoothness = 0;  ///< auto-encoder only: mean |D(z) - D(z + delta)| (unweighted)
 };
@@ -161,25 +165,35 @@ inline double lobe_width_squared_error(const float* p, const float* q, int form,
 /// each map's mean as compare_maps takes it: compare_maps' diffuse + specular + fresnel errors plus
 /// its normal error without the z component's term (what evaluations measure of these maps, the
 /// lobe widths having lobe_width_squared_error and the rotation lobe_l1). When g is given (the
-/// maps' size), adds `scale` times the gradient with respect to `estimate` into g.
-inline double map_squared_error(const material_maps& estimate, const material_maps& truth, material_maps* g, double scale) {
+/// maps' size), adds `scale` times the gradient with respect to `estimate` into g, a_d's planes'
+/// part times `diffuse_scale` and the normal's times `normal_scale`. When given, `diffuse_part` and
+/// `normal_part` receive a_d's and the normal's parts of the (unscaled) total.
+inline double map_squared_error(const material_maps& estimate, const material_maps& truth, material_maps* g, double scale,
+                                double diffuse_scale = 1, double normal_scale = 1, double* diffuse_part = nullptr,
+                                double* normal_part = nullptr) {
   const std::size_t n = truth.texel_count();
   // Each plane's weight in the sum: 1 / (3n) for the RGB albedos and the normal (compare_maps
   // averages over 3 components), 1 / n for F0.
   static constexpr int planes[] = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, normal_x, normal_y, fresnel_f0};
-  double total = 0;
+  double total = 0, diffuse = 0, normal = 0;
   for (int k : planes) {
+    const bool is_diffuse = k == diffuse_r || k == diffuse_g || k == diffuse_b, is_normal = k == normal_x || k == normal_y;
     const double weight = (k == fresnel_f0 ? 1.0 : 1.0 / 3) / double(n);
+    const double step = scale * weight * 2 * (is_diffuse ? diffuse_scale : is_normal ? normal_scale : 1.0);
     const float *e = estimate.plane(k), *t = truth.plane(k);
     float* gk = g ? g->plane(k) : nullptr;
     double sum = 0;
     for (std::size_t i = 0; i < n; ++i) {
       const double d = double(e[i]) - t[i];
       sum += d * d;
-      if (gk) gk[i] += float(scale * weight * 2 * d);
+      if (gk) gk[i] += float(step * d);
     }
     total += weight * sum;
+    if (is_diffuse) diffuse += weight * sum;
+    if (is_normal) normal += weight * sum;
   }
+  if (diffuse_part) *diffuse_part = diffuse;
+  if (normal_part) *normal_part = normal;
   return total;
 }
 
@@ -189,16 +203,20 @@ struct loss_weights {
   double lobe = 1.0;    ///< the lobe widths' and rotation's L1 (lobe_l1) against the other channels'
   double sigma = 0.0;   ///< the lobe widths' squared error in the original range (lobe_width_squared_error)
   double mse = 0.0;     ///< the other maps' squared error in the original ranges (map_squared_error)
+  double diffuse = 1.0; ///< a_d's terms (its L1 and its part of the squared error) against the other maps'
+  double normal = 1.0;  ///< the normal's terms (its L1 and its part of the squared error) against the other maps'
 };
 
 /// L1 in network space plus `w.render` times the render loss (docs/method.md section 5: equal
 /// weights, w.render 1), of network outputs u (one entry per sample); when grad is given, adds
 /// d(loss)/du (the loss is the batch mean). The L1 of the lobe widths and the rotation is
 /// lobe_l1's, which respects the lobe's symmetries, weighted by `w.lobe` in the total and the
-/// gradient; the other channels take |u - u_true|. With w.sigma > 0 the total adds w.sigma times
-/// the mean over texels and the two widths of lobe_width_squared_error (terms.sigma), with w.mse > 0
-/// w.mse times map_squared_error (terms.mse). terms.l1, terms.lobe, terms.sigma, terms.mse and
-/// terms.render are unweighted; terms.total = l1 + (w.lobe - 1) lobe + w.sigma sigma + w.mse mse +
+/// gradient; the other channels take |u - u_true|, a_d's weighted by `w.diffuse` and the normal's by
+/// `w.normal`. With w.sigma > 0 the total adds w.sigma times the mean over texels and the two widths
+/// of lobe_width_squared_error (terms.sigma), with w.mse > 0 w.mse times map_squared_error
+/// (terms.mse), its a_d and normal parts weighted by w.diffuse and w.normal. The terms are
+/// unweighted; terms.total = l1 + (w.lobe - 1) lobe + (w.diffuse - 1) diffuse + (w.normal - 1)
+/// normal + w.sigma sigma + w.mse (mse + (w.diffuse - 1) mse_diffuse + (w.normal - 1) mse_normal) +
 /// w.render render.
 inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector<sample>& samples,
                              tensor<parameter_count>* grad, const loss_weights& w = {}) {
@@ -206,9 +224,13 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
   const int B = u.batch();
   if (B != int(samples.size())) throw std::invalid_argument("map_losses: batch and sample count differ");
   const std::size_t n = std::size_t(u.height()) * u.width() * parameter_count;
+  // Each channel's weight in the L1 term (the lobe channels go through lobe_l1 and w.lobe).
+  float channel_weight[parameter_count];
+  for (int k = 0; k < parameter_count; ++k)
+    channel_weight[k] = float(k == diffuse_r || k == diffuse_g || k == diffuse_b ? w.diffuse : k == normal_x || k == normal_y ? w.normal : 1.0);
   for (int b = 0; b < B; ++b) {
     const sample& s = samples[b];
-    double l1 = 0, lobe = 0, sigma = 0;
+    double l1 = 0, lobe = 0, sigma = 0, diffuse = 0, normal = 0;
     const double texels = double(u.height()) * u.width();
     const float step = float(1.0 / (double(n) * B)), lobe_step = float(w.lobe / (double(n) * B)),
                 sigma_step = float(w.sigma / (2 * texels * B));
@@ -221,7 +243,10 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
           if (k == lobe_x || k == lobe_y || k == rotation) continue;
           const float d = p[k] - q[k];
           l1 += std::abs(d);
-          if (g) g[k] += d > 0 ? step : (d < 0 ? -step : 0.0f);
+          if (k == diffuse_r || k == diffuse_g || k == diffuse_b) diffuse += std::abs(d);
+          if (k == normal_x || k == normal_y) normal += std::abs(d);
+          const float channel_step = step * channel_weight[k];
+          if (g) g[k] += d > 0 ? channel_step : (d < 0 ? -channel_step : 0.0f);
         }
         int form = 0;
         lobe += lobe_l1(p, q, g, lobe_step, &form);
@@ -229,6 +254,8 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
       }
     terms.l1 += (l1 + lobe) / double(n) / B;
     terms.lobe += lobe / double(n) / B;
+    terms.diffuse += diffuse / double(n) / B;
+    terms.normal += normal / double(n) / B;
     terms.sigma += sigma / (2 * texels) / B;
     const material_maps maps = network_space::network_to_maps(u, b);
     material_maps grad_maps;
@@ -239,10 +266,16 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     const bool mse_gradient = grad && w.mse > 0;
     material_maps grad_mse;
     if (mse_gradient) grad_mse = material_maps(maps.width(), maps.height());
-    terms.mse += map_squared_error(maps, s.truth, mse_gradient ? &grad_mse : nullptr, 1.0) / B;
+    double mse_diffuse = 0, mse_normal = 0;
+    terms.mse += map_squared_error(maps, s.truth, mse_gradient ? &grad_mse : nullptr, 1.0, w.diffuse, w.normal, &mse_diffuse,
+                                   &mse_normal) / B;
+    terms.mse_diffuse += mse_diffuse / B;
+    terms.mse_normal += mse_normal / B;
     if (mse_gradient) network_space::add_network_gradient(u, b, grad_mse, w.mse / B, *grad);
   }
-  terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + w.sigma * terms.sigma + w.mse * terms.mse + w.render * terms.render;
+  terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + (w.diffuse - 1) * terms.diffuse + (w.normal - 1) * terms.normal +
+                w.sigma * terms.sigma + w.mse * (terms.mse + (w.diffuse - 1) * terms.mse_diffuse + (w.normal - 1) * terms.mse_normal) +
+                w.render * terms.render;
   return terms;
 }
 
@@ -274,6 +307,13 @@ struct train_options {
   /// F0, the normal) in the training loss (map_losses; `--mse-weight`, default 0: none); validation
   /// losses use 0.
   double mse_weight = 0.0;
+  /// Weight of a_d's terms in the training loss against the other maps' (map_losses: its L1 and,
+  /// with mse_weight, its part of the squared error; `--diffuse-weight`); validation losses use 1.
+  double diffuse_weight = 1.0;
+  /// Weight of the shading normal's terms in the training loss against the other maps' (map_losses:
+  /// its L1 and, with mse_weight, its part of the squared error; `--normal-weight`); validation
+  /// losses use 1.
+  double normal_weight = 1.0;
   double latent_noise = 0.1;          ///< auto-encoder: standard deviation of delta
   /// Auto-encoder: train the encoder (and its batch norm) only, against the decoder of the weights
   /// the run starts from (`--trainable encoder`): the decoder, which the pipeline fine-tunes, keeps
@@ -325,6 +365,10 @@ struct train_options {
       throw std::invalid_argument("the lobe-width squared-error weight (--sigma-weight) must be finite and not negative");
     if (!(mse_weight >= 0) || !std::isfinite(mse_weight))
       throw std::invalid_argument("the maps' squared-error weight (--mse-weight) must be finite and not negative");
+    if (!(diffuse_weight > 0) || !std::isfinite(diffuse_weight))
+      throw std::invalid_argument("a_d's loss weight (--diffuse-weight) must be finite and positive");
+    if (!(normal_weight > 0) || !std::isfinite(normal_weight))
+      throw std::invalid_argument("the normal's loss weight (--normal-weight) must be finite and positive");
     if (lr_decay_to != 0 || lr_decay_from != 0) {
       if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
         throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
@@ -343,7 +387,7 @@ struct train_options {
   }
 
   /// The training loss's weights (map_losses).
-  loss_weights loss() const { return {render_weight, lobe_weight, sigma_weight, mse_weight}; }
+  loss_weights loss() const { return {render_weight, lobe_weight, sigma_weight, mse_weight, diffuse_weight, normal_weight}; }
 
   /// The auto-encoder's defaults: 4 materials per step (its steps are cheaper than the estimator's).
   static train_options autoencoder() {
@@ -571,7 +615,8 @@ inline std::string setting_text(const json& value) {
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
 /// noise: such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight" (1), "lobe_weight" (1), "sigma_weight" and "mse_weight" (0), "emphasis" ("": none),
+/// original mix), "render_weight", "lobe_weight", "diffuse_weight" and "normal_weight" (1), "sigma_weight" and
+/// "mse_weight" (0), "emphasis" ("": none),
 /// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise" and "read_noise" (0);
 /// other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
@@ -582,13 +627,14 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
       {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
       {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
+      {"diffuse_weight", "--diffuse-weight"}, {"normal_weight", "--normal-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"},
       {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}};
   // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
     if (key == "materials") return json("original");
-    if (key == "render_weight" || key == "lobe_weight") return json(1.0);
+    if (key == "render_weight" || key == "lobe_weight" || key == "diffuse_weight" || key == "normal_weight") return json(1.0);
     if (key == "sigma_weight" || key == "mse_weight") return json(0.0);
     if (key == "emphasis") return json("");
     if (key == "emphasis_share" || key == "shot_noise" || key == "read_noise") return json(0.0);
@@ -638,6 +684,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["lobe_weight"] = o.lobe_weight;
   info["sigma_weight"] = o.sigma_weight;
   info["mse_weight"] = o.mse_weight;
+  info["diffuse_weight"] = o.diffuse_weight;
+  info["normal_weight"] = o.normal_weight;
   std::string emphasis;
   for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
   info["emphasis"] = emphasis;
