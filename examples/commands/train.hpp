@@ -26,6 +26,15 @@ struct train_settings {
   std::string input_estimator = model_choice{}.estimator().string();
 };
 
+/// The --preset choices of a trainer: the compact presets' names (networks/presets.hpp), the paper's
+/// second.
+template <class Paper, class Compact>
+std::vector<std::string> preset_choices() {
+  std::vector<std::string> names = Compact::names();
+  names.insert(names.begin() + 1, Paper::name);
+  return names;
+}
+
 inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   training::train_options& o = s.options;
   if (autoencoder)
@@ -34,14 +43,13 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                    "256-wide latent: the paper's 12 map values per latent value), compact-fine-wider (compact-fine-wide with "
                    "the levels above the latent twice as wide) and compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
                    "map values per latent value)")
-        ->check(CLI::IsMember(
-            {"compact", "paper", "compact-wide", "compact-fine", "compact-fine-wide", "compact-fine-wider", "compact-fine-widest"}));
+        ->check(CLI::IsMember(preset_choices<autoencoder_paper, compact_autoencoder_presets>()));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
                     "read from a doubled-angle vector), compact-orientation (each photo's structure-tensor orientation as 3 "
                     "more input channels) and compact-orientation-doubled-angle (both)")
-        ->check(CLI::IsMember({"compact", "paper", "compact-doubled-angle", "compact-orientation", "compact-orientation-doubled-angle"}));
+        ->check(CLI::IsMember(preset_choices<estimator_paper, compact_estimator_presets>()));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for the compact-fine presets)"
@@ -113,22 +121,22 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   }
 }
 
-/// Runs `train(options, net)` on a network of the chosen preset (Paper, Compact or one of the
-/// Variants, estimator presets named by their preset's name), built from the run seed, while
-/// holding the output folder's lock; a run refused before writing anything leaves no folder behind.
-template <class Paper, class Compact, class... Variants, class Train>
+/// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
+/// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
+/// folder's lock; a run refused before writing anything leaves no folder behind.
+template <template <class...> class Net, class Paper, class Compact, class Train>
 void train_in_locked_folder(const train_settings& s, Train train) {
   const training::train_options& o = s.options;
   output_lock lock(o.out_dir);  // one run per output folder
   try {
-    auto run = [&]<class Net>() {
-      auto net = std::make_unique<Net>(o.seed);
+    auto run = [&]<class P>() {
+      auto net = std::make_unique<Net<P>>(o.seed);
       train(o, *net);
     };
-    if (s.preset == "paper")
+    if (s.preset == Paper::name)
       run.template operator()<Paper>();
-    else if (!((s.preset == Variants::preset::name ? (run.template operator()<Variants>(), true) : false) || ...))
-      run.template operator()<Compact>();
+    else
+      Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + Paper::name + ", " + Compact::joined(); });
   } catch (...) {
     lock.release_empty();
     throw;
@@ -270,9 +278,7 @@ inline void add_train_commands(CLI::App& app) {
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
-    train_in_locked_folder<estimation_network<estimator_paper>, estimation_network<estimator_compact>,
-                           estimation_network<estimator_compact_doubled_angle>, estimation_network<estimator_compact_orientation>,
-                           estimation_network<estimator_compact_orientation_doubled_angle>>(
+    train_in_locked_folder<estimation_network, estimator_paper, compact_estimator_presets>(
         *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();
@@ -280,9 +286,7 @@ inline void add_train_commands(CLI::App& app) {
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    train_in_locked_folder<auto_encoder<autoencoder_paper>, auto_encoder<autoencoder_compact>, auto_encoder<autoencoder_compact_wide>,
-                           auto_encoder<autoencoder_compact_fine>, auto_encoder<autoencoder_compact_fine_wide>,
-                           auto_encoder<autoencoder_compact_fine_wider>, auto_encoder<autoencoder_compact_fine_widest>>(
+    train_in_locked_folder<auto_encoder, autoencoder_paper, compact_autoencoder_presets>(
         *ae, [&s = *ae](const training::train_options& o, auto& net) {
           if (s.inputs == "truth") return training::train_autoencoder(o, net);
           with_compact_estimator_preset(s.input_estimator, [&]<class P>() {

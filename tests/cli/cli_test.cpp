@@ -20,6 +20,7 @@
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/networks/presets.hpp"
 #include "anisocap/nn/safetensors.hpp"
 
 namespace fs = std::filesystem;
@@ -665,6 +666,13 @@ TEST_CASE("--version, a suggestion on a mistyped command, defaults in the traini
   CHECK(r.output.find("2000") != std::string::npos);  // --steps' default
   r = run("train-autoencoder --help", t.path);
   CHECK(r.output.find("0.1") != std::string::npos);  // --smoothness' default
+  // Every experimental compact auto-encoder preset the trainer takes is described in its --preset help.
+  const auto ae_presets = anisocap::compact_autoencoder_presets::names();
+  for (std::size_t i = 1; i < ae_presets.size(); ++i) CHECK_MESSAGE(r.output.find(ae_presets[i] + " (") != std::string::npos, ae_presets[i]);
+  r = run("train-estimator --help", t.path);
+  const auto estimator_presets = anisocap::compact_estimator_presets::names();
+  for (std::size_t i = 1; i < estimator_presets.size(); ++i)
+    CHECK_MESSAGE(r.output.find(estimator_presets[i] + " (") != std::string::npos, estimator_presets[i]);
   r = run("eval-networks --help", t.path);
   CHECK(r.output.find("30") != std::string::npos);  // --count's default
 }

@@ -3,10 +3,12 @@
 compact-fine one, the compact-fine-wider file it makes from that and the compact-fine-widest file
 it makes from that reconstruct the validation materials as the compact-fine file does, read by
 `anisocap eval-networks` (the C++ network); a file of another preset, and a narrowing, are refused
-with the file's name and nothing is written. Exits 77 (a skip) without PyTorch.
+with the file's name and nothing is written; and the port's presets are the C++ trainers' compact
+--preset choices. Exits 77 (a skip) without PyTorch.
 
     check_widen_latent.py ANISOCAP SOURCE_DIR"""
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -29,11 +31,26 @@ def reconstruction(program, weights):
     raise SystemExit(f"eval-networks printed no reconstruction row for {weights}:\n{out}")
 
 
+def trainer_presets(program, command):
+    """The compact presets the C++ trainer takes (its --preset choices less "paper")."""
+    out = subprocess.run([program, command, "--help"], capture_output=True, text=True, check=True).stdout
+    match = re.search(r"--preset TEXT:\{([^}]*)\}", out)
+    if not match:
+        raise SystemExit(f"{command} --help lists no --preset choices:\n{out}")
+    return set(match.group(1).split(",")) - {"paper"}
+
+
 def main():
     program, source_dir = sys.argv[1], sys.argv[2]
     script = os.path.join(source_dir, "studies", "widen_latent.py")
     fine = os.path.join(source_dir, "models", "next", "autoencoder_compact_fine_run41.safetensors")
     failures = []
+    # The PyTorch port knows the compact presets the C++ library knows (networks/presets.hpp's lists).
+    sys.path.insert(0, os.path.join(source_dir, "studies"))
+    import train_torch
+    for command, port in (("train-autoencoder", train_torch.AUTOENCODER_PRESETS), ("train-estimator", train_torch.ESTIMATOR_PRESETS)):
+        if trainer_presets(program, command) != set(port):
+            failures.append(f"{command}'s compact presets {sorted(trainer_presets(program, command))} are not the port's {sorted(port)}")
     with tempfile.TemporaryDirectory() as tmp:
         wide = os.path.join(tmp, "wide.safetensors")
         wider = os.path.join(tmp, "wider.safetensors")

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <set>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -80,11 +81,38 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
   CHECK(call(weights_with("a6.safetensors", {{"preset", "compact-fine-widest"}})) == 5);
 }
 
+TEST_CASE("a preset list names its presets in order and calls the one a name picks") {
+  using list = preset_list<autoencoder_compact, autoencoder_compact_fine, autoencoder_compact_fine_widest>;
+  CHECK(list::names() == std::vector<std::string>{"compact", "compact-fine", "compact-fine-widest"});
+  CHECK(list::joined() == "compact, compact-fine, compact-fine-widest");
+  CHECK(list::contains("compact-fine"));
+  CHECK_FALSE(list::contains("compact-fine-wide"));
+  const auto width = []<class P>() { return P::encoder.back(); };
+  const auto unknown = [] { return std::string("no such preset"); };
+  CHECK(list::call("compact", width, unknown) == 128);
+  CHECK(list::call("compact-fine-widest", width, unknown) == 384);
+  CHECK_THROWS_WITH_AS(list::call("paper", width, unknown), "no such preset", std::invalid_argument);
+  // A call whose template returns nothing.
+  int called = 0;
+  list::call("compact-fine", [&]<class P>() { called = P::encoder.size(); }, unknown);
+  CHECK(called == 4);
+  // The compact lists hold every compact preset once, the default first.
+  for (const auto& names : {compact_estimator_presets::names(), compact_autoencoder_presets::names()}) {
+    CHECK(names.front() == "compact");
+    CHECK(std::set<std::string>(names.begin(), names.end()).size() == names.size());
+  }
+  CHECK(compact_autoencoder_presets::names().size() == 6);
+  CHECK(compact_estimator_presets::names().size() == 4);
+  CHECK_FALSE(compact_autoencoder_presets::contains("paper"));
+}
+
 TEST_CASE("a preset that is not compact, and a missing file, are refused with the file's name") {
   const fs::path paper = weights_with("paper.safetensors", {{"preset", "paper"}});
   const auto none = []<class P>() { return 0; };
   CHECK_THROWS_WITH_AS(with_compact_estimator_preset(paper, none), doctest::Contains(paper.string().c_str()), std::invalid_argument);
   CHECK_THROWS_WITH_AS(with_compact_autoencoder_preset(paper, none), doctest::Contains("\"paper\""), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(with_compact_autoencoder_preset(paper, none), doctest::Contains(compact_autoencoder_presets::joined().c_str()),
+                       std::invalid_argument);
   const fs::path missing = scratch_file("missing.safetensors");
   CHECK_THROWS_WITH_AS(with_compact_estimator_preset(missing, none), doctest::Contains(missing.string().c_str()), nn::safetensors_error);
   fs::remove_all(missing.parent_path());

@@ -5,12 +5,15 @@
 /// A weight file written by the trainer (training/training.hpp) names its preset in the
 /// safetensors metadata ("preset": "compact", "compact-orientation", ...). A folder of compact
 /// weights may hold an estimator of one of the compact variants, which all share the compact
-/// auto-encoder's parameters, and an auto-encoder of the compact, compact-wide, compact-fine,
-/// compact-fine-wide, compact-fine-wider or compact-fine-widest preset; the program, the pipeline
-/// studies and the GPU training tool dispatch on the file through these.
+/// auto-encoder's parameters, and an auto-encoder of one of the compact auto-encoder presets
+/// (compact_estimator_presets, compact_autoencoder_presets); the program, the pipeline studies and
+/// the GPU training tool dispatch on the file through these, and the trainer's --preset choices come
+/// from the same lists.
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <string_view>
+#include <vector>
 
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
@@ -28,41 +31,70 @@ inline std::string weights_preset(const std::filesystem::path& file) {
   return "";
 }
 
-/// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names:
-/// estimator_compact (also for a file without a preset), estimator_compact_orientation,
-/// estimator_compact_doubled_angle or estimator_compact_orientation_doubled_angle. Throws
+/// A list of network presets (types with a `name`, the name a weight file records): the one place
+/// that says which presets a command, the dispatch below and its error messages know.
+template <class... P>
+struct preset_list {
+  static_assert(sizeof...(P) > 0, "preset_list: at least one preset");
+  /// The presets' names, in the list's order.
+  static std::vector<std::string> names() { return {std::string(P::name)...}; }
+  /// The names joined by ", " (error messages).
+  static std::string joined() {
+    std::string text;
+    for (const std::string& name : names()) text += (text.empty() ? "" : ", ") + name;
+    return text;
+  }
+  /// Whether `name` is one of the presets' names.
+  static bool contains(std::string_view name) { return ((name == P::name) || ...); }
+  /// Returns `f.template operator()<Q>()` with the preset Q of the list named `name`. Throws
+  /// std::invalid_argument with `unknown()`'s text for a name not in the list.
+  template <class F, class Unknown>
+  static decltype(auto) call(std::string_view name, F&& f, Unknown&& unknown) {
+    return call_from<P...>(name, f, unknown);
+  }
+
+ private:
+  template <class First, class... Rest, class F, class Unknown>
+  static decltype(auto) call_from(std::string_view name, F& f, Unknown& unknown) {
+    if (name == First::name) return f.template operator()<First>();
+    if constexpr (sizeof...(Rest) == 0) throw std::invalid_argument(unknown());
+    else return call_from<Rest...>(name, f, unknown);
+  }
+};
+
+/// The compact estimator presets, which all share the compact auto-encoder's parameters: a folder
+/// of compact weights may hold any of them. The first is what a file without a preset holds.
+using compact_estimator_presets = preset_list<estimator_compact, estimator_compact_orientation, estimator_compact_doubled_angle,
+                                              estimator_compact_orientation_doubled_angle>;
+
+/// The compact auto-encoder presets a folder of compact weights may hold (experimental but the
+/// first, which is also what a file without a preset holds).
+using compact_autoencoder_presets =
+    preset_list<autoencoder_compact, autoencoder_compact_wide, autoencoder_compact_fine, autoencoder_compact_fine_wide,
+                autoencoder_compact_fine_wider, autoencoder_compact_fine_widest>;
+
+/// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names (one of
+/// compact_estimator_presets; estimator_compact for a file without a preset). Throws
 /// std::invalid_argument naming the file for any other preset (e.g. "paper", whose weights do not
 /// fit a compact network).
 template <class F>
 decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
-  if (preset.empty() || preset == estimator_compact::name) return f.template operator()<estimator_compact>();
-  if (preset == estimator_compact_orientation::name) return f.template operator()<estimator_compact_orientation>();
-  if (preset == estimator_compact_doubled_angle::name) return f.template operator()<estimator_compact_doubled_angle>();
-  if (preset == estimator_compact_orientation_doubled_angle::name)
-    return f.template operator()<estimator_compact_orientation_doubled_angle>();
-  throw std::invalid_argument(file.string() + ": an estimator of preset \"" + preset +
-                              "\", not a compact one (compact, compact-orientation, compact-doubled-angle, "
-                              "compact-orientation-doubled-angle)");
+  return compact_estimator_presets::call(preset.empty() ? estimator_compact::name : preset, f, [&] {
+    return file.string() + ": an estimator of preset \"" + preset + "\", not a compact one (" + compact_estimator_presets::joined() + ")";
+  });
 }
 
-/// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names:
-/// autoencoder_compact (also for a file without a preset), autoencoder_compact_wide,
-/// autoencoder_compact_fine, autoencoder_compact_fine_wide, autoencoder_compact_fine_wider or
-/// autoencoder_compact_fine_widest. Throws std::invalid_argument naming the file for any other
-/// preset.
+/// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names (one
+/// of compact_autoencoder_presets; autoencoder_compact for a file without a preset). Throws
+/// std::invalid_argument naming the file for any other preset.
 template <class F>
 decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
-  if (preset.empty() || preset == autoencoder_compact::name) return f.template operator()<autoencoder_compact>();
-  if (preset == autoencoder_compact_wide::name) return f.template operator()<autoencoder_compact_wide>();
-  if (preset == autoencoder_compact_fine::name) return f.template operator()<autoencoder_compact_fine>();
-  if (preset == autoencoder_compact_fine_wide::name) return f.template operator()<autoencoder_compact_fine_wide>();
-  if (preset == autoencoder_compact_fine_wider::name) return f.template operator()<autoencoder_compact_fine_wider>();
-  if (preset == autoencoder_compact_fine_widest::name) return f.template operator()<autoencoder_compact_fine_widest>();
-  throw std::invalid_argument(file.string() + ": an auto-encoder of preset \"" + preset +
-                              "\", not a compact one (compact, compact-wide, compact-fine, compact-fine-wide, compact-fine-wider, "
-                              "compact-fine-widest)");
+  return compact_autoencoder_presets::call(preset.empty() ? autoencoder_compact::name : preset, f, [&] {
+    return file.string() + ": an auto-encoder of preset \"" + preset + "\", not a compact one (" +
+           compact_autoencoder_presets::joined() + ")";
+  });
 }
 
 }  // namespace anisocap
