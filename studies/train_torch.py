@@ -74,9 +74,11 @@ def read_safetensors(path):
     meta = header.pop("__metadata__", {})
     tensors = {}
     for name, info in header.items():
-        assert info["dtype"] == "F32", f"{path}: {name} is {info['dtype']}"
+        # F16: the half-float weight files of `anisocap convert-weights --half`, read as float32.
+        assert info["dtype"] in ("F32", "F16"), f"{path}: {name} is {info['dtype']}"
         a, b = info["data_offsets"]
-        tensors[name] = np.frombuffer(data[a:b], dtype="<f4").reshape(info["shape"]).copy()
+        kind = "<f4" if info["dtype"] == "F32" else "<f2"
+        tensors[name] = np.frombuffer(data[a:b], dtype=kind).astype(np.float32).reshape(info["shape"])
     return tensors, meta, list(header.keys())
 
 

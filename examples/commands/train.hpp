@@ -271,7 +271,22 @@ inline void evaluate_networks(const network_eval_settings& s) {
 
 }  // namespace train_detail
 
-/// Registers `anisocap train-estimator`, `train-autoencoder` and `eval-networks`.
+/// Settings of convert-weights.
+struct convert_settings {
+  fs::path input, output;
+  bool half = false;  ///< weight_storage::f16 (else f32)
+};
+
+/// convert-weights: nn::convert_weights, refusing to write over its input; prints both sizes.
+inline void convert_weights(const convert_settings& s) {
+  if (fs::exists(s.output) && fs::equivalent(s.input, s.output))
+    throw std::invalid_argument(s.output.string() + ": the output would overwrite the input; choose another file");
+  nn::convert_weights(s.input, s.output, s.half ? nn::weight_storage::f16 : nn::weight_storage::f32);
+  std::printf("%s: %.1f MB (%s: %.1f MB), the large tensors as %s\n", s.output.string().c_str(), double(fs::file_size(s.output)) / 1e6,
+              s.input.string().c_str(), double(fs::file_size(s.input)) / 1e6, s.half ? "half floats" : "floats");
+}
+
+/// Registers `anisocap train-estimator`, `train-autoencoder`, `eval-networks` and `convert-weights`.
 inline void add_train_commands(CLI::App& app) {
   using namespace train_detail;
   auto est = std::make_shared<train_settings>();
@@ -315,6 +330,15 @@ inline void add_train_commands(CLI::App& app) {
       ->check(family_list_check());
   add_noise_options(ev_cmd, ev->noise);
   ev_cmd->callback([ev] { evaluate_networks(*ev); });
+  auto cv = std::make_shared<convert_settings>();
+  auto* cv_cmd = app.add_subcommand("convert-weights",
+                                    "rewrite a weight file with its large tensors as half floats (--half: half the size) or as floats");
+  cv_cmd->add_option("input", cv->input, "weight file (safetensors)")->required()->check(CLI::ExistingFile);
+  cv_cmd->add_option("output", cv->output, "the file to write (not the input)")->required();
+  cv_cmd->add_flag("--half", cv->half,
+                   "store the tensors of 1024 or more values (the convolution kernels) as half floats; without it, every tensor as "
+                   "floats");
+  cv_cmd->callback([cv] { convert_weights(*cv); });
 }
 
 }  // namespace anisocap::commands

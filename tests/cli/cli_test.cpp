@@ -677,6 +677,48 @@ TEST_CASE("--version, a suggestion on a mistyped command, defaults in the traini
   CHECK(r.output.find("30") != std::string::npos);  // --count's default
 }
 
+TEST_CASE("convert-weights --half: a file of about half the size that eval-networks reads with the same errors to 1%; the input is never overwritten") {
+  temp_dir t;
+  const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";
+  const fs::path full = models / "autoencoder.safetensors";
+  auto r = run("convert-weights '" + full.string() + "' half.safetensors --half", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(fs::file_size(t.path / "half.safetensors") < 0.52 * double(fs::file_size(full)));
+  // The reconstruction row of eval-networks with each file, on the same materials.
+  auto errors = [&](const fs::path& weights) {
+    const auto e = run("--threads 1 eval-networks --count 2 --size 64 --autoencoder '" + weights.string() + "' --estimator '" +
+                           (models / "estimator.safetensors").string() + "'",
+                       t.path);
+    REQUIRE(e.status == 0);
+    const auto at = e.output.find("| auto-encoder reconstruction");
+    REQUIRE(at != std::string::npos);
+    std::vector<double> values;
+    std::stringstream line(e.output.substr(e.output.find(") |", at) + 3, e.output.find('\n', at) - e.output.find(") |", at) - 3));
+    std::string cell;
+    while (std::getline(line, cell, '|'))
+      if (cell.find_first_not_of(' ') != std::string::npos) values.push_back(std::stod(cell));
+    return values;
+  };
+  const auto e_full = errors(full), e_half = errors(t.path / "half.safetensors");
+  REQUIRE(e_full.size() == 7);
+  REQUIRE(e_half.size() == e_full.size());
+  for (std::size_t i = 0; i < e_full.size(); ++i) CHECK(e_half[i] == doctest::Approx(e_full[i]).epsilon(0.01));
+  // Back to floats: the original size; the input as output is refused and left as it was.
+  r = run("convert-weights half.safetensors floats.safetensors", t.path);
+  REQUIRE(r.status == 0);
+  CHECK(fs::file_size(t.path / "floats.safetensors") == fs::file_size(full));
+  const auto before = fs::file_size(t.path / "half.safetensors");
+  r = run("convert-weights half.safetensors ./half.safetensors", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("overwrite the input") != std::string::npos);
+  CHECK(fs::file_size(t.path / "half.safetensors") == before);
+  r = run("convert-weights missing.safetensors out.safetensors --half", t.path);
+  CHECK(r.status != 0);
+  CHECK(r.output.find("missing.safetensors") != std::string::npos);
+  CHECK_FALSE(fs::exists(t.path / "out.safetensors"));
+}
+
 TEST_CASE("families: new kinds synthesize, the held-out families evaluate per family, bad names and mixes are refused") {
   temp_dir t;
   auto s = run("synthesize -o leather --width 32 --height 32 --images 8 --kind leather --fresnel 4", t.path);

@@ -4,6 +4,7 @@
 #include <doctest/doctest.h>
 
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -214,6 +215,83 @@ TEST_CASE("safetensors: loading checks names, dtypes and shapes, and changes not
   nn::write_safetensors(p, f);
   nn::load_weights(p, net);
   CHECK(net.fc.weight.value[0] == 0.5f);
+}
+
+namespace {
+struct wide_network {
+  nn::linear<64, 32> fc{"fc", 7};  // 2048 weights: stored as half floats; the bias stays F32
+  nn::batch_norm<32> bn{"bn"};
+  template <class F> void for_each_parameter(F&& f) { fc.for_each_parameter(f); bn.for_each_parameter(f); }
+  template <class F> void for_each_buffer(F&& f) { bn.for_each_buffer(f); }
+};
+}  // namespace
+
+TEST_CASE("safetensors: half-float storage rounds the large tensors to the nearest half, keeps the rest, and loads as float") {
+  wide_network a;
+  nn::uniform_init(a.bn.running_mean, 1.0, 5);
+  a.fc.weight.value[0] = 1.0f;
+  a.fc.weight.value[1] = 1e-6f;  // a half subnormal
+  a.fc.weight.value[2] = -65504.0f;
+  const fs::path full = scratch("full.safetensors"), half = scratch("half.safetensors");
+  nn::save_weights(full, a, {{"preset", "test"}});
+  nn::save_weights(half, a, {{"preset", "test"}}, nn::weight_storage::f16);
+  const auto file = nn::read_safetensors(half);
+  CHECK(file.find("fc.weight")->dtype == "F16");
+  CHECK(file.find("fc.bias")->dtype == "F32");
+  CHECK(file.find("bn.running_var")->dtype == "F32");
+  CHECK(file.metadata == nn::read_safetensors(full).metadata);
+  CHECK(fs::file_size(half) + 2048 * 2 <= fs::file_size(full) + 8);  // the weights' 8 kB become 4 kB (header padding aside)
+  std::uint16_t bits;
+  std::memcpy(&bits, file.bytes(*file.find("fc.weight")).data(), 2);
+  CHECK(bits == 0x3C00);  // 1.0 in IEEE binary16
+  // Loaded: each weight is within half a unit in the last place of a half float of the original
+  // (relative 2^-11; absolute 2^-25 for the subnormals), the small tensors exactly the same.
+  wide_network b;
+  b.fc.weight.value[0] = 5;
+  nn::load_weights(half, b);
+  for (std::size_t i = 0; i < a.fc.weight.size(); ++i) {
+    const float x = a.fc.weight.value[i], y = b.fc.weight.value[i];
+    CHECK(std::abs(y - x) <= std::max(std::abs(x) * 0x1p-11f, 0x1p-25f));
+  }
+  CHECK(b.fc.weight.value[0] == 1.0f);
+  CHECK(b.fc.weight.value[2] == -65504.0f);
+  CHECK(b.fc.weight.value[1] != 1e-6f);
+  CHECK(std::abs(b.fc.weight.value[1] - 1e-6f) <= 0x1p-25f);
+  CHECK(std::memcmp(a.fc.bias.value.data(), b.fc.bias.value.data(), a.fc.bias.size() * 4) == 0);
+  CHECK(std::memcmp(a.bn.running_mean.value.data(), b.bn.running_mean.value.data(), a.bn.running_mean.size() * 4) == 0);
+  // load_matching_weights reads half floats too.
+  wide_network c;
+  CHECK(nn::load_matching_weights(half, c).empty());
+  CHECK(c.fc.weight.value[0] == 1.0f);
+  // convert_weights: F32 to F16 gives save_weights' half file byte for byte; back to F32 gives the
+  // half floats' values exactly, as F32.
+  const fs::path converted = scratch("converted.safetensors"), back = scratch("back.safetensors");
+  nn::convert_weights(full, converted, nn::weight_storage::f16);
+  CHECK(read_all(converted) == read_all(half));
+  nn::convert_weights(half, back, nn::weight_storage::f32);
+  CHECK(nn::read_safetensors(back).find("fc.weight")->dtype == "F32");
+  wide_network d;
+  nn::load_weights(back, d);
+  CHECK(std::memcmp(d.fc.weight.value.data(), b.fc.weight.value.data(), b.fc.weight.size() * 4) == 0);
+  // A weight beyond the half floats' range is refused, naming the tensor, and nothing is written.
+  a.fc.weight.value[3] = 65520.0f;  // rounds to infinity
+  const fs::path refused = scratch("refused.safetensors");
+  CHECK_THROWS_WITH_AS(nn::save_weights(refused, a, {}, nn::weight_storage::f16), doctest::Contains("'fc.weight'"), nn::safetensors_error);
+  CHECK_FALSE(fs::exists(refused));
+  nn::save_weights(full, a);
+  CHECK_THROWS_WITH_AS(nn::convert_weights(full, refused, nn::weight_storage::f16), doctest::Contains(full.string().c_str()),
+                       nn::safetensors_error);
+  CHECK_FALSE(fs::exists(refused));
+  // A half float that is not finite is refused at load, as a float one is.
+  nn::safetensors_file with_inf = nn::read_safetensors(half);
+  nn::safetensors_file broken;
+  for (const auto& e : with_inf.entries()) {
+    std::vector<std::byte> bytes(with_inf.bytes(e).begin(), with_inf.bytes(e).end());
+    if (e.name == "fc.weight") bytes[9] = std::byte{0x7C}, bytes[8] = std::byte{0};  // element 4: +infinity
+    broken.add(e.name, e.dtype, e.shape, bytes.data(), bytes.size());
+  }
+  nn::write_safetensors(refused, broken);
+  CHECK_THROWS_WITH_AS(nn::load_weights(refused, d), doctest::Contains("not finite at element 4"), nn::safetensors_error);
 }
 
 TEST_CASE("safetensors: exchange with PyTorch") {

@@ -10,6 +10,10 @@
 /// exactly (no gaps, no overlap, nothing after the last), each tensor's byte count must match its
 /// dtype and shape, and any problem throws safetensors_error naming the file and the problem.
 /// Writing goes to a temporary name and is renamed into place, so a crash never leaves half a file.
+///
+/// A network's weights may be stored as IEEE half floats ("F16", weight_storage::f16): the loaders
+/// read F16 tensors into float parameters, and save_weights and convert_weights write them, which
+/// halves a file (models/README.md measures what it changes in the networks' outputs).
 #include <algorithm>
 #include <bit>
 #include <cstddef>
@@ -26,6 +30,8 @@
 #include <type_traits>
 #include <utility>
 #include <vector>
+
+#include <Eigen/Core>  // Eigen::half: IEEE binary16 with round-to-nearest-even conversions
 
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/nn/parameter.hpp"
@@ -59,6 +65,18 @@ constexpr const char* safetensors_dtype() {
   else if constexpr (std::is_same_v<T, std::int32_t>) return "I32";
   else static_assert(sizeof(T) == 0, "no safetensors dtype for this type");
 }
+
+/// How save_weights and convert_weights store a network's float tensors: all as "F32", or the
+/// large ones (half_storage_min_elements or more elements: the convolution kernels) as "F16", the
+/// biases and batch-norm statistics staying "F32" (a few kilobytes, and the statistics span a
+/// range a half float does not).
+enum class weight_storage { f32, f16 };
+
+/// The smallest float tensor weight_storage::f16 stores as half floats.
+inline constexpr std::size_t half_storage_min_elements = 1024;
+
+/// The largest finite half float (65504).
+inline constexpr float half_max = 65504.0f;
 
 /// The contents of a safetensors file: named tensors (raw bytes, in file order) and metadata.
 class safetensors_file {
@@ -155,6 +173,40 @@ inline std::string shape_string(const std::vector<std::int64_t>& shape) {
   std::string s = "[";
   for (std::size_t i = 0; i < shape.size(); ++i) s += (i ? ", " : "") + std::to_string(shape[i]);
   return s + "]";
+}
+
+/// Whether a tensor of `dtype` loads into parameters of type T: its own dtype, or F16 into float.
+template <class T>
+bool loadable_dtype(std::string_view dtype) {
+  return dtype == safetensors_dtype<T>() || (std::is_same_v<T, float> && dtype == "F16");
+}
+
+/// Element i of a tensor of a loadable_dtype<T> as a T.
+template <class T>
+T element_as(std::string_view dtype, std::span<const std::byte> bytes, std::size_t i) {
+  if constexpr (std::is_same_v<T, float>) {
+    if (dtype == "F16") {
+      std::uint16_t bits;
+      std::memcpy(&bits, bytes.data() + i * 2, 2);
+      return float(Eigen::numext::bit_cast<Eigen::half>(bits));
+    }
+  }
+  T v;
+  std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
+  return v;
+}
+
+/// A float tensor's values as half floats (round to nearest even); throws std::invalid_argument
+/// naming the tensor when a value is beyond the half floats' range.
+inline std::vector<std::uint16_t> to_half(const std::string& name, const float* values, std::size_t count) {
+  std::vector<std::uint16_t> bits(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    if (!(std::abs(values[i]) <= half_max))
+      throw std::invalid_argument("tensor '" + name + "' holds " + std::to_string(values[i]) + " at element " + std::to_string(i) +
+                                  ", beyond the half floats' range (65504): store it as F32");
+    bits[i] = Eigen::numext::bit_cast<std::uint16_t>(Eigen::half(values[i]));
+  }
+  return bits;
 }
 
 }  // namespace detail
@@ -334,20 +386,41 @@ void visit_weights(Network& net, F&& f) {
   net.for_each_parameter(f);
   if constexpr (requires { net.for_each_buffer(f); }) net.for_each_buffer(f);
 }
+
+/// Copies a checked tensor (a loadable_dtype of the parameter's type, its shape) into parameter p.
+template <class Parameter>
+void copy_tensor(const safetensors_file& contents, const safetensors_file::entry& e, Parameter& p) {
+  using T = std::remove_cvref_t<decltype(p.value[0])>;
+  const auto bytes = contents.bytes(e);
+  if (e.dtype == safetensors_dtype<T>()) {
+    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
+    return;
+  }
+  for (std::size_t i = 0; i < e.count(); ++i) p.value[i] = detail::element_as<T>(e.dtype, bytes, i);
+}
 }  // namespace detail
 
 /// Saves every parameter of a layer or network (for_each_parameter, then for_each_buffer where the
 /// network has one, e.g. batch-norm running statistics) under its name, with its logical shape.
+///
+/// With weight_storage::f16 the float tensors of half_storage_min_elements or more elements are
+/// stored as half floats (a value beyond their range is refused, naming the tensor, and nothing is
+/// written).
 template <class Network>
-void save_weights(const std::filesystem::path& file, Network& net,
-                  std::vector<std::pair<std::string, std::string>> metadata = {}) {
+void save_weights(const std::filesystem::path& file, Network& net, std::vector<std::pair<std::string, std::string>> metadata = {},
+                  weight_storage storage = weight_storage::f32) {
   safetensors_file contents;
   contents.metadata = std::move(metadata);
   detail::visit_weights(net, [&](auto& p) {
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     std::vector<std::int64_t> shape(p.shape.begin(), p.shape.end());
     try {
-      contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
+      if (std::is_same_v<T, float> && storage == weight_storage::f16 && p.size() >= half_storage_min_elements) {
+        const auto bits = detail::to_half(p.name, reinterpret_cast<const float*>(p.value.data()), p.size());
+        contents.add(p.name, "F16", std::move(shape), bits.data(), bits.size() * 2);
+      } else {
+        contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
+      }
     } catch (const std::invalid_argument& e) {
       detail::safetensors_fail(file, e.what());
     }
@@ -365,23 +438,19 @@ void load_weights(const std::filesystem::path& file, Network& net) {
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     const auto* e = contents.find(p.name);
     if (!e) detail::safetensors_fail(file, "missing tensor '" + p.name + "'");
-    if (e->dtype != safetensors_dtype<T>())
-      detail::safetensors_fail(file, "tensor '" + p.name + "' has dtype " + e->dtype + ", expected " + safetensors_dtype<T>());
+    if (!detail::loadable_dtype<T>(e->dtype))
+      detail::safetensors_fail(file, "tensor '" + p.name + "' has dtype " + e->dtype + ", expected " + safetensors_dtype<T>() +
+                                         (std::is_same_v<T, float> ? " or F16" : ""));
     const std::vector<std::int64_t> expected(p.shape.begin(), p.shape.end());
     if (e->shape != expected)
       detail::safetensors_fail(file, "tensor '" + p.name + "' has shape " + detail::shape_string(e->shape) + ", expected " +
                                          detail::shape_string(expected));
     const auto bytes = contents.bytes(*e);
-    for (std::size_t i = 0; i < bytes.size() / sizeof(T); ++i) {  // a NaN weight would only show as NaN maps much later
-      T v;
-      std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
-      if (!std::isfinite(double(v))) detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
-    }
+    for (std::size_t i = 0; i < e->count(); ++i)  // a NaN weight would only show as NaN maps much later
+      if (!std::isfinite(double(detail::element_as<T>(e->dtype, bytes, i))))
+        detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
   });
-  detail::visit_weights(net, [&](auto& p) {
-    const auto bytes = contents.bytes(*contents.find(p.name));
-    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
-  });
+  detail::visit_weights(net, [&](auto& p) { detail::copy_tensor(contents, *contents.find(p.name), p); });
 }
 
 /// Loads the parameters (and buffers) whose tensor the file has with the same name, dtype and
@@ -397,7 +466,7 @@ std::vector<std::string> load_matching_weights(const std::filesystem::path& file
   auto matches = [&](auto& p) {
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     const auto* e = contents.find(p.name);
-    return e && e->dtype == safetensors_dtype<T>() && e->shape == std::vector<std::int64_t>(p.shape.begin(), p.shape.end());
+    return e && detail::loadable_dtype<T>(e->dtype) && e->shape == std::vector<std::int64_t>(p.shape.begin(), p.shape.end());
   };
   detail::visit_weights(net, [&](auto& p) {
     if (!matches(p)) {
@@ -406,20 +475,48 @@ std::vector<std::string> load_matching_weights(const std::filesystem::path& file
     }
     ++matched;
     using T = std::remove_cvref_t<decltype(p.value[0])>;
-    const auto bytes = contents.bytes(*contents.find(p.name));
-    for (std::size_t i = 0; i < bytes.size() / sizeof(T); ++i) {
-      T v;
-      std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
-      if (!std::isfinite(double(v))) detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
-    }
+    const auto* e = contents.find(p.name);
+    const auto bytes = contents.bytes(*e);
+    for (std::size_t i = 0; i < e->count(); ++i)
+      if (!std::isfinite(double(detail::element_as<T>(e->dtype, bytes, i))))
+        detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
   });
   if (matched == 0) detail::safetensors_fail(file, "no tensor matches this network's parameters by name and shape");
   detail::visit_weights(net, [&](auto& p) {
-    if (!matches(p)) return;
-    const auto bytes = contents.bytes(*contents.find(p.name));
-    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
+    if (matches(p)) detail::copy_tensor(contents, *contents.find(p.name), p);
   });
   return skipped;
+}
+
+/// Rewrites a weight file with its float tensors stored as `storage` says (weight_storage): F32
+/// tensors of half_storage_min_elements or more elements to F16 for f16, F16 tensors back to F32 for
+/// f32 (exactly: every half float is a float); other tensors and the metadata as they are. Writes
+/// through a temporary name; throws safetensors_error naming `in` for an unreadable file or a value
+/// beyond the half floats' range, and `out` when it cannot be written (nothing written then).
+inline void convert_weights(const std::filesystem::path& in, const std::filesystem::path& out, weight_storage storage) {
+  const safetensors_file source = read_safetensors(in);
+  safetensors_file result;
+  result.metadata = source.metadata;
+  for (const auto& e : source.entries()) {
+    const auto bytes = source.bytes(e);
+    try {
+      if (storage == weight_storage::f16 && e.dtype == "F32" && e.count() >= half_storage_min_elements) {
+        std::vector<float> values(e.count());
+        std::memcpy(values.data(), bytes.data(), bytes.size());
+        const auto bits = detail::to_half(e.name, values.data(), values.size());
+        result.add(e.name, "F16", e.shape, bits.data(), bits.size() * 2);
+      } else if (storage == weight_storage::f32 && e.dtype == "F16") {
+        std::vector<float> values(e.count());
+        for (std::size_t i = 0; i < values.size(); ++i) values[i] = detail::element_as<float>("F16", bytes, i);
+        result.add<float>(e.name, e.shape, values.data(), values.size());
+      } else {
+        result.add(e.name, e.dtype, e.shape, bytes.data(), bytes.size());
+      }
+    } catch (const std::invalid_argument& error) {
+      detail::safetensors_fail(in, error.what());
+    }
+  }
+  write_safetensors(out, result);
 }
 
 }  // namespace anisocap::nn
