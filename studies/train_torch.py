@@ -61,7 +61,7 @@ ESTIMATOR_PRESETS["compact-orientation-doubled-angle"] = dict(ESTIMATOR_PRESETS[
 AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 64, 128, 256, 256],
                        "compact-fine": [32, 64, 128, 128],  # four levels: latent (H/16) x (W/16)
                        "compact-fine-wide": [32, 64, 128, 256], "compact-fine-wider": [64, 128, 256, 256],
-                       "compact-fine-widest": [64, 128, 256, 384]}
+                       "compact-fine-widest": [64, 128, 256, 384], "compact-fine-512": [64, 128, 256, 512]}
 
 
 # ---- safetensors in the C++ layout -------------------------------------------------------------

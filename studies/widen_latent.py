@@ -4,11 +4,12 @@
     python3 studies/widen_latent.py SOURCE.safetensors OUT.safetensors [--to PRESET] [--seed 1]
 
 SOURCE is a four-level auto-encoder file: `compact-fine` (32-64-128-128), `compact-fine-wide`
-(32-64-128-256) or `compact-fine-wider` (64-128-256-256); `--to` names a four-level preset at least
+(32-64-128-256), `compact-fine-wider` (64-128-256-256) or `compact-fine-widest` (64-128-256-384); `--to` names a four-level preset at least
 as wide at every level: `compact-fine-wide` (the default: the latent 256 wide, the paper's 12 map
 values per latent value, models/README.md "Run 27"), `compact-fine-wider` (64-128-256-256: the
-levels above the latent twice as wide, "Run 30") or `compact-fine-widest` (64-128-256-384: a
-384-wide latent, 8 map values per latent value, "Run 31").
+levels above the latent twice as wide, "Run 30"), `compact-fine-widest` (64-128-256-384: a
+384-wide latent, 8 map values per latent value, "Run 31") or `compact-fine-512` (64-128-256-512:
+6 map values per latent value, "Run 32").
 
 Every layer keeps the source's weights on the source's channels. A new output channel of a
 layer (a new filter) starts as PyTorch initialises a convolution, and the next layer reads it with
@@ -26,7 +27,7 @@ import torch
 
 from train_torch import AUTOENCODER_PRESETS, AutoEncoder, load_cpp, read_safetensors, save_cpp
 
-TARGETS = ("compact-fine-wide", "compact-fine-wider", "compact-fine-widest")
+TARGETS = ("compact-fine-wide", "compact-fine-wider", "compact-fine-widest", "compact-fine-512")
 
 
 def widen_layer(old, new, transposed):

@@ -41,8 +41,9 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
     cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent), "
                    "compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32), compact-fine-wide (compact-fine with a "
                    "256-wide latent: the paper's 12 map values per latent value), compact-fine-wider (compact-fine-wide with "
-                   "the levels above the latent twice as wide) and compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
-                   "map values per latent value)")
+                   "the levels above the latent twice as wide), compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
+                   "map values per latent value) and compact-fine-512 (a 512-wide latent: 6 map values per latent value; "
+                   "22 MB as floats, 11 MB with convert-weights --half)")
         ->check(CLI::IsMember(preset_choices<autoencoder_paper, compact_autoencoder_presets>()));
   else
     cmd->add_option("--preset", s.preset,

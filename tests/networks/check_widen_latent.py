@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""studies/widen_latent.py against the C++ library: the compact-fine-wide file it makes from a
-compact-fine one, the compact-fine-wider file it makes from that and the compact-fine-widest file
-it makes from that reconstruct the validation materials as the compact-fine file does, read by
-`anisocap eval-networks` (the C++ network); a file of another preset, and a narrowing, are refused
-with the file's name and nothing is written; and the port's presets are the C++ trainers' compact
---preset choices. Exits 77 (a skip) without PyTorch.
+"""studies/widen_latent.py against the C++ library: the chain of files it makes from a
+compact-fine one (compact-fine-wide, then compact-fine-wider, compact-fine-widest and
+compact-fine-512, each from the one before) reconstructs the validation materials as the
+compact-fine file does, read by `anisocap eval-networks` (the C++ network); a file of another
+preset, and a narrowing, are refused with the file's name and nothing is written; and the port's
+presets are the C++ trainers' compact --preset choices. Exits 77 (a skip) without PyTorch.
 
     check_widen_latent.py ANISOCAP SOURCE_DIR"""
 import os
@@ -55,16 +55,20 @@ def main():
         wide = os.path.join(tmp, "wide.safetensors")
         wider = os.path.join(tmp, "wider.safetensors")
         widest = os.path.join(tmp, "widest.safetensors")
+        w512 = os.path.join(tmp, "w512.safetensors")
         subprocess.run([sys.executable, script, fine, wide], check=True)
         subprocess.run([sys.executable, script, wide, wider, "--to", "compact-fine-wider"], check=True)
         subprocess.run([sys.executable, script, wider, widest, "--to", "compact-fine-widest"], check=True)
-        (p_fine, e_fine), (p_wide, e_wide), (p_wider, e_wider), (p_widest, e_widest) = (
-            reconstruction(program, f) for f in (fine, wide, wider, widest))
-        if (p_fine, p_wide, p_wider, p_widest) != ("compact-fine", "compact-fine-wide", "compact-fine-wider", "compact-fine-widest"):
-            failures.append(f"presets {p_fine}, {p_wide}, {p_wider}, {p_widest}")
+        subprocess.run([sys.executable, script, widest, w512, "--to", "compact-fine-512"], check=True)
+        (p_fine, e_fine), (p_wide, e_wide), (p_wider, e_wider), (p_widest, e_widest), (p_512, e_512) = (
+            reconstruction(program, f) for f in (fine, wide, wider, widest, w512))
+        if (p_fine, p_wide, p_wider, p_widest, p_512) != ("compact-fine", "compact-fine-wide", "compact-fine-wider", "compact-fine-widest",
+                                                           "compact-fine-512"):
+            failures.append(f"presets {p_fine}, {p_wide}, {p_wider}, {p_widest}, {p_512}")
         # eval-networks prints 4 significant digits; the sums over the extra zero-weighted channels
         # may round differently in the last one.
-        for name, errors in (("compact-fine-wide", e_wide), ("compact-fine-wider", e_wider), ("compact-fine-widest", e_widest)):
+        for name, errors in (("compact-fine-wide", e_wide), ("compact-fine-wider", e_wider), ("compact-fine-widest", e_widest),
+                             ("compact-fine-512", e_512)):
             if any(abs(a - b) > 2e-3 * max(abs(a), 1e-12) for a, b in zip(e_fine, errors)):
                 failures.append(f"{name}: reconstruction errors differ: {e_fine} against {errors}")
         # The shipped compact auto-encoder is not compact-fine: refused, naming the file, no output.
@@ -74,12 +78,14 @@ def main():
         if r.returncode == 0 or compact not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
             failures.append(f"a compact file was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
         # Nor is a wider file narrowed: compact-fine-wider and compact-fine-widest to compact-fine-wide,
-        # and compact-fine-widest to compact-fine-wider, are refused.
-        for source, to in ((wider, "compact-fine-wide"), (widest, "compact-fine-wide"), (widest, "compact-fine-wider")):
+        # compact-fine-widest to compact-fine-wider and compact-fine-512 to compact-fine-widest, are refused.
+        for source, to in ((wider, "compact-fine-wide"), (widest, "compact-fine-wide"), (widest, "compact-fine-wider"),
+                           (w512, "compact-fine-widest")):
             r = subprocess.run([sys.executable, script, source, refused, "--to", to], capture_output=True, text=True)
             if r.returncode == 0 or source not in r.stderr or os.path.exists(refused) or os.path.exists(refused + ".partial"):
                 failures.append(f"{source} to {to} was not refused as it should be: exit {r.returncode}, {r.stderr!r}")
-    print(f"compact-fine {e_fine}\ncompact-fine-wide {e_wide}\ncompact-fine-wider {e_wider}\ncompact-fine-widest {e_widest}")
+    print(f"compact-fine {e_fine}\ncompact-fine-wide {e_wide}\ncompact-fine-wider {e_wider}\ncompact-fine-widest {e_widest}\n"
+          f"compact-fine-512 {e_512}")
     if failures:
         raise SystemExit("FAILED: " + "; ".join(failures))
     print("passed")

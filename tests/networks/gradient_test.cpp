@@ -10,6 +10,7 @@
 #include "anisocap/core/random.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
+#include "anisocap/nn/safetensors.hpp"
 #include "support/gradient_check.hpp"
 #include "tiny_presets.hpp"
 
@@ -254,4 +255,24 @@ TEST_CASE("auto-encoder layers: compact-fine-widest is compact-fine-wider with a
   // biases), their batch norm (256) and dec0's weights for the 128 more latent channels.
   CHECK(count == 3'434'124 + (256 * 128 * 16 + 128) + 256 + 128 * 256 * 16);
   CHECK(count * 4 < 20'000'000);  // under the repository's 20 MB a weight file
+}
+
+TEST_CASE("auto-encoder layers: compact-fine-512 is compact-fine-wider with a 512-wide latent, under 20 MB with half-float kernels") {
+  using net_512 = auto_encoder<autoencoder_compact_fine_512>;
+  CHECK(net_512::size_multiple == 16);
+  CHECK(net_512::latent_channels == 512);
+  net_512 net(1);
+  CHECK(net.enc<3>().weight.shape == std::vector<int>{4, 4, 256, 512});
+  CHECK(net.latent_norm.weight.size() == 512);
+  CHECK(net.dec<0>().weight.shape == std::vector<int>{4, 4, 512, 256});
+  std::size_t count = 0, half_stored = 0;
+  net.for_each_parameter([&](nn::basic_parameter<float>& p) {
+    count += p.size();
+    if (p.size() >= nn::half_storage_min_elements) half_stored += p.size();
+  });
+  // compact-fine-wider's 3 434 124 plus 256 more filters in enc3 (256 x 256 x 16 weights and 256
+  // biases), their batch norm (512) and dec0's weights for the 256 more latent channels.
+  CHECK(count == 3'434'124 + (256 * 256 * 16 + 256) + 512 + 256 * 256 * 16);
+  CHECK(count * 4 > 20'000'000);                                   // as floats: over the 20 MB
+  CHECK(half_stored * 2 + (count - half_stored) * 4 < 20'000'000);  // convert-weights --half: under
 }

@@ -68,6 +68,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wide>) return 3;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_wider>) return 4;
       else if constexpr (std::is_same_v<P, autoencoder_compact_fine_widest>) return 5;
+      else if constexpr (std::is_same_v<P, autoencoder_compact_fine_512>) return 6;
       else if constexpr (std::is_same_v<P, autoencoder_compact>) return 0;
       else return -1;
     });
@@ -79,6 +80,7 @@ TEST_CASE("the compact auto-encoder dispatch picks the type the file names") {
   CHECK(call(weights_with("a4.safetensors", {{"preset", "compact-fine-wide"}})) == 3);
   CHECK(call(weights_with("a5.safetensors", {{"preset", "compact-fine-wider"}})) == 4);
   CHECK(call(weights_with("a6.safetensors", {{"preset", "compact-fine-widest"}})) == 5);
+  CHECK(call(weights_with("a7.safetensors", {{"preset", "compact-fine-512"}})) == 6);
 }
 
 TEST_CASE("a preset list names its presets in order and calls the one a name picks") {
@@ -101,7 +103,7 @@ TEST_CASE("a preset list names its presets in order and calls the one a name pic
     CHECK(names.front() == "compact");
     CHECK(std::set<std::string>(names.begin(), names.end()).size() == names.size());
   }
-  CHECK(compact_autoencoder_presets::names().size() == 6);
+  CHECK(compact_autoencoder_presets::names().size() == 7);
   CHECK(compact_estimator_presets::names().size() == 4);
   CHECK_FALSE(compact_autoencoder_presets::contains("paper"));
 }

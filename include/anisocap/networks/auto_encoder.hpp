@@ -5,8 +5,8 @@
 /// shipped weights in models/compact/) and the experimental `autoencoder_compact_wide` and
 /// `autoencoder_compact_fine` (latent (H/16) x (W/16) x 128), `autoencoder_compact_fine_wide`
 /// (latent (H/16) x (W/16) x 256), `autoencoder_compact_fine_wider` (the same latent, the levels
-/// above it twice as wide) and `autoencoder_compact_fine_widest` (compact-fine-wider with a 384-wide
-/// latent).
+/// above it twice as wide), `autoencoder_compact_fine_widest` (compact-fine-wider with a 384-wide
+/// latent) and `autoencoder_compact_fine_512` (a 512-wide latent).
 #include <cstddef>
 #include <string>
 #include <tuple>
@@ -76,12 +76,22 @@ struct autoencoder_compact_fine_widest {
   static constexpr const char* name = "compact-fine-widest";        ///< preset name in files
 };
 
+/// An experimental variant of `compact-fine-widest` with a 512-wide latent, 64-128-256-512: 6 map
+/// values per latent value, the compression at which the best linear code of a 16 x 16 cell comes
+/// near 0.2x the estimator's a_d error (models/README.md "Run 31"). 5.5 M parameters: 22.1 MB as
+/// floats, over the repository's 20 MB a file, 11.1 MB with half-float kernels (`convert-weights
+/// --half`). studies/widen_latent.py starts it from a narrower four-level file with the same output.
+struct autoencoder_compact_fine_512 {
+  static constexpr std::array<int, 4> encoder{64, 128, 256, 512};  ///< encoder widths; latent = last
+  static constexpr const char* name = "compact-fine-512";           ///< preset name in files
+};
+
 /// The map auto-encoder (docs/method.md section 7, after Gao 2019): L = Preset::encoder.size()
 /// 4x4 stride-2 convolutions with leaky ReLU between them and one batch normalisation at the end
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
-/// presets have L = 5, `compact-fine`, `compact-fine-wide`, `compact-fine-wider` and
-/// `compact-fine-widest` 4. encode() and decode() are separate so that the pipeline can fine-tune
+/// presets have L = 5, `compact-fine`, `compact-fine-wide`, `compact-fine-wider`,
+/// `compact-fine-widest` and `compact-fine-512` 4. encode() and decode() are separate so that the pipeline can fine-tune
 /// the decoder with z fixed and the encoder frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {

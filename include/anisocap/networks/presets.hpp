@@ -71,7 +71,7 @@ using compact_estimator_presets = preset_list<estimator_compact, estimator_compa
 /// first, which is also what a file without a preset holds).
 using compact_autoencoder_presets =
     preset_list<autoencoder_compact, autoencoder_compact_wide, autoencoder_compact_fine, autoencoder_compact_fine_wide,
-                autoencoder_compact_fine_wider, autoencoder_compact_fine_widest>;
+                autoencoder_compact_fine_wider, autoencoder_compact_fine_widest, autoencoder_compact_fine_512>;
 
 /// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names (one of
 /// compact_estimator_presets; estimator_compact for a file without a preset). Throws
