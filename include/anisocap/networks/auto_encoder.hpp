@@ -91,8 +91,8 @@ struct autoencoder_compact_fine_512 {
 /// give the latent code z (H/2^L x W/2^L x Preset::encoder[L-1]); L 4x4 stride-2 transposed
 /// convolutions decode it back to 12 channels in network space (tanh). The paper's and the compact
 /// presets have L = 5, `compact-fine`, `compact-fine-wide`, `compact-fine-wider`,
-/// `compact-fine-widest` and `compact-fine-512` 4. encode() and decode() are separate so that the pipeline can fine-tune
-/// the decoder with z fixed and the encoder frozen (docs/method.md section 8).
+/// `compact-fine-widest` and `compact-fine-512` 4. encode() and decode() are separate so that the
+/// pipeline can fine-tune the decoder with z fixed and the encoder frozen (docs/method.md section 8).
 template <class Preset, class T = float>
 class auto_encoder {
   static constexpr auto E = Preset::encoder;

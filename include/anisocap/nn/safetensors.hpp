@@ -415,12 +415,14 @@ void save_weights(const std::filesystem::path& file, Network& net, std::vector<s
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     std::vector<std::int64_t> shape(p.shape.begin(), p.shape.end());
     try {
-      if (std::is_same_v<T, float> && storage == weight_storage::f16 && p.size() >= half_storage_min_elements) {
-        const auto bits = detail::to_half(p.name, reinterpret_cast<const float*>(p.value.data()), p.size());
-        contents.add(p.name, "F16", std::move(shape), bits.data(), bits.size() * 2);
-      } else {
-        contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
+      if constexpr (std::is_same_v<T, float>) {
+        if (storage == weight_storage::f16 && p.size() >= half_storage_min_elements) {
+          const auto bits = detail::to_half(p.name, p.value.data(), p.size());
+          contents.add(p.name, "F16", std::move(shape), bits.data(), bits.size() * 2);
+          return;
+        }
       }
+      contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
     } catch (const std::invalid_argument& e) {
       detail::safetensors_fail(file, e.what());
     }
