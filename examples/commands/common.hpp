@@ -88,8 +88,9 @@ inline fs::path output_inside(const fs::path& out, const std::string& name) {
 }
 
 /// Throws std::invalid_argument when one of `outputs` is one of `inputs` (the same file, however
-/// named): a command never overwrites what it reads.
-inline void refuse_overwriting_inputs(const std::vector<fs::path>& outputs, const std::vector<fs::path>& inputs) {
+/// named): a command never overwrites what it reads. `advice` ends the message: what to choose instead.
+inline void refuse_overwriting_inputs(const std::vector<fs::path>& outputs, const std::vector<fs::path>& inputs,
+                                      const std::string& advice = "choose another output folder (-o)") {
   std::vector<fs::path> existing;
   for (const auto& in : inputs)
     if (fs::exists(in)) existing.push_back(fs::weakly_canonical(in));
@@ -97,7 +98,7 @@ inline void refuse_overwriting_inputs(const std::vector<fs::path>& outputs, cons
     const fs::path o = fs::weakly_canonical(out);
     for (const auto& in : existing)
       if (o == in)
-        throw std::invalid_argument(out.string() + ": this output would overwrite one of the command's inputs; choose another output folder (-o)");
+        throw std::invalid_argument(out.string() + ": this output would overwrite one of the command's inputs; " + advice);
   }
 }
 

@@ -280,8 +280,7 @@ struct convert_settings {
 
 /// convert-weights: nn::convert_weights, refusing to write over its input; prints both sizes.
 inline void convert_weights(const convert_settings& s) {
-  if (fs::exists(s.output) && fs::equivalent(s.input, s.output))
-    throw std::invalid_argument(s.output.string() + ": the output would overwrite the input; choose another file");
+  refuse_overwriting_inputs({s.output}, {s.input}, "choose another output file");
   nn::convert_weights(s.input, s.output, s.half ? nn::weight_storage::f16 : nn::weight_storage::f32);
   std::printf("%s: %.1f MB (%s: %.1f MB), the large tensors as %s\n", s.output.string().c_str(), double(fs::file_size(s.output)) / 1e6,
               s.input.string().c_str(), double(fs::file_size(s.input)) / 1e6, s.half ? "half floats" : "floats");

@@ -711,7 +711,7 @@ TEST_CASE("convert-weights --half: a file of about half the size that eval-netwo
   const auto before = fs::file_size(t.path / "half.safetensors");
   r = run("convert-weights half.safetensors ./half.safetensors", t.path);
   CHECK(r.status != 0);
-  CHECK(r.output.find("overwrite the input") != std::string::npos);
+  CHECK(r.output.find("would overwrite one of the command's inputs; choose another output file") != std::string::npos);
   CHECK(fs::file_size(t.path / "half.safetensors") == before);
   r = run("convert-weights missing.safetensors out.safetensors --half", t.path);
   CHECK(r.status != 0);

@@ -49,8 +49,9 @@ def main():
     sys.path.insert(0, os.path.join(source_dir, "studies"))
     import train_torch
     for command, port in (("train-autoencoder", train_torch.AUTOENCODER_PRESETS), ("train-estimator", train_torch.ESTIMATOR_PRESETS)):
-        if trainer_presets(program, command) != set(port):
-            failures.append(f"{command}'s compact presets {sorted(trainer_presets(program, command))} are not the port's {sorted(port)}")
+        presets = trainer_presets(program, command)
+        if presets != set(port):
+            failures.append(f"{command}'s compact presets {sorted(presets)} are not the port's {sorted(port)}")
     with tempfile.TemporaryDirectory() as tmp:
         wide = os.path.join(tmp, "wide.safetensors")
         wider = os.path.join(tmp, "wider.safetensors")

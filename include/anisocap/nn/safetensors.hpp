@@ -387,6 +387,16 @@ void visit_weights(Network& net, F&& f) {
   if constexpr (requires { net.for_each_buffer(f); }) net.for_each_buffer(f);
 }
 
+/// Throws safetensors_error naming `file` and the tensor when a value of tensor `e` (a
+/// loadable_dtype of T) is not finite: a NaN weight would only show as NaN maps much later.
+template <class T>
+void check_finite(const std::filesystem::path& file, const safetensors_file& contents, const safetensors_file::entry& e) {
+  const auto bytes = contents.bytes(e);
+  for (std::size_t i = 0; i < e.count(); ++i)
+    if (!std::isfinite(double(element_as<T>(e.dtype, bytes, i))))
+      safetensors_fail(file, "tensor '" + e.name + "' holds a value that is not finite at element " + std::to_string(i));
+}
+
 /// Copies a checked tensor (a loadable_dtype of the parameter's type, its shape) into parameter p.
 template <class Parameter>
 void copy_tensor(const safetensors_file& contents, const safetensors_file::entry& e, Parameter& p) {
@@ -447,10 +457,7 @@ void load_weights(const std::filesystem::path& file, Network& net) {
     if (e->shape != expected)
       detail::safetensors_fail(file, "tensor '" + p.name + "' has shape " + detail::shape_string(e->shape) + ", expected " +
                                          detail::shape_string(expected));
-    const auto bytes = contents.bytes(*e);
-    for (std::size_t i = 0; i < e->count(); ++i)  // a NaN weight would only show as NaN maps much later
-      if (!std::isfinite(double(detail::element_as<T>(e->dtype, bytes, i))))
-        detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
+    detail::check_finite<T>(file, contents, *e);
   });
   detail::visit_weights(net, [&](auto& p) { detail::copy_tensor(contents, *contents.find(p.name), p); });
 }
@@ -477,11 +484,7 @@ std::vector<std::string> load_matching_weights(const std::filesystem::path& file
     }
     ++matched;
     using T = std::remove_cvref_t<decltype(p.value[0])>;
-    const auto* e = contents.find(p.name);
-    const auto bytes = contents.bytes(*e);
-    for (std::size_t i = 0; i < e->count(); ++i)
-      if (!std::isfinite(double(detail::element_as<T>(e->dtype, bytes, i))))
-        detail::safetensors_fail(file, "tensor '" + p.name + "' holds a value that is not finite at element " + std::to_string(i));
+    detail::check_finite<T>(file, contents, *contents.find(p.name));
   });
   if (matched == 0) detail::safetensors_fail(file, "no tensor matches this network's parameters by name and shape");
   detail::visit_weights(net, [&](auto& p) {

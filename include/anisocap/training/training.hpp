@@ -161,6 +161,11 @@ inline double lobe_width_squared_error(const float* p, const float* q, int form,
   return (sx - tx) * (sx - tx) + (sy - ty) * (sy - ty);
 }
 
+/// Whether parameter k is one of a_d's channels (loss_weights::diffuse weighs them).
+constexpr bool is_diffuse_channel(int k) { return k == diffuse_r || k == diffuse_g || k == diffuse_b; }
+/// Whether parameter k is one of the shading normal's channels (loss_weights::normal weighs them).
+constexpr bool is_normal_channel(int k) { return k == normal_x || k == normal_y; }
+
 /// The squared error of a_d, a'_s, F0 and the shading normal's x and y in the original ranges,
 /// each map's mean as compare_maps takes it: compare_maps' diffuse + specular + fresnel errors plus
 /// its normal error without the z component's term (what evaluations measure of these maps, the
@@ -177,7 +182,7 @@ inline double map_squared_error(const material_maps& estimate, const material_ma
   static constexpr int planes[] = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, normal_x, normal_y, fresnel_f0};
   double total = 0, diffuse = 0, normal = 0;
   for (int k : planes) {
-    const bool is_diffuse = k == diffuse_r || k == diffuse_g || k == diffuse_b, is_normal = k == normal_x || k == normal_y;
+    const bool is_diffuse = is_diffuse_channel(k), is_normal = is_normal_channel(k);
     const double weight = (k == fresnel_f0 ? 1.0 : 1.0 / 3) / double(n);
     const double step = scale * weight * 2 * (is_diffuse ? diffuse_scale : is_normal ? normal_scale : 1.0);
     const float *e = estimate.plane(k), *t = truth.plane(k);
@@ -227,7 +232,7 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
   // Each channel's weight in the L1 term (the lobe channels go through lobe_l1 and w.lobe).
   float channel_weight[parameter_count];
   for (int k = 0; k < parameter_count; ++k)
-    channel_weight[k] = float(k == diffuse_r || k == diffuse_g || k == diffuse_b ? w.diffuse : k == normal_x || k == normal_y ? w.normal : 1.0);
+    channel_weight[k] = float(is_diffuse_channel(k) ? w.diffuse : is_normal_channel(k) ? w.normal : 1.0);
   for (int b = 0; b < B; ++b) {
     const sample& s = samples[b];
     double l1 = 0, lobe = 0, sigma = 0, diffuse = 0, normal = 0;
@@ -243,8 +248,8 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
           if (k == lobe_x || k == lobe_y || k == rotation) continue;
           const float d = p[k] - q[k];
           l1 += std::abs(d);
-          if (k == diffuse_r || k == diffuse_g || k == diffuse_b) diffuse += std::abs(d);
-          if (k == normal_x || k == normal_y) normal += std::abs(d);
+          if (is_diffuse_channel(k)) diffuse += std::abs(d);
+          if (is_normal_channel(k)) normal += std::abs(d);
           const float channel_step = step * channel_weight[k];
           if (g) g[k] += d > 0 ? channel_step : (d < 0 ? -channel_step : 0.0f);
         }
