@@ -66,6 +66,11 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                   "on --resume, the run's saved decay, and another one is logged and recorded in checkpoint.json)")
       ->check(CLI::NonNegativeNumber);
   cmd->add_option("--lr-end", o.lr_end, "the learning rate after the decay, as a fraction of --lr")->check(CLI::Range(0.0, 1.0));
+  cmd->add_option("--lr-warmup", o.lr_warmup,
+                  "optimiser steps over which the learning rate rises linearly to its schedule (0: none; a run that starts "
+                  "from trained weights with --init wants some: Adam's first steps at the full rate knock it off its minimum; "
+                  "a resume must give the run's own value)")
+      ->check(CLI::NonNegativeNumber);
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");

@@ -720,6 +720,9 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch or
   o = resume();
   o.normal_weight = 0.5;
   refused([&] { training::train_autoencoder(o, net); }, "trained with normal_weight 1, not 0.5; resume it with --normal-weight 1");
+  o = resume();
+  o.lr_warmup = 3;
+  refused([&] { training::train_autoencoder(o, net); }, "trained with lr_warmup 0, not 3; resume it with --lr-warmup 0");
   auto_encoder<autoencoder_tiny_renamed> renamed(3);
   o = resume();
   refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");
@@ -862,6 +865,57 @@ TEST_CASE("training: a learning-rate decay resumes exactly, is kept on resume, a
   bad.lr_end = 2;
   CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-end"), std::invalid_argument);
   for (const fs::path& dir : {straight, resumed, added, constant}) fs::remove_all(dir);
+}
+
+TEST_CASE("training: a learning-rate warm-up ramps the schedule's first steps, resumes exactly and is recorded") {
+  // The schedule: step s < N at (s + 1) / N of the rate, on top of a decay, and the decay's rates after it.
+  training::train_options o;
+  o.lr_warmup = 4;
+  o.lr_decay_from = 2;
+  o.lr_decay_to = 10;
+  o.lr_end = 0.1;
+  const auto warm = training::training_schedule(1e-3, o);
+  o.lr_warmup = 0;
+  const auto cold = training::training_schedule(1e-3, o);
+  for (long s = 0; s < 12; ++s) CHECK(warm(s) == doctest::Approx(cold(s) * (s < 4 ? double(s + 1) / 4 : 1.0)).epsilon(1e-12));
+  CHECK(warm(0) == doctest::Approx(2.5e-4));
+  CHECK(warm(11) == doctest::Approx(1e-4));
+
+  const fs::path straight = fresh_folder("networks_warmup_straight"), resumed = fresh_folder("networks_warmup_resumed"),
+                 cold_dir = fresh_folder("networks_warmup_cold");
+  auto warming = [](const fs::path& dir) {
+    auto t = tiny_options(dir, 64);
+    t.lr_warmup = 3;
+    return t;
+  };
+  estimation_network<testing::estimator_tiny> reference(3);
+  training::train_estimator(warming(straight), reference);
+  CHECK(training::read_checkpoint_description(straight).at("lr_warmup").get<long>() == 3);
+  {
+    estimation_network<testing::estimator_tiny> killed(3);
+    auto t = warming(resumed);
+    t.stop_after = 2;  // inside the warm-up
+    training::train_estimator(t, killed);
+  }
+  estimation_network<testing::estimator_tiny> continued(99);
+  auto t = warming(resumed);
+  t.resume = true;
+  training::train_estimator(t, continued);
+  const auto w = all_weights(reference), w_continued = all_weights(continued);
+  REQUIRE(w.size() == w_continued.size());
+  CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
+  // The warm-up changes the result: a run of the same seed without it ends elsewhere.
+  estimation_network<testing::estimator_tiny> flat(3);
+  training::train_estimator(tiny_options(cold_dir, 64), flat);
+  const auto w_flat = all_weights(flat);
+  CHECK_FALSE(std::equal(w.begin(), w.end(), w_flat.begin()));
+  // A negative warm-up is refused before anything is written.
+  auto bad = warming(fresh_folder("networks_warmup_bad"));
+  bad.lr_warmup = -1;
+  estimation_network<testing::estimator_tiny> unused(3);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-warmup"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(bad.out_dir));
+  for (const fs::path& dir : {straight, resumed, cold_dir}) fs::remove_all(dir);
 }
 
 TEST_CASE("training: checkpoints as earlier versions wrote them resume with their own settings") {

@@ -349,6 +349,12 @@ struct train_options {
   long lr_decay_from = 0;
   long lr_decay_to = 0;               ///< last step of the decay; 0: no decay
   double lr_end = 0.05;               ///< the rate after the decay, as a fraction of the learning rate
+  /// A linear warm-up of the learning rate (`--lr-warmup`): optimiser step s < lr_warmup runs at
+  /// (s + 1) / lr_warmup of its scheduled rate (nn::learning_rate_schedule::with_warmup). A run that
+  /// starts from trained weights (init_weights) starts Adam's moments at zero, and its first steps at
+  /// the full rate move every weight by about the rate: the validation loss jumps and takes thousands
+  /// of steps to come back. 0: none. Recorded in checkpoint.json; a resume must give the same value.
+  long lr_warmup = 0;
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
@@ -381,6 +387,8 @@ struct train_options {
       if (!(lr_end >= 0 && lr_end <= 1))
         throw std::invalid_argument("the final learning-rate fraction (--lr-end) must be between 0 and 1");
     }
+    if (lr_warmup < 0)
+      throw std::invalid_argument("the learning-rate warm-up (--lr-warmup) must not be negative, got " + std::to_string(lr_warmup));
     if (!(emphasis_share >= 0 && emphasis_share <= 1))
       throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
     if (!(input_noise.shot >= 0 && std::isfinite(input_noise.shot)) || !(input_noise.read >= 0 && std::isfinite(input_noise.read)))
@@ -402,10 +410,12 @@ struct train_options {
   }
 };
 
-/// The learning-rate schedule of a run at base rate `rate`: constant, or with o's cosine decay.
+/// The learning-rate schedule of a run at base rate `rate`: constant, or with o's cosine decay,
+/// after o's warm-up.
 inline nn::learning_rate_schedule training_schedule(double rate, const train_options& o) {
-  return o.lr_decay_to > 0 ? nn::learning_rate_schedule::cosine_decay(rate, o.lr_decay_from, o.lr_decay_to, o.lr_end)
-                           : nn::learning_rate_schedule::constant(rate);
+  return (o.lr_decay_to > 0 ? nn::learning_rate_schedule::cosine_decay(rate, o.lr_decay_from, o.lr_decay_to, o.lr_end)
+                            : nn::learning_rate_schedule::constant(rate))
+      .with_warmup(o.lr_warmup);
 }
 
 /// The procedural options of the training or validation material of seed `seed` under o.mix and
@@ -619,10 +629,10 @@ inline std::string setting_text(const json& value) {
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
-/// noise: such a run would silently continue as another one. Older checkpoints lack "materials" (the
-/// original mix), "render_weight", "lobe_weight", "diffuse_weight" and "normal_weight" (1), "sigma_weight" and
+/// noise or the learning-rate warm-up: such a run would silently continue as another one. Older
+/// checkpoints lack "materials" (the original mix), "render_weight", "lobe_weight", "diffuse_weight" and "normal_weight" (1), "sigma_weight" and
 /// "mse_weight" (0), "emphasis" ("": none),
-/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise" and "read_noise" (0);
+/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise", "read_noise" and "lr_warmup" (0);
 /// other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
@@ -634,7 +644,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
       {"diffuse_weight", "--diffuse-weight"}, {"normal_weight", "--normal-weight"},
       {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"},
-      {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}};
+      {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}, {"lr_warmup", "--lr-warmup"}};
   // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
@@ -642,7 +652,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
     if (key == "render_weight" || key == "lobe_weight" || key == "diffuse_weight" || key == "normal_weight") return json(1.0);
     if (key == "sigma_weight" || key == "mse_weight") return json(0.0);
     if (key == "emphasis") return json("");
-    if (key == "emphasis_share" || key == "shot_noise" || key == "read_noise") return json(0.0);
+    if (key == "emphasis_share" || key == "shot_noise" || key == "read_noise" || key == "lr_warmup") return json(0.0);
     if (key == "trainable") return json("all");
     if (key == "inputs") return json("truth");
     return json();
@@ -699,6 +709,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["read_noise"] = o.input_noise.read;
   info["trainable"] = o.encoder_only ? "encoder" : "all";
   info["inputs"] = o.inputs_are_estimates ? "estimates" : "truth";
+  info["lr_warmup"] = o.lr_warmup;
   auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
   if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
   const auto csv = o.out_dir / "validation.csv";
