@@ -452,14 +452,15 @@ TEST_CASE("training: the maps' squared error is compare_maps' a_d, a'_s, F0 and 
   }
   const parameter_errors e = compare_maps(estimate, truth);
   const double expected = e.diffuse + e.specular + e.fresnel + e.normal - z / (3 * double(truth.texel_count()));
-  CHECK(training::map_squared_error(estimate, truth, nullptr, 1) == doctest::Approx(expected).epsilon(1e-6));
-  CHECK(training::map_squared_error(truth, truth, nullptr, 1) == 0);
+  const training::map_squared_errors errors = training::map_squared_error(estimate, truth, nullptr, 1);
+  CHECK(errors.total == doctest::Approx(expected).epsilon(1e-6));
+  const training::map_squared_errors none = training::map_squared_error(truth, truth, nullptr, 1);
+  CHECK(none.total == 0);
+  CHECK(none.diffuse == 0);
+  CHECK(none.normal == 0);
   // The parts: a_d's is compare_maps' diffuse error, the normal's its normal error without the z term.
-  double diffuse_part = -1, normal_part = -1;
-  CHECK(training::map_squared_error(estimate, truth, nullptr, 1, 1, 1, &diffuse_part, &normal_part) ==
-        doctest::Approx(expected).epsilon(1e-6));
-  CHECK(diffuse_part == doctest::Approx(e.diffuse).epsilon(1e-6));
-  CHECK(normal_part == doctest::Approx(e.normal - z / (3 * double(truth.texel_count()))).epsilon(1e-6));
+  CHECK(errors.diffuse == doctest::Approx(e.diffuse).epsilon(1e-6));
+  CHECK(errors.normal == doctest::Approx(e.normal - z / (3 * double(truth.texel_count()))).epsilon(1e-6));
   // Gradient against central differences, on every plane it covers; zero on the lobes and the rotation.
   material_maps g(16, 16);
   training::map_squared_error(estimate, truth, &g, 2.0);
@@ -467,9 +468,9 @@ TEST_CASE("training: the maps' squared error is compare_maps' a_d, a'_s, F0 and 
     for (std::size_t i : {std::size_t(0), std::size_t(37), std::size_t(255)}) {
       const float h = 1e-3f, keep = estimate.plane(k)[i];
       estimate.plane(k)[i] = keep + h;
-      const double plus = training::map_squared_error(estimate, truth, nullptr, 1);
+      const double plus = training::map_squared_error(estimate, truth, nullptr, 1).total;
       estimate.plane(k)[i] = keep - h;
-      const double minus = training::map_squared_error(estimate, truth, nullptr, 1);
+      const double minus = training::map_squared_error(estimate, truth, nullptr, 1).total;
       estimate.plane(k)[i] = keep;
       const double fd = 2.0 * (plus - minus) / (2 * h);
       if (k == lobe_x || k == lobe_y || k == rotation) {

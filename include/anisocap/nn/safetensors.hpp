@@ -181,19 +181,21 @@ bool loadable_dtype(std::string_view dtype) {
   return dtype == safetensors_dtype<T>() || (std::is_same_v<T, float> && dtype == "F16");
 }
 
-/// Element i of a tensor of a loadable_dtype<T> as a T.
+/// The values of a tensor of a loadable_dtype<T> (`dtype`, its bytes) as T into `out` (one value per
+/// element): its own type copied, half floats widened to float.
 template <class T>
-T element_as(std::string_view dtype, std::span<const std::byte> bytes, std::size_t i) {
+void decode_tensor(std::string_view dtype, std::span<const std::byte> bytes, std::span<T> out) {
   if constexpr (std::is_same_v<T, float>) {
     if (dtype == "F16") {
-      std::uint16_t bits;
-      std::memcpy(&bits, bytes.data() + i * 2, 2);
-      return float(Eigen::numext::bit_cast<Eigen::half>(bits));
+      for (std::size_t i = 0; i < out.size(); ++i) {
+        std::uint16_t bits;
+        std::memcpy(&bits, bytes.data() + i * 2, 2);
+        out[i] = float(Eigen::numext::bit_cast<Eigen::half>(bits));
+      }
+      return;
     }
   }
-  T v;
-  std::memcpy(&v, bytes.data() + i * sizeof(T), sizeof v);
-  return v;
+  std::memcpy(static_cast<void*>(out.data()), bytes.data(), out.size() * sizeof(T));
 }
 
 /// A float tensor's values as half floats (round to nearest even); throws std::invalid_argument
@@ -391,9 +393,10 @@ void visit_weights(Network& net, F&& f) {
 /// loadable_dtype of T) is not finite: a NaN weight would only show as NaN maps much later.
 template <class T>
 void check_finite(const std::filesystem::path& file, const safetensors_file& contents, const safetensors_file::entry& e) {
-  const auto bytes = contents.bytes(e);
-  for (std::size_t i = 0; i < e.count(); ++i)
-    if (!std::isfinite(double(element_as<T>(e.dtype, bytes, i))))
+  std::vector<T> values(e.count());
+  decode_tensor<T>(e.dtype, contents.bytes(e), values);
+  for (std::size_t i = 0; i < values.size(); ++i)
+    if (!std::isfinite(double(values[i])))
       safetensors_fail(file, "tensor '" + e.name + "' holds a value that is not finite at element " + std::to_string(i));
 }
 
@@ -401,12 +404,7 @@ void check_finite(const std::filesystem::path& file, const safetensors_file& con
 template <class Parameter>
 void copy_tensor(const safetensors_file& contents, const safetensors_file::entry& e, Parameter& p) {
   using T = std::remove_cvref_t<decltype(p.value[0])>;
-  const auto bytes = contents.bytes(e);
-  if (e.dtype == safetensors_dtype<T>()) {
-    std::memcpy(static_cast<void*>(p.value.data()), bytes.data(), bytes.size());
-    return;
-  }
-  for (std::size_t i = 0; i < e.count(); ++i) p.value[i] = detail::element_as<T>(e.dtype, bytes, i);
+  detail::decode_tensor<T>(e.dtype, contents.bytes(e), std::span<T>(p.value.data(), e.count()));
 }
 }  // namespace detail
 
@@ -512,7 +510,7 @@ inline void convert_weights(const std::filesystem::path& in, const std::filesyst
         result.add(e.name, "F16", e.shape, bits.data(), bits.size() * 2);
       } else if (storage == weight_storage::f32 && e.dtype == "F16") {
         std::vector<float> values(e.count());
-        for (std::size_t i = 0; i < values.size(); ++i) values[i] = detail::element_as<float>("F16", bytes, i);
+        detail::decode_tensor<float>("F16", bytes, values);
         result.add<float>(e.name, e.shape, values.data(), values.size());
       } else {
         result.add(e.name, e.dtype, e.shape, bytes.data(), bytes.size());

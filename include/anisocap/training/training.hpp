@@ -166,21 +166,27 @@ constexpr bool is_diffuse_channel(int k) { return k == diffuse_r || k == diffuse
 /// Whether parameter k is one of the shading normal's channels (loss_weights::normal weighs them).
 constexpr bool is_normal_channel(int k) { return k == normal_x || k == normal_y; }
 
+/// map_squared_error's result: the total and the parts of it that a_d's and the normal's planes make
+/// (all unscaled).
+struct map_squared_errors {
+  double total = 0;    ///< a_d, a'_s, F0 and the normal's x, y
+  double diffuse = 0;  ///< a_d's part of total (compare_maps' diffuse error)
+  double normal = 0;   ///< the normal's part of total (compare_maps' normal error without its z term)
+};
+
 /// The squared error of a_d, a'_s, F0 and the shading normal's x and y in the original ranges,
 /// each map's mean as compare_maps takes it: compare_maps' diffuse + specular + fresnel errors plus
 /// its normal error without the z component's term (what evaluations measure of these maps, the
-/// lobe widths having lobe_width_squared_error and the rotation lobe_l1). When g is given (the
-/// maps' size), adds `scale` times the gradient with respect to `estimate` into g, a_d's planes'
-/// part times `diffuse_scale` and the normal's times `normal_scale`. When given, `diffuse_part` and
-/// `normal_part` receive a_d's and the normal's parts of the (unscaled) total.
-inline double map_squared_error(const material_maps& estimate, const material_maps& truth, material_maps* g, double scale,
-                                double diffuse_scale = 1, double normal_scale = 1, double* diffuse_part = nullptr,
-                                double* normal_part = nullptr) {
+/// lobe widths having lobe_width_squared_error and the rotation lobe_l1), with a_d's and the
+/// normal's parts. When g is given (the maps' size), adds `scale` times the gradient with respect to
+/// `estimate` into g, a_d's planes' part times `diffuse_scale` and the normal's times `normal_scale`.
+inline map_squared_errors map_squared_error(const material_maps& estimate, const material_maps& truth, material_maps* g,
+                                            double scale, double diffuse_scale = 1, double normal_scale = 1) {
   const std::size_t n = truth.texel_count();
   // Each plane's weight in the sum: 1 / (3n) for the RGB albedos and the normal (compare_maps
   // averages over 3 components), 1 / n for F0.
   static constexpr int planes[] = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, normal_x, normal_y, fresnel_f0};
-  double total = 0, diffuse = 0, normal = 0;
+  map_squared_errors errors;
   for (int k : planes) {
     const bool is_diffuse = is_diffuse_channel(k), is_normal = is_normal_channel(k);
     const double weight = (k == fresnel_f0 ? 1.0 : 1.0 / 3) / double(n);
@@ -193,13 +199,11 @@ inline double map_squared_error(const material_maps& estimate, const material_ma
       sum += d * d;
       if (gk) gk[i] += float(step * d);
     }
-    total += weight * sum;
-    if (is_diffuse) diffuse += weight * sum;
-    if (is_normal) normal += weight * sum;
+    errors.total += weight * sum;
+    if (is_diffuse) errors.diffuse += weight * sum;
+    if (is_normal) errors.normal += weight * sum;
   }
-  if (diffuse_part) *diffuse_part = diffuse;
-  if (normal_part) *normal_part = normal;
-  return total;
+  return errors;
 }
 
 /// The weights of map_losses' terms in the training loss (train_options::loss()).
@@ -271,11 +275,10 @@ inline loss_terms map_losses(const tensor<parameter_count>& u, const std::vector
     const bool mse_gradient = grad && w.mse > 0;
     material_maps grad_mse;
     if (mse_gradient) grad_mse = material_maps(maps.width(), maps.height());
-    double mse_diffuse = 0, mse_normal = 0;
-    terms.mse += map_squared_error(maps, s.truth, mse_gradient ? &grad_mse : nullptr, 1.0, w.diffuse, w.normal, &mse_diffuse,
-                                   &mse_normal) / B;
-    terms.mse_diffuse += mse_diffuse / B;
-    terms.mse_normal += mse_normal / B;
+    const map_squared_errors mse = map_squared_error(maps, s.truth, mse_gradient ? &grad_mse : nullptr, 1.0, w.diffuse, w.normal);
+    terms.mse += mse.total / B;
+    terms.mse_diffuse += mse.diffuse / B;
+    terms.mse_normal += mse.normal / B;
     if (mse_gradient) network_space::add_network_gradient(u, b, grad_mse, w.mse / B, *grad);
   }
   terms.total = terms.l1 + (w.lobe - 1) * terms.lobe + (w.diffuse - 1) * terms.diffuse + (w.normal - 1) * terms.normal +
