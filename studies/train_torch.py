@@ -82,11 +82,26 @@ def read_safetensors(path):
     return tensors, meta, list(header.keys())
 
 
-def write_safetensors(path, tensors, names, meta):
+# The smallest tensor written as half floats with half=True: as the library's half_storage_min_elements
+# (nn/safetensors.hpp), so the biases and batch-norm statistics stay in floats.
+HALF_MIN_ELEMENTS = 1024
+HALF_MAX = 65504.0
+
+
+def write_safetensors(path, tensors, names, meta, half=False):
+    """Writes a weight file in the library's layout through a temporary name. half: tensors of
+    HALF_MIN_ELEMENTS or more values as IEEE half floats rounded to nearest even, the file
+    `anisocap convert-weights --half` makes of the float one."""
     header, offset, blobs = {"__metadata__": meta}, 0, []
     for name in names:
-        blob = np.ascontiguousarray(tensors[name], dtype="<f4").tobytes()
-        header[name] = {"dtype": "F32", "shape": list(tensors[name].shape), "data_offsets": [offset, offset + len(blob)]}
+        value = np.asarray(tensors[name], dtype=np.float32)
+        if half and value.size >= HALF_MIN_ELEMENTS:
+            if not np.all(np.abs(value) <= HALF_MAX):
+                raise SystemExit(f"{path}: tensor '{name}' holds a value beyond the half floats' range (65504): write it without --half")
+            blob, dtype = np.ascontiguousarray(value, dtype="<f2").tobytes(), "F16"
+        else:
+            blob, dtype = np.ascontiguousarray(value, dtype="<f4").tobytes(), "F32"
+        header[name] = {"dtype": dtype, "shape": list(value.shape), "data_offsets": [offset, offset + len(blob)]}
         offset += len(blob)
         blobs.append(blob)
     text = json.dumps(header, separators=(",", ":")).encode()
@@ -135,10 +150,10 @@ def load_cpp(net, path):
     return meta, names
 
 
-def save_cpp(net, path, names, meta):
+def save_cpp(net, path, names, meta, half=False):
     state = net.state_dict()
     tensors = {n: layout(owner(net, n), state[n].detach().float().cpu().numpy(), False) for n in names}
-    write_safetensors(path, tensors, names, meta)
+    write_safetensors(path, tensors, names, meta, half)
 
 
 # ---- the networks ------------------------------------------------------------------------------
@@ -695,17 +710,17 @@ def train(args):
             log_validation(step, now - start, lr, float(np.mean(done)) if done else float("nan"))
             window = []
         if now - last_save > 60 * args.save_minutes:
-            save_cpp(net, out_file, names, meta)
+            save_cpp(net, out_file, names, meta, args.half)
             last_save = now
     producer.stop = True
     done = [w for w in window if w is not None]
     log_validation(step, time.time() - start, lr, float(np.mean(done)) if done else float("nan"))
-    save_cpp(net, out_file, names, meta)
+    save_cpp(net, out_file, names, meta, args.half)
     with open(os.path.join(args.out, "run.json"), "w") as f:
         json.dump({"network": args.network, "preset": preset, "init": args.init, "steps": step, "batch": args.batch,
                    "materials_drawn": pool.used, "materials_generated": producer.generated, "seconds": time.time() - start,
                    "lr": args.lr, "lr_end": args.lr_end, "decay": args.decay, "warmup": args.warmup, "seed": args.seed,
-                   "first": args.first, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight,
+                   "first": args.first, "half": args.half, "render_weight": args.render_weight, "lobe_weight": args.lobe_weight, "sigma_weight": args.sigma_weight,
                    "mse_weight": args.mse_weight, "diffuse_weight": args.diffuse_weight, "normal_weight": args.normal_weight,
                    "shot_noise": args.shot_noise, "read_noise": args.read_noise, "emphasis": args.emphasis,
                    "emphasis_share": args.emphasis_share, "trainable": args.trainable, "inputs": args.inputs,
@@ -798,6 +813,9 @@ def main():
     t.add_argument("--read-noise", type=float, default=0.0, help="as train-estimator --read-noise")
     t.add_argument("--seed", type=int, default=1013)
     t.add_argument("--first", type=int, default=0, help="first material index (a continued run takes new materials)")
+    t.add_argument("--half", action="store_true",
+                   help="write the weights with the kernels as half floats (as anisocap convert-weights --half): half the size, "
+                        "under the device machine's 16 MiB a file for every compact preset")
     t.add_argument("--emphasis", default="")
     t.add_argument("--emphasis-share", type=float, default=0.5)
     t.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) - 2))

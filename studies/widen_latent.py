@@ -52,6 +52,7 @@ def main():
     parser.add_argument("target", help="the wider file to write")
     parser.add_argument("--to", default="compact-fine-wide", choices=TARGETS, help="the preset to write")
     parser.add_argument("--seed", type=int, default=1, help="seed of the new filters")
+    parser.add_argument("--half", action="store_true", help="write the kernels as half floats (as anisocap convert-weights --half)")
     args = parser.parse_args()
     _, meta, names = read_safetensors(args.source)
     source_preset = meta.get("preset")
@@ -81,9 +82,10 @@ def main():
     partial = args.target + ".partial"
     save_cpp(wide.float(), partial, names,  # the presets' tensors have the same names
              {"network": "autoencoder", "preset": args.to,
-              "started_from": f"{args.source} (studies/widen_latent.py --to {args.to} --seed {args.seed})"})
+              "started_from": f"{args.source} (studies/widen_latent.py --to {args.to} --seed {args.seed})"}, args.half)
     os.replace(partial, args.target)
-    print(f"{args.target}: {args.to}, the same maps as {args.source} (largest difference {diff:.1e})")
+    print(f"{args.target}: {args.to}, the same maps as {args.source} (largest difference {diff:.1e})"
+          + (", the kernels as half floats" if args.half else ""))
 
 
 if __name__ == "__main__":

@@ -3,12 +3,16 @@
 compact-fine one (compact-fine-wide, then compact-fine-wider, compact-fine-widest and
 compact-fine-512, each from the one before) reconstructs the validation materials as the
 compact-fine file does, read by `anisocap eval-networks` (the C++ network); a file of another
-preset, and a narrowing, are refused with the file's name and nothing is written; and the port's
-presets are the C++ trainers' compact --preset choices. Exits 77 (a skip) without PyTorch.
+preset, and a narrowing, are refused with the file's name and nothing is written; the port's
+presets are the C++ trainers' compact --preset choices; and the port's half-float files
+(`widen_latent.py --half`, `train_torch.py train --half`) hold the bits of `anisocap
+convert-weights --half`. Exits 77 (a skip) without PyTorch.
 
     check_widen_latent.py ANISOCAP SOURCE_DIR"""
+import json
 import os
 import re
+import struct
 import subprocess
 import sys
 import tempfile
@@ -29,6 +33,16 @@ def reconstruction(program, weights):
             cells = [c.strip() for c in line.strip("|").split("|")]
             return cells[0].split("(")[1].rstrip(")"), [float(c) for c in cells[1:]]
     raise SystemExit(f"eval-networks printed no reconstruction row for {weights}:\n{out}")
+
+
+def raw_tensors(path):
+    """A weight file's tensors as {name: (dtype, shape, bytes)}."""
+    with open(path, "rb") as f:
+        n = struct.unpack("<Q", f.read(8))[0]
+        header = json.loads(f.read(n))
+        data = f.read()
+    header.pop("__metadata__", None)
+    return {name: (info["dtype"], info["shape"], data[info["data_offsets"][0]:info["data_offsets"][1]]) for name, info in header.items()}
 
 
 def trainer_presets(program, command):
@@ -72,6 +86,18 @@ def main():
                              ("compact-fine-512", e_512)):
             if any(abs(a - b) > 2e-3 * max(abs(a), 1e-12) for a, b in zip(e_fine, errors)):
                 failures.append(f"{name}: reconstruction errors differ: {e_fine} against {errors}")
+        # Half floats: the port's file and the library's conversion of the float file hold the same
+        # tensors, dtypes and bits (kernels F16, biases and batch-norm statistics F32).
+        port_half, library_half = os.path.join(tmp, "port_half.safetensors"), os.path.join(tmp, "library_half.safetensors")
+        subprocess.run([sys.executable, script, widest, port_half, "--to", "compact-fine-512", "--half"], check=True)
+        subprocess.run([program, "convert-weights", w512, library_half, "--half"], check=True, capture_output=True)
+        a, b = raw_tensors(port_half), raw_tensors(library_half)
+        dtypes = {dtype for dtype, _, _ in a.values()}
+        if a.keys() != b.keys() or any(a[k] != b[k] for k in a) or dtypes != {"F16", "F32"}:
+            differing = [k for k in a if k not in b or a[k] != b[k]]
+            failures.append(f"the port's half-float file differs from convert-weights --half in {differing[:5]} (dtypes {dtypes})")
+        if os.path.getsize(port_half) > 0.55 * os.path.getsize(w512):
+            failures.append(f"the half-float file is {os.path.getsize(port_half)} bytes, the float one {os.path.getsize(w512)}")
         # The shipped compact auto-encoder is not compact-fine: refused, naming the file, no output.
         compact = os.path.join(source_dir, "models", "compact", "autoencoder.safetensors")
         refused = os.path.join(tmp, "refused.safetensors")
