@@ -892,16 +892,24 @@ TEST_CASE("training: a learning-rate warm-up ramps the schedule's first steps, r
   estimation_network<testing::estimator_tiny> reference(3);
   training::train_estimator(warming(straight), reference);
   CHECK(training::read_checkpoint_description(straight).at("lr_warmup").get<long>() == 3);
+  // checkpoint.json keeps the base rate, not the warm-up's first step's.
+  CHECK(training::read_checkpoint_description(straight).at("learning_rate").get<double>() == 1e-3);
   {
     estimation_network<testing::estimator_tiny> killed(3);
     auto t = warming(resumed);
     t.stop_after = 2;  // inside the warm-up
     training::train_estimator(t, killed);
   }
+  // Resumed without --lr: the saved base rate and warm-up go on.
   estimation_network<testing::estimator_tiny> continued(99);
+  std::vector<std::string> log;
   auto t = warming(resumed);
   t.resume = true;
+  t.learning_rate = 0;
+  t.log = [&](const std::string& line) { log.push_back(line); };
   training::train_estimator(t, continued);
+  CHECK_FALSE(any_line_contains(log, "learning rate"));
+  CHECK_FALSE(training::read_checkpoint_description(resumed).contains("learning_rate_changes"));
   const auto w = all_weights(reference), w_continued = all_weights(continued);
   REQUIRE(w.size() == w_continued.size());
   CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));

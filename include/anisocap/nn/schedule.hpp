@@ -62,6 +62,9 @@ class learning_rate_schedule {
     return s;
   }
 
+  /// The rate the schedule starts from, before its warm-up and decay scale it (what `--lr` sets).
+  double base_rate() const { return rate_; }
+
   /// The learning rate of step `step` (counted from 0).
   double operator()(long step) const {
     const double ramp = step < warmup_ ? double(step + 1) / double(warmup_) : 1.0;

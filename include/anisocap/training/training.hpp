@@ -696,7 +696,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["seed"] = double(o.seed);
   info["size"] = o.size;
   info["batch"] = o.batch;
-  info["learning_rate"] = opt.learning_rate();
+  info["learning_rate"] = opt.schedule.base_rate();  // the base rate, not a warm-up's first step's
   info["materials"] = material_mix_name(o.mix);
   info["render_weight"] = o.render_weight;
   info["lobe_weight"] = o.lobe_weight;
