@@ -633,10 +633,10 @@ inline std::string setting_text(const json& value) {
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
 /// noise or the learning-rate warm-up: such a run would silently continue as another one. Older
-/// checkpoints lack "materials" (the original mix), "render_weight", "lobe_weight", "diffuse_weight" and "normal_weight" (1), "sigma_weight" and
-/// "mse_weight" (0), "emphasis" ("": none),
-/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise", "read_noise" and "lr_warmup" (0);
-/// other entries a checkpoint lacks are not compared.
+/// checkpoints lack "materials" (the original mix), "render_weight", "lobe_weight", "diffuse_weight"
+/// and "normal_weight" (1), "sigma_weight" and "mse_weight" (0), "emphasis" ("": none),
+/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise", "read_noise" and
+/// "lr_warmup" (0); other entries a checkpoint lacks are not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
