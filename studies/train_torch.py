@@ -66,20 +66,25 @@ AUTOENCODER_PRESETS = {"compact": [32, 64, 128, 128, 128], "compact-wide": [32, 
 
 # ---- safetensors in the C++ layout -------------------------------------------------------------
 
-def read_safetensors(path):
+def read_raw_safetensors(path):
+    """A weight file as stored: ({name: (dtype, shape, bytes)} in header order, metadata)."""
     with open(path, "rb") as f:
         n = struct.unpack("<Q", f.read(8))[0]
         header = json.loads(f.read(n))
         data = f.read()
     meta = header.pop("__metadata__", {})
+    return {name: (info["dtype"], info["shape"], data[info["data_offsets"][0]:info["data_offsets"][1]])
+            for name, info in header.items()}, meta
+
+
+def read_safetensors(path):
+    raw, meta = read_raw_safetensors(path)
     tensors = {}
-    for name, info in header.items():
+    for name, (dtype, shape, blob) in raw.items():
         # F16: the half-float weight files of `anisocap convert-weights --half`, read as float32.
-        assert info["dtype"] in ("F32", "F16"), f"{path}: {name} is {info['dtype']}"
-        a, b = info["data_offsets"]
-        kind = "<f4" if info["dtype"] == "F32" else "<f2"
-        tensors[name] = np.frombuffer(data[a:b], dtype=kind).astype(np.float32).reshape(info["shape"])
-    return tensors, meta, list(header.keys())
+        assert dtype in ("F32", "F16"), f"{path}: {name} is {dtype}"
+        tensors[name] = np.frombuffer(blob, dtype="<f4" if dtype == "F32" else "<f2").astype(np.float32).reshape(shape)
+    return tensors, meta, list(raw.keys())
 
 
 # The smallest tensor written as half floats with half=True: as the library's half_storage_min_elements

@@ -9,10 +9,8 @@ presets are the C++ trainers' compact --preset choices; and the port's half-floa
 convert-weights --half`. Exits 77 (a skip) without PyTorch.
 
     check_widen_latent.py ANISOCAP SOURCE_DIR"""
-import json
 import os
 import re
-import struct
 import subprocess
 import sys
 import tempfile
@@ -33,16 +31,6 @@ def reconstruction(program, weights):
             cells = [c.strip() for c in line.strip("|").split("|")]
             return cells[0].split("(")[1].rstrip(")"), [float(c) for c in cells[1:]]
     raise SystemExit(f"eval-networks printed no reconstruction row for {weights}:\n{out}")
-
-
-def raw_tensors(path):
-    """A weight file's tensors as {name: (dtype, shape, bytes)}."""
-    with open(path, "rb") as f:
-        n = struct.unpack("<Q", f.read(8))[0]
-        header = json.loads(f.read(n))
-        data = f.read()
-    header.pop("__metadata__", None)
-    return {name: (info["dtype"], info["shape"], data[info["data_offsets"][0]:info["data_offsets"][1]]) for name, info in header.items()}
 
 
 def trainer_presets(program, command):
@@ -91,7 +79,7 @@ def main():
         port_half, library_half = os.path.join(tmp, "port_half.safetensors"), os.path.join(tmp, "library_half.safetensors")
         subprocess.run([sys.executable, script, widest, port_half, "--to", "compact-fine-512", "--half"], check=True)
         subprocess.run([program, "convert-weights", w512, library_half, "--half"], check=True, capture_output=True)
-        a, b = raw_tensors(port_half), raw_tensors(library_half)
+        a, b = train_torch.read_raw_safetensors(port_half)[0], train_torch.read_raw_safetensors(library_half)[0]
         dtypes = {dtype for dtype, _, _ in a.values()}
         if a.keys() != b.keys() or any(a[k] != b[k] for k in a) or dtypes != {"F16", "F32"}:
             differing = [k for k in a if k not in b or a[k] != b[k]]
