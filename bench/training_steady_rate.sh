@@ -1,8 +1,8 @@
 #!/bin/sh
 # Steady-state training rate (materials/s) of `anisocap train-autoencoder` at several batch sizes:
 # a run of N1 steps and a run of N2 steps, both from a fresh start, and the rate
-# batch x (N2 - N1) / (time of N2 - time of N1), so the start-up (reading, the arena's first
-# sizing, the first steps' page faults: about 20 s at batch 64) cancels out. The batches' runs are
+# batch x (N2 - N1) / (time of N2 - time of N1), so the start-up (reading, first touches of new
+# memory: about 20 s at batch 64) cancels out. The batches' runs are
 # interleaved, REPEATS rounds; compare the rows of one run of this script.
 #   sh bench/training_steady_rate.sh [PROGRAM] [BATCHES] [REPEATS] [MATERIALS]
 # PROGRAM: default build/anisocap. BATCHES: default "8 64". REPEATS: default 2. MATERIALS: the
