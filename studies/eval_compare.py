@@ -22,8 +22,17 @@ at least R times worse than the estimate itself (encode_photo_loss / estimate_ph
 columns evals write since they were added): the condition the residual start's second run
 (`--also-residual-ratio`) adds to the loss threshold, one that noise hardly moves.
 
+With --weights --second-above L, the second table may hold only the materials whose first refined
+photo_loss is above L: an `eval --also-models DIR` run on just the materials where the second folder
+is tried (`--first-seed S --count 1` each). Under `--also-models-above L` a capture whose first fit
+ends at or below L keeps that fit, so the materials the second table lacks take the first table's
+rows; a lacking material whose first photo_loss is above L is an error, since its second run is
+missing. This sizes `--also-models` on a whole sample at the cost of its second runs alone, and is
+exact where the first run is reproducible (the eval's log prints the first fit's loss to compare).
+
 usage: python3 studies/eval_compare.py TABLE.csv [TABLE.csv ...] [--images 12]
        python3 studies/eval_compare.py --weights OLD.csv NEW.csv [--set alpha] [--images 12] [--select [--above L] [--ratio R]]
+       python3 studies/eval_compare.py --weights OLD.csv TRIED.csv --second-above L [--set alpha] [--images 12]
 Standard library only.
 """
 import argparse
@@ -73,6 +82,25 @@ def projection_ratio(row):
     return float(row["encode_photo_loss"]) / float(row["estimate_photo_loss"])
 
 
+def fill_untried(side_a, side_b, above):
+    """Gives side_b the rows of side_a for the materials side_b lacks, each of which must have a first
+    refined photo_loss at most `above` (materials a `--also-models-above` run keeps without a second
+    run); returns how many materials were filled."""
+    filled = set()
+    for (s, stage), row in side_a.items():
+        if (s, stage) in side_b:
+            continue
+        refined = side_a.get((s, "refined"))
+        if refined is None or not refined.get("photo_loss"):
+            sys.exit(f"--second-above: material {s} has no refined photo_loss in the first table")
+        if float(refined["photo_loss"]) > above:
+            sys.exit(f"--second-above {above:g}: material {s} fits to {float(refined['photo_loss']):.4g} in the first "
+                     f"table, above {above:g}, and the second table lacks its row for stage {stage}")
+        side_b[(s, stage)] = row
+        filled.add(s)
+    return len(filled)
+
+
 def print_selection(side_a, side_b, above=0.0, ratio=0.0):
     """The per-material choice by the refined stage's photo_loss, against the first side; the second
     side is tried only where the first side's refined photo_loss is above `above` and its projection
@@ -112,12 +140,17 @@ def main():
                         help="with --weights: also the per-material choice of the table whose refined stage has the lower photo_loss")
     parser.add_argument("--above", type=float, default=0.0,
                         help="with --select: try the second table only where the first's refined photo_loss is above this")
+    parser.add_argument("--second-above", type=float, default=None, metavar="L",
+                        help="with --weights: the materials the second table lacks take the first's rows, where the "
+                             "first's refined photo_loss is at most L (an error above it)")
     parser.add_argument("--ratio", type=float, default=0.0,
                         help="with --select: try the second table only where the first's encode_photo_loss / "
                              "estimate_photo_loss is at least this (0: everywhere)")
     args = parser.parse_args()
     if (args.above != 0.0 or args.ratio != 0.0) and not args.select:
         sys.exit("--above and --ratio go with --select")
+    if args.second_above is not None and (not args.weights or args.select):
+        sys.exit("--second-above goes with --weights, without --select")
     if args.weights:
         if len(args.tables) != 2:
             sys.exit("--weights compares exactly two tables")
@@ -126,8 +159,13 @@ def main():
         side_b = {(s, st): r for (s, cs, st), r in b.items() if cs == args.set}
         if not side_a or not side_b:
             sys.exit(f"no rows with images = {args.images} and set {args.set} in one of {', '.join(args.tables)}")
+        filled = fill_untried(side_a, side_b, args.second_above) if args.second_above is not None else None
         print(f"N = {args.images}, set {args.set}: {args.tables[0]} (first) against {args.tables[1]} (second) "
               f"on the materials both have\n")
+        if filled is not None:
+            tried = len({s for s, _ in side_b}) - filled
+            print(f"The second table holds {tried} materials; {filled} with a first refined photo_loss at most "
+                  f"{args.second_above:g} take the first table's rows\n")
         print_comparison(side_a, side_b, "first", "second")
         if args.select:
             print_selection(side_a, side_b, args.above, args.ratio)
