@@ -262,13 +262,24 @@ inline CLI::Validator family_list_check() {
 struct model_choice {
   std::string preset = "compact";          ///< compact or paper
   fs::path models = ANISOCAP_MODELS_DIR;   ///< folder holding <preset>/estimator.safetensors, autoencoder.safetensors
-  fs::path estimator() const { return models / preset / "estimator.safetensors"; }
+  /// The estimator's file: this folder's, or where the folder has none and `estimator_fallback` is
+  /// set (an `--also-models` folder, alternative_choice), that file.
+  fs::path estimator() const {
+    fs::path own = models / preset / "estimator.safetensors";
+    return estimator_fallback.empty() || fs::exists(own) ? own : estimator_fallback;
+  }
+  /// The estimator an `--also-models` folder without one of its own uses: the first folder's
+  /// (empty for the first folder itself). A folder holding only an auto-encoder then runs the
+  /// shipped estimator with its own decoder (`--also-models models/also`).
+  fs::path estimator_fallback;
   fs::path autoencoder() const { return models / preset / "autoencoder.safetensors"; }
   bool present() const { return fs::exists(estimator()) && fs::exists(autoencoder()); }
   /// A second weights folder (`--also-models`), empty for none: the network stages then run with
   /// each folder's weights and the result that fits the photographs better (the lower final image
-  /// loss, capture_result::loss) is kept. Twice the time; on spun metal it took 36% off the
-  /// novel-view error with models/next beside the shipped weights (models/README.md "Run 16").
+  /// loss, capture_result::loss) is kept. A folder without an estimator uses this one's
+  /// (estimator_fallback). With models/also (the shipped estimator and the `compact-fine-512`
+  /// auto-encoder) it took 2.8% and 17% off Table 1's two 20-material samples' novel-view error,
+  /// trying the second folder on 6 of the 40 (models/README.md "Run 44").
   fs::path alternative;
   /// The second folder runs only when the first run's final image loss is above this
   /// (`--also-models-above`; 0: always). At 0.1 it ran on 4 of the family comparison's 16
@@ -293,7 +304,10 @@ struct model_choice {
   /// `--also-models` (same preset, no second run of its own).
   model_choice alternative_choice() const {
     model_choice m = *this;
-    if (!alternative.empty()) m.models = alternative;
+    if (!alternative.empty()) {
+      m.models = alternative;
+      m.estimator_fallback = estimator();
+    }
     m.alternative.clear();
     m.alternative_residual = false;
     return m;
@@ -305,8 +319,9 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--models", m.models, "folder holding <preset>/estimator.safetensors and autoencoder.safetensors");
   c->add_option("--also-models", m.alternative,
                 "a second such folder: run the network stages with both and keep the result that fits the photographs better "
-                "(twice the time; e.g. models/next for spun metal, models/README.md \"Run 16\"); the residual start's second run "
-                "(--also-residual) on the first folder's weights comes before it and takes part in the choice")
+                "(without an estimator of its own, the first folder's is used; e.g. models/also, a wider auto-encoder alone, "
+                "models/README.md \"Run 44\"); the residual start's second run (--also-residual) on the first folder's "
+                "weights comes before it and takes part in the choice")
       ->check(CLI::ExistingDirectory);
   c->add_option("--also-models-above", m.alternative_above,
                 "with --also-models or --also-residual: run the second time only when the first run's final image loss is above this "
@@ -480,7 +495,7 @@ inline capture_result run_capture(const capture& cap, const std::vector<image>& 
   const model_choice other = models.alternative_choice();
   if (!other.present())
     throw std::invalid_argument("--also-models: no " + other.preset + " weights in " + (other.models / other.preset).string() +
-                                " (estimator.safetensors and autoencoder.safetensors)");
+                                " (autoencoder.safetensors, and estimator.safetensors unless the first folder's is to be used)");
   auto name = [](const model_choice& m, bool residual) {
     return "the weights in " + m.models.string() + (residual ? " with the residual start" : "");
   };

@@ -1105,6 +1105,34 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   CHECK(first_only.at("other_ran") == false);
   CHECK(first_only.at("other_loss").is_null());
   CHECK(first_only.at("chosen").get<std::string>() == fs::absolute(models).string());
+  // A folder holding only an auto-encoder runs it with the first folder's estimator: the same
+  // whole run as a complete folder holding that estimator and that auto-encoder.
+  fs::create_directories(t.path / "decoder_only/compact");
+  fs::create_directories(t.path / "complete/compact");
+  fs::copy_file(models / "next/compact/autoencoder.safetensors", t.path / "decoder_only/compact/autoencoder.safetensors");
+  fs::copy_file(models / "next/compact/autoencoder.safetensors", t.path / "complete/compact/autoencoder.safetensors");
+  fs::copy_file(models / "compact/estimator.safetensors", t.path / "complete/compact/estimator.safetensors");
+  const std::string first = " --no-also-residual --also-models-above 0 --models '" + models.string() + "'";
+  r = run(common + " -o decoder_only" + first + " --also-models decoder_only", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  r = run(common + " -o complete" + first + " --also-models complete", t.path);
+  REQUIRE(r.status == 0);
+  const nlohmann::json decoder_only = nlohmann::json::parse(read_text(t.path / "decoder_only/report.json")).at("models");
+  const nlohmann::json complete = nlohmann::json::parse(read_text(t.path / "complete/report.json")).at("models");
+  CHECK(decoder_only.at("other_ran") == true);
+  CHECK(std::min(decoder_only.at("loss").get<double>(), decoder_only.at("other_loss").get<double>()) ==
+        std::min(complete.at("loss").get<double>(), complete.at("other_loss").get<double>()));
+  CHECK(std::max(decoder_only.at("loss").get<double>(), decoder_only.at("other_loss").get<double>()) ==
+        std::max(complete.at("loss").get<double>(), complete.at("other_loss").get<double>()));
+  // The second folder's own loss differs from the first folder's: its run used its own decoder.
+  CHECK(decoder_only.at("loss").get<double>() != decoder_only.at("other_loss").get<double>());
+  // models/also, the second folder the README recommends, is such a folder and runs.
+  CHECK_FALSE(fs::exists(models / "also/compact/estimator.safetensors"));
+  r = run(common + " -o also" + first + " --also-models '" + (models / "also").string() + "'", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(nlohmann::json::parse(read_text(t.path / "also/report.json")).at("models").at("other_ran") == true);
   // A folder that does not exist, and one without weights: refused, nothing written.
   r = run(common + " -o none --also-models missing_folder", t.path);
   CHECK(r.status != 0);
