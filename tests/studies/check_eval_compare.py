@@ -32,7 +32,8 @@ def run(script, *args):
 
 
 def novel_view_means(output, stage):
-    """The (first, second) means of the novel-view row of `stage` in the comparison table."""
+    """(materials, first mean, second mean, first wins, second wins) of the novel-view row of `stage`
+    in the comparison table."""
     for line in output.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) == 9 and cells[0] == stage and cells[1] == "novel view":
