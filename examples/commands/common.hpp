@@ -277,9 +277,9 @@ struct model_choice {
   /// A second weights folder (`--also-models`), empty for none: the network stages then run with
   /// each folder's weights and the result that fits the photographs better (the lower final image
   /// loss, capture_result::loss) is kept. A folder without an estimator uses this one's
-  /// (estimator_fallback). With models/also (the shipped estimator and the `compact-fine-512`
-  /// auto-encoder) it took 3.9% and 18.7% off Table 1's two 20-material samples' novel-view error,
-  /// trying the second folder on 6 of the 40 (models/README.md "Run 45").
+  /// (estimator_fallback). With models/also (a `compact-fine-512` auto-encoder alone, so run with
+  /// this folder's estimator) it took 3.9% and 18.7% off Table 1's two 20-material samples'
+  /// novel-view error, trying the second folder on 6 of the 40 (models/README.md "Run 45").
   fs::path alternative;
   /// The second folder runs only when the first run's final image loss is above this
   /// (`--also-models-above`; 0: always). At 0.1 it ran on 4 of the family comparison's 16
