@@ -71,6 +71,13 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                   "from trained weights with --init wants some: Adam's first steps at the full rate knock it off its minimum; "
                   "a resume must give the run's own value)")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--lr-rewarmup", o.lr_rewarmup,
+                  "optimiser steps over which the learning rate rises linearly again from --lr-rewarmup-from on (0: none; "
+                  "for a --resume with a new decay, which otherwise jumps from the last decay's end rate to the full rate; "
+                  "kept by a later resume that does not name another)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--lr-rewarmup-from", o.lr_rewarmup_from, "the optimiser step at which --lr-rewarmup starts (with it)")
+      ->check(CLI::NonNegativeNumber);
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");

@@ -927,6 +927,98 @@ TEST_CASE("training: a learning-rate warm-up ramps the schedule's first steps, r
   for (const fs::path& dir : {straight, resumed, cold_dir}) fs::remove_all(dir);
 }
 
+TEST_CASE("training: a re-warm-up ramps the rate again from a given step, resumes exactly and is kept on resume") {
+  // The schedule: step s in [S, S + N) at (s - S + 1) / N of the rate, on top of the first warm-up
+  // and the decay; the steps outside the window as without it.
+  training::train_options o;
+  o.lr_warmup = 2;
+  o.lr_decay_from = 6;
+  o.lr_decay_to = 10;
+  o.lr_end = 0.1;
+  const auto plain = training::training_schedule(1e-3, o);
+  o.lr_rewarmup_from = 5;
+  o.lr_rewarmup = 4;
+  const auto again = training::training_schedule(1e-3, o);
+  for (long s = 0; s < 14; ++s)
+    CHECK(again(s) == doctest::Approx(plain(s) * (s >= 5 && s < 9 ? double(s - 4) / 4 : 1.0)).epsilon(1e-12));
+  CHECK(again(0) == doctest::Approx(5e-4));  // the first warm-up is untouched
+  CHECK(again(5) == doctest::Approx(2.5e-4));
+  CHECK(again(9) == doctest::Approx(plain(9)).epsilon(1e-12));
+
+  const fs::path straight = fresh_folder("networks_rewarmup_straight"), resumed = fresh_folder("networks_rewarmup_resumed"),
+                 added = fresh_folder("networks_rewarmup_added"), flat_dir = fresh_folder("networks_rewarmup_flat");
+  auto rewarming = [](const fs::path& dir) {
+    auto t = tiny_options(dir, 64);
+    t.lr_rewarmup_from = 1;
+    t.lr_rewarmup = 3;
+    t.checkpoint_every = 1;  // so that a run can stop after its first step
+    return t;
+  };
+  estimation_network<testing::estimator_tiny> reference(3);
+  training::train_estimator(rewarming(straight), reference);
+  CHECK(training::read_checkpoint_description(straight).at("lr_rewarmup") == json::array({1, 3}));
+  const auto w = all_weights(reference);
+  // Stopped inside the re-warm-up and resumed without naming it: the saved one goes on, and the
+  // weights are the uninterrupted run's.
+  {
+    estimation_network<testing::estimator_tiny> killed(3);
+    auto t = rewarming(resumed);
+    t.stop_after = 2;
+    training::train_estimator(t, killed);
+  }
+  {
+    estimation_network<testing::estimator_tiny> continued(99);
+    std::vector<std::string> log;
+    auto t = tiny_options(resumed, 64);
+    t.resume = true;
+    t.learning_rate = 0;
+    t.log = [&](const std::string& line) { log.push_back(line); };
+    training::train_estimator(t, continued);
+    CHECK_FALSE(any_line_contains(log, "warms up again"));
+    CHECK(training::read_checkpoint_description(resumed).at("lr_rewarmup") == json::array({1, 3}));
+    const auto w_continued = all_weights(continued);
+    REQUIRE(w.size() == w_continued.size());
+    CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
+  }
+  // A constant run stopped after its first step and resumed with the re-warm-up from there: logged,
+  // recorded, and the same weights as the run that had it from the start.
+  {
+    estimation_network<testing::estimator_tiny> first_part(3);
+    auto t = tiny_options(added, 64);
+    t.checkpoint_every = 1;
+    t.stop_after = 1;
+    training::train_estimator(t, first_part);
+  }
+  {
+    estimation_network<testing::estimator_tiny> rest(99);
+    std::vector<std::string> log;
+    auto t = rewarming(added);
+    t.resume = true;
+    t.log = [&](const std::string& line) { log.push_back(line); };
+    training::train_estimator(t, rest);
+    CHECK(any_line_contains(log, "estimator: learning rate warms up again from step 1 over 3 steps"));
+    CHECK(training::read_checkpoint_description(added).at("lr_rewarmup") == json::array({1, 3}));
+    const auto w_added = all_weights(rest);
+    CHECK(std::equal(w.begin(), w.end(), w_added.begin()));
+  }
+  // The re-warm-up changes the result: the same run without it ends elsewhere.
+  estimation_network<testing::estimator_tiny> flat(3);
+  training::train_estimator(tiny_options(flat_dir, 64), flat);
+  const auto w_flat = all_weights(flat);
+  CHECK_FALSE(std::equal(w.begin(), w.end(), w_flat.begin()));
+  // A re-warm-up without its first step, or a negative one, is refused before anything is written.
+  auto bad = tiny_options(fresh_folder("networks_rewarmup_bad"), 64);
+  bad.lr_rewarmup = 3;
+  estimation_network<testing::estimator_tiny> unused(3);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-rewarmup-from"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(bad.out_dir));
+  bad.lr_rewarmup = -1;
+  bad.lr_rewarmup_from = 0;
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-rewarmup"), std::invalid_argument);
+  CHECK_FALSE(fs::exists(bad.out_dir));
+  for (const fs::path& dir : {straight, resumed, added, flat_dir}) fs::remove_all(dir);
+}
+
 TEST_CASE("training: checkpoints as earlier versions wrote them resume with their own settings") {
   // The seed written as 4.0, the rate as 3e-04, and (older still) no "materials" (the original mix)
   // and no "render_weight" (1).

@@ -49,6 +49,19 @@ class learning_rate_schedule {
     return s;
   }
 
+  /// The same schedule with a second linear warm-up in the middle of a run: step s in
+  /// [from, from + steps) gets (s - from + 1) / steps of its rate, the steps outside it are as before.
+  /// A run resumed with its optimiser state and a new decay restarts at the full rate from the low
+  /// rate its last decay ended at; this ramps it up again instead. steps 0: none.
+  learning_rate_schedule with_rewarmup(long from, long steps) const {
+    if (from < 0 || steps < 0)
+      throw std::invalid_argument("learning_rate_schedule::with_rewarmup: the first step and the length must not be negative");
+    learning_rate_schedule s = *this;
+    s.rewarm_from_ = from;
+    s.rewarm_steps_ = steps;
+    return s;
+  }
+
   /// `rate` after a linear warm-up of `warmup` steps, halving every `half_life` steps (0: constant),
   /// the fine-tune's schedule (docs/method.md section 8).
   static learning_rate_schedule warmup_half_life(double rate, long warmup, long half_life) {
@@ -67,7 +80,10 @@ class learning_rate_schedule {
 
   /// The learning rate of step `step` (counted from 0).
   double operator()(long step) const {
-    const double ramp = step < warmup_ ? double(step + 1) / double(warmup_) : 1.0;
+    const double ramp = (step < warmup_ ? double(step + 1) / double(warmup_) : 1.0) *
+                        (step >= rewarm_from_ && step < rewarm_from_ + rewarm_steps_
+                             ? double(step - rewarm_from_ + 1) / double(rewarm_steps_)
+                             : 1.0);
     switch (kind_) {
       case kind::constant: return ramp * rate_;
       case kind::step: return ramp * rate_ * std::pow(factor_, double(step / every_));
@@ -91,6 +107,7 @@ class learning_rate_schedule {
   double factor_;
   kind kind_;
   long warmup_ = 0;
+  long rewarm_from_ = 0, rewarm_steps_ = 0;  // the second warm-up: first step and length
   long from_ = 0, to_ = 0;  // cosine decay: first and last step of the decay
 };
 

@@ -358,6 +358,14 @@ struct train_options {
   /// the full rate move every weight by about the rate: the validation loss jumps and takes thousands
   /// of steps to come back. 0: none. Recorded in checkpoint.json; a resume must give the same value.
   long lr_warmup = 0;
+  /// A second linear warm-up (`--lr-rewarmup N --lr-rewarmup-from S`): optimiser step s in [S, S + N)
+  /// runs at (s - S + 1) / N of its scheduled rate (nn::learning_rate_schedule::with_rewarmup). For a
+  /// run resumed with its optimiser state and a new decay: without it, the first step after the
+  /// resume jumps from the rate the last decay ended at (--lr-end of it) to the full rate. Like the
+  /// decay it is a function of the step, recorded in checkpoint.json and kept by a resume that does
+  /// not name another. 0: none.
+  long lr_rewarmup = 0;
+  long lr_rewarmup_from = -1;  ///< the re-warm-up's first step; required with lr_rewarmup > 0
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
@@ -392,6 +400,10 @@ struct train_options {
     }
     if (lr_warmup < 0)
       throw std::invalid_argument("the learning-rate warm-up (--lr-warmup) must not be negative, got " + std::to_string(lr_warmup));
+    if (lr_rewarmup < 0)
+      throw std::invalid_argument("the learning-rate re-warm-up (--lr-rewarmup) must not be negative, got " + std::to_string(lr_rewarmup));
+    if (lr_rewarmup > 0 && lr_rewarmup_from < 0)
+      throw std::invalid_argument("a learning-rate re-warm-up (--lr-rewarmup) needs its first step (--lr-rewarmup-from)");
     if (!(emphasis_share >= 0 && emphasis_share <= 1))
       throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
     if (!(input_noise.shot >= 0 && std::isfinite(input_noise.shot)) || !(input_noise.read >= 0 && std::isfinite(input_noise.read)))
@@ -418,7 +430,8 @@ struct train_options {
 inline nn::learning_rate_schedule training_schedule(double rate, const train_options& o) {
   return (o.lr_decay_to > 0 ? nn::learning_rate_schedule::cosine_decay(rate, o.lr_decay_from, o.lr_decay_to, o.lr_end)
                             : nn::learning_rate_schedule::constant(rate))
-      .with_warmup(o.lr_warmup);
+      .with_warmup(o.lr_warmup)
+      .with_rewarmup(o.lr_rewarmup > 0 ? o.lr_rewarmup_from : 0, o.lr_rewarmup);
 }
 
 /// The procedural options of the training or validation material of seed `seed` under o.mix and
@@ -715,6 +728,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   info["lr_warmup"] = o.lr_warmup;
   auto decay_of = [](const train_options& t) { return json::array({t.lr_decay_from, t.lr_decay_to, t.lr_end}); };
   if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
+  auto rewarmup_of = [](const train_options& t) { return json::array({t.lr_rewarmup_from, t.lr_rewarmup}); };
+  if (o.lr_rewarmup > 0) info["lr_rewarmup"] = rewarmup_of(o);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
     const auto description = o.out_dir / "checkpoint.json";
@@ -751,9 +766,24 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
                       kind.c_str(), o.lr_decay_from, o.lr_end, o.lr_decay_to, step);
         o.log(line);
       }
+      // The re-warm-up: the saved one unless another is given.
+      if (o.lr_rewarmup == 0 && saved.contains("lr_rewarmup")) {
+        const json& r = saved.at("lr_rewarmup");
+        if (!r.is_array() || r.size() != 2 || !r[0].is_number_integer() || !r[1].is_number_integer())
+          throw std::runtime_error(description.string() + ": malformed \"lr_rewarmup\"");
+        scheduled.lr_rewarmup_from = r[0].get<long>();
+        scheduled.lr_rewarmup = r[1].get<long>();
+        scheduled.validate();
+      } else if (o.lr_rewarmup > 0 && (!saved.contains("lr_rewarmup") || saved.at("lr_rewarmup") != rewarmup_of(o))) {
+        char line[200];
+        std::snprintf(line, sizeof line, "%s: learning rate warms up again from step %ld over %ld steps", kind.c_str(),
+                      o.lr_rewarmup_from, o.lr_rewarmup);
+        o.log(line);
+      }
       opt.schedule = training_schedule(scheduled.learning_rate, scheduled);
       info["learning_rate"] = scheduled.learning_rate;
       if (scheduled.lr_decay_to > 0) info["lr_decay"] = decay_of(scheduled);
+      if (scheduled.lr_rewarmup > 0) info["lr_rewarmup"] = rewarmup_of(scheduled);
     }
     truncate_csv(csv, step);
     o.log(kind + ": resumed at step " + std::to_string(step));
