@@ -673,6 +673,32 @@ bool any_line_contains(const std::vector<std::string>& lines, const std::string&
   return std::any_of(lines.begin(), lines.end(), [&](const std::string& l) { return l.find(part) != std::string::npos; });
 }
 
+/// Runs the tiny estimator run `o` (from a network of seed 3) and stops it after `steps` steps, at
+/// one of its check-points.
+void stopped_estimator_run(training::train_options o, long steps) {
+  estimation_network<testing::estimator_tiny> net(3);
+  o.stop_after = steps;
+  training::train_estimator(o, net);
+}
+
+/// What a resumed tiny estimator run ends with: its weights and its log.
+struct resumed_estimator_run {
+  std::vector<float> weights;
+  std::vector<std::string> log;
+};
+
+/// Resumes the run in o.out_dir with the options `o` (a network of another seed, which the
+/// check-point's weights replace).
+resumed_estimator_run resume_estimator_run(training::train_options o) {
+  resumed_estimator_run r;
+  estimation_network<testing::estimator_tiny> net(99);
+  o.resume = true;
+  o.log = [&](const std::string& line) { r.log.push_back(line); };
+  training::train_estimator(o, net);
+  r.weights = all_weights(net);
+  return r;
+}
+
 }  // namespace
 
 TEST_CASE("training: a resume with another network, preset, seed, size, batch or loss weight is refused, naming checkpoint.json and the saved value") {
@@ -815,23 +841,14 @@ TEST_CASE("training: a learning-rate decay resumes exactly, is kept on resume, a
   CHECK(description.at("learning_rate").get<double>() == 1e-3);  // the base rate, not the decayed one
   // Stopped after 2 steps and resumed without the decay options: the saved decay goes on, and the
   // weights are the uninterrupted run's.
-  {
-    estimation_network<testing::estimator_tiny> killed(3);
-    auto o = decaying(resumed);
-    o.stop_after = 2;
-    training::train_estimator(o, killed);
-  }
-  estimation_network<testing::estimator_tiny> continued(99);
-  std::vector<std::string> log;
+  stopped_estimator_run(decaying(resumed), 2);
   auto o = tiny_options(resumed, 64);
-  o.resume = true;
   o.learning_rate = 0;
-  o.log = [&](const std::string& line) { log.push_back(line); };
-  training::train_estimator(o, continued);
-  const auto w = all_weights(reference), w_continued = all_weights(continued);
-  REQUIRE(w.size() == w_continued.size());
-  CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
-  CHECK_FALSE(any_line_contains(log, "decays"));
+  const auto continued = resume_estimator_run(o);
+  const auto w = all_weights(reference);
+  REQUIRE(w.size() == continued.weights.size());
+  CHECK(std::equal(w.begin(), w.end(), continued.weights.begin()));
+  CHECK_FALSE(any_line_contains(continued.log, "decays"));
   CHECK(training::read_checkpoint_description(resumed).at("lr_decay") == json::array({2, 4, 0.1}));
   // The decay changes the result: a constant-rate run of the same seed ends elsewhere.
   estimation_network<testing::estimator_tiny> flat(3);
@@ -840,22 +857,11 @@ TEST_CASE("training: a learning-rate decay resumes exactly, is kept on resume, a
   CHECK_FALSE(std::equal(w.begin(), w.end(), w_flat.begin()));
   // A constant run resumed with a decay that starts where it stopped: logged, recorded, and the same
   // weights as a run that had the decay from the start (the schedule is a function of the step).
-  {
-    estimation_network<testing::estimator_tiny> first_half(3);
-    auto half = tiny_options(added, 64);
-    half.stop_after = 2;
-    training::train_estimator(half, first_half);
-  }
-  estimation_network<testing::estimator_tiny> second_half(99);
-  log.clear();
-  auto more = decaying(added);
-  more.resume = true;
-  more.log = [&](const std::string& line) { log.push_back(line); };
-  training::train_estimator(more, second_half);
-  CHECK(any_line_contains(log, "estimator: learning rate decays from step 2 to 0.1 of itself at step 4"));
+  stopped_estimator_run(tiny_options(added, 64), 2);
+  const auto second_half = resume_estimator_run(decaying(added));
+  CHECK(any_line_contains(second_half.log, "estimator: learning rate decays from step 2 to 0.1 of itself at step 4"));
   CHECK(training::read_checkpoint_description(added).at("lr_decay") == json::array({2, 4, 0.1}));
-  const auto w_added = all_weights(second_half);
-  CHECK(std::equal(w.begin(), w.end(), w_added.begin()));
+  CHECK(std::equal(w.begin(), w.end(), second_half.weights.begin()));
   // Impossible decays are refused before anything is written.
   auto bad = decaying(fresh_folder("networks_decay_bad"));
   bad.lr_decay_to = 2;
@@ -894,25 +900,16 @@ TEST_CASE("training: a learning-rate warm-up ramps the schedule's first steps, r
   CHECK(training::read_checkpoint_description(straight).at("lr_warmup").get<long>() == 3);
   // checkpoint.json keeps the base rate, not the warm-up's first step's.
   CHECK(training::read_checkpoint_description(straight).at("learning_rate").get<double>() == 1e-3);
-  {
-    estimation_network<testing::estimator_tiny> killed(3);
-    auto t = warming(resumed);
-    t.stop_after = 2;  // inside the warm-up
-    training::train_estimator(t, killed);
-  }
+  stopped_estimator_run(warming(resumed), 2);  // inside the warm-up
   // Resumed without --lr: the saved base rate and warm-up go on.
-  estimation_network<testing::estimator_tiny> continued(99);
-  std::vector<std::string> log;
   auto t = warming(resumed);
-  t.resume = true;
   t.learning_rate = 0;
-  t.log = [&](const std::string& line) { log.push_back(line); };
-  training::train_estimator(t, continued);
-  CHECK_FALSE(any_line_contains(log, "learning rate"));
+  const auto continued = resume_estimator_run(t);
+  CHECK_FALSE(any_line_contains(continued.log, "learning rate"));
   CHECK_FALSE(training::read_checkpoint_description(resumed).contains("learning_rate_changes"));
-  const auto w = all_weights(reference), w_continued = all_weights(continued);
-  REQUIRE(w.size() == w_continued.size());
-  CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
+  const auto w = all_weights(reference);
+  REQUIRE(w.size() == continued.weights.size());
+  CHECK(std::equal(w.begin(), w.end(), continued.weights.begin()));
   // The warm-up changes the result: a run of the same seed without it ends elsewhere.
   estimation_network<testing::estimator_tiny> flat(3);
   training::train_estimator(tiny_options(cold_dir, 64), flat);
@@ -960,46 +957,26 @@ TEST_CASE("training: a re-warm-up ramps the rate again from a given step, resume
   const auto w = all_weights(reference);
   // Stopped inside the re-warm-up and resumed without naming it: the saved one goes on, and the
   // weights are the uninterrupted run's.
+  stopped_estimator_run(rewarming(resumed), 2);
   {
-    estimation_network<testing::estimator_tiny> killed(3);
-    auto t = rewarming(resumed);
-    t.stop_after = 2;
-    training::train_estimator(t, killed);
-  }
-  {
-    estimation_network<testing::estimator_tiny> continued(99);
-    std::vector<std::string> log;
     auto t = tiny_options(resumed, 64);
-    t.resume = true;
     t.learning_rate = 0;
-    t.log = [&](const std::string& line) { log.push_back(line); };
-    training::train_estimator(t, continued);
-    CHECK_FALSE(any_line_contains(log, "warms up again"));
+    const auto continued = resume_estimator_run(t);
+    CHECK_FALSE(any_line_contains(continued.log, "warms up again"));
     CHECK(training::read_checkpoint_description(resumed).at("lr_rewarmup") == json::array({1, 3}));
-    const auto w_continued = all_weights(continued);
-    REQUIRE(w.size() == w_continued.size());
-    CHECK(std::equal(w.begin(), w.end(), w_continued.begin()));
+    REQUIRE(w.size() == continued.weights.size());
+    CHECK(std::equal(w.begin(), w.end(), continued.weights.begin()));
   }
   // A constant run stopped after its first step and resumed with the re-warm-up from there: logged,
   // recorded, and the same weights as the run that had it from the start.
   {
-    estimation_network<testing::estimator_tiny> first_part(3);
     auto t = tiny_options(added, 64);
     t.checkpoint_every = 1;
-    t.stop_after = 1;
-    training::train_estimator(t, first_part);
-  }
-  {
-    estimation_network<testing::estimator_tiny> rest(99);
-    std::vector<std::string> log;
-    auto t = rewarming(added);
-    t.resume = true;
-    t.log = [&](const std::string& line) { log.push_back(line); };
-    training::train_estimator(t, rest);
-    CHECK(any_line_contains(log, "estimator: learning rate warms up again from step 1 over 3 steps"));
+    stopped_estimator_run(t, 1);
+    const auto rest = resume_estimator_run(rewarming(added));
+    CHECK(any_line_contains(rest.log, "estimator: learning rate warms up again from step 1 over 3 steps"));
     CHECK(training::read_checkpoint_description(added).at("lr_rewarmup") == json::array({1, 3}));
-    const auto w_added = all_weights(rest);
-    CHECK(std::equal(w.begin(), w.end(), w_added.begin()));
+    CHECK(std::equal(w.begin(), w.end(), rest.weights.begin()));
   }
   // The re-warm-up changes the result: the same run without it ends elsewhere.
   estimation_network<testing::estimator_tiny> flat(3);
