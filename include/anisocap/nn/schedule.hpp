@@ -45,7 +45,7 @@ class learning_rate_schedule {
   learning_rate_schedule with_warmup(long steps) const {
     if (steps < 0) throw std::invalid_argument("learning_rate_schedule::with_warmup: steps must not be negative");
     learning_rate_schedule s = *this;
-    s.warmup_ = steps;
+    s.warmup_ = {0, steps};
     return s;
   }
 
@@ -57,8 +57,7 @@ class learning_rate_schedule {
     if (from < 0 || steps < 0)
       throw std::invalid_argument("learning_rate_schedule::with_rewarmup: the first step and the length must not be negative");
     learning_rate_schedule s = *this;
-    s.rewarm_from_ = from;
-    s.rewarm_steps_ = steps;
+    s.rewarmup_ = {from, steps};
     return s;
   }
 
@@ -80,10 +79,7 @@ class learning_rate_schedule {
 
   /// The learning rate of step `step` (counted from 0).
   double operator()(long step) const {
-    const double ramp = (step < warmup_ ? double(step + 1) / double(warmup_) : 1.0) *
-                        (step >= rewarm_from_ && step < rewarm_from_ + rewarm_steps_
-                             ? double(step - rewarm_from_ + 1) / double(rewarm_steps_)
-                             : 1.0);
+    const double ramp = warmup_.factor(step) * rewarmup_.factor(step);
     switch (kind_) {
       case kind::constant: return ramp * rate_;
       case kind::step: return ramp * rate_ * std::pow(factor_, double(step / every_));
@@ -100,14 +96,21 @@ class learning_rate_schedule {
 
  private:
   enum class kind { constant, step, exponential, cosine };
+  /// A linear ramp: step s in [from, from + steps) gets (s - from + 1) / steps, the others 1.
+  struct linear_ramp {
+    long from = 0, steps = 0;
+    double factor(long step) const {
+      return step >= from && step < from + steps ? double(step - from + 1) / double(steps) : 1.0;
+    }
+  };
   learning_rate_schedule(double rate, long every, double factor, kind k)
       : rate_(rate), every_(every), factor_(factor), kind_(k) {}
   double rate_;
   long every_;
   double factor_;
   kind kind_;
-  long warmup_ = 0;
-  long rewarm_from_ = 0, rewarm_steps_ = 0;  // the second warm-up: first step and length
+  linear_ramp warmup_;    // the warm-up at the start of the run (from step 0)
+  linear_ramp rewarmup_;  // the second warm-up
   long from_ = 0, to_ = 0;  // cosine decay: first and last step of the decay
 };
 
