@@ -77,7 +77,8 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                   "kept by a later resume that does not name another)")
       ->check(CLI::NonNegativeNumber);
   cmd->add_option("--lr-rewarmup-from", o.lr_rewarmup_from, "the optimiser step at which --lr-rewarmup starts (with it)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::NonNegativeNumber)
+      ->default_str("");  // unset (-1) until given
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");
