@@ -993,6 +993,22 @@ TEST_CASE("training: a re-warm-up ramps the rate again from a given step, resume
   bad.lr_rewarmup_from = 0;
   CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-rewarmup"), std::invalid_argument);
   CHECK_FALSE(fs::exists(bad.out_dir));
+  // A saved re-warm-up or decay whose step numbers are not integers, or that lacks one, is refused on
+  // a resume that does not name its own, naming checkpoint.json; the check-point stays as it was.
+  const json good = training::read_checkpoint_description(resumed);
+  for (const auto& [key, value] : {std::pair<std::string, json>{"lr_rewarmup", json::array({1.5, 3})},
+                                   std::pair<std::string, json>{"lr_decay", json::array({2, 4})},
+                                   std::pair<std::string, json>{"lr_decay", json::array({2, "4", 0.1})}}) {
+    CAPTURE(value.dump());
+    json broken = good;
+    broken[key] = value;
+    std::ofstream(resumed / "checkpoint.json") << broken.dump(2);
+    auto t = tiny_options(resumed, 64);
+    t.learning_rate = 0;
+    const std::string message = "checkpoint.json: malformed \"" + key + "\"";
+    CHECK_THROWS_WITH_AS(resume_estimator_run(t), doctest::Contains(message.c_str()), std::runtime_error);
+    CHECK(training::read_checkpoint_description(resumed) == broken);
+  }
   for (const fs::path& dir : {straight, resumed, added, flat_dir}) fs::remove_all(dir);
 }
 

@@ -642,6 +642,26 @@ inline std::string setting_text(const json& value) {
   return value.dump();
 }
 
+/// One optional part of a resumed run's learning-rate schedule, saved in checkpoint.json (`file`) as
+/// `key`: an array of `size` numbers whose first `integers` are step numbers. Without a `given` one
+/// (null) the saved one goes on: it is returned after a check of its shape (null when there is none).
+/// A given one that differs from the saved one is logged as `change` (the caller records it), and
+/// null is returned.
+inline json resumed_schedule_part(const json& saved, const std::string& key, std::size_t size, std::size_t integers, const json& given,
+                                  const std::filesystem::path& file, const std::string& change,
+                                  const std::function<void(const std::string&)>& log) {
+  if (!given.is_null()) {
+    if (!saved.contains(key) || saved.at(key) != given) log(change);
+    return nullptr;
+  }
+  if (!saved.contains(key)) return nullptr;
+  const json& part = saved.at(key);
+  bool ok = part.is_array() && part.size() == size;
+  for (std::size_t i = 0; ok && i < size; ++i) ok = i < integers ? part[i].is_number_integer() : part[i].is_number();
+  if (!ok) throw std::runtime_error(file.string() + ": malformed \"" + key + "\"");
+  return part;
+}
+
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
@@ -748,38 +768,27 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
         if (!info.contains("learning_rate_changes")) info["learning_rate_changes"] = json::array();
         info["learning_rate_changes"].push_back({{"step", step}, {"from", before}, {"to", o.learning_rate}});
       }
-      // The base rate (the saved one unless another is given) and the decay (the saved one unless
-      // another is given).
+      // The base rate, the decay and the re-warm-up: each the saved one unless another is given.
       train_options scheduled = o;
       scheduled.learning_rate = o.learning_rate == 0 ? before : o.learning_rate;
-      if (o.lr_decay_to == 0 && saved.contains("lr_decay")) {
-        const json& d = saved.at("lr_decay");
-        if (!d.is_array() || d.size() != 3 || !d[0].is_number() || !d[1].is_number() || !d[2].is_number())
-          throw std::runtime_error(description.string() + ": malformed \"lr_decay\"");
-        scheduled.lr_decay_from = d[0].get<long>();
-        scheduled.lr_decay_to = d[1].get<long>();
-        scheduled.lr_end = d[2].get<double>();
-        scheduled.validate();
-      } else if (o.lr_decay_to > 0 && (!saved.contains("lr_decay") || saved.at("lr_decay") != decay_of(o))) {
-        char line[200];
-        std::snprintf(line, sizeof line, "%s: learning rate decays from step %ld to %.3g of itself at step %ld (from step %ld on)",
-                      kind.c_str(), o.lr_decay_from, o.lr_end, o.lr_decay_to, step);
-        o.log(line);
+      char change[200];
+      std::snprintf(change, sizeof change, "%s: learning rate decays from step %ld to %.3g of itself at step %ld (from step %ld on)",
+                    kind.c_str(), o.lr_decay_from, o.lr_end, o.lr_decay_to, step);
+      const json decay = resumed_schedule_part(saved, "lr_decay", 3, 2, o.lr_decay_to > 0 ? decay_of(o) : json(), description, change, o.log);
+      if (!decay.is_null()) {
+        scheduled.lr_decay_from = decay[0].get<long>();
+        scheduled.lr_decay_to = decay[1].get<long>();
+        scheduled.lr_end = decay[2].get<double>();
       }
-      // The re-warm-up: the saved one unless another is given.
-      if (o.lr_rewarmup == 0 && saved.contains("lr_rewarmup")) {
-        const json& r = saved.at("lr_rewarmup");
-        if (!r.is_array() || r.size() != 2 || !r[0].is_number_integer() || !r[1].is_number_integer())
-          throw std::runtime_error(description.string() + ": malformed \"lr_rewarmup\"");
-        scheduled.lr_rewarmup_from = r[0].get<long>();
-        scheduled.lr_rewarmup = r[1].get<long>();
-        scheduled.validate();
-      } else if (o.lr_rewarmup > 0 && (!saved.contains("lr_rewarmup") || saved.at("lr_rewarmup") != rewarmup_of(o))) {
-        char line[200];
-        std::snprintf(line, sizeof line, "%s: learning rate warms up again from step %ld over %ld steps", kind.c_str(),
-                      o.lr_rewarmup_from, o.lr_rewarmup);
-        o.log(line);
+      std::snprintf(change, sizeof change, "%s: learning rate warms up again from step %ld over %ld steps", kind.c_str(),
+                    o.lr_rewarmup_from, o.lr_rewarmup);
+      const json rewarmup =
+          resumed_schedule_part(saved, "lr_rewarmup", 2, 2, o.lr_rewarmup > 0 ? rewarmup_of(o) : json(), description, change, o.log);
+      if (!rewarmup.is_null()) {
+        scheduled.lr_rewarmup_from = rewarmup[0].get<long>();
+        scheduled.lr_rewarmup = rewarmup[1].get<long>();
       }
+      scheduled.validate();
       opt.schedule = training_schedule(scheduled.learning_rate, scheduled);
       info["learning_rate"] = scheduled.learning_rate;
       if (scheduled.lr_decay_to > 0) info["lr_decay"] = decay_of(scheduled);
