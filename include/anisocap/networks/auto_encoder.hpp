@@ -41,7 +41,7 @@ struct autoencoder_compact_wide {
 /// latent (H/16) x (W/16) x 128, the compact widths without the last level. It holds 24 input values
 /// per latent value (the compact preset 96, compact-wide 48, the paper's 12) with fewer parameters
 /// (0.87 M against 1.4 M): the spatial detail of weaves and printed patterns that a cell of 32 x 32
-/// texels loses (models/README.md, "Run 25").
+/// texels loses (docs/method.md section 7).
 struct autoencoder_compact_fine {
   static constexpr std::array<int, 4> encoder{32, 64, 128, 128};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-fine";              ///< preset name in files
@@ -50,7 +50,7 @@ struct autoencoder_compact_fine {
 /// An experimental compact variant with the paper's compression: compact-fine's four levels with
 /// the deepest one 256 wide, latent (H/16) x (W/16) x 256, 12 input values per latent value as the
 /// paper's auto-encoder (1.4 M parameters). studies/widen_latent.py starts it from a compact-fine
-/// file with the same output (models/README.md, "Run 27").
+/// file with the same output (docs/method.md section 7).
 struct autoencoder_compact_fine_wide {
   static constexpr std::array<int, 4> encoder{32, 64, 128, 256};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-fine-wide";         ///< preset name in files
@@ -60,7 +60,7 @@ struct autoencoder_compact_fine_wide {
 /// wide, 64-128-256-256: the same latent and compression (12 map values per latent value), a decoder
 /// whose last layers have twice the channels to draw the maps' detail from, and an encoder with twice
 /// the filters to find the code (3.4 M parameters, 13.7 MB). studies/widen_latent.py starts it from a
-/// compact-fine-wide (or compact-fine) file with the same output (models/README.md, "Run 30").
+/// compact-fine-wide (or compact-fine) file with the same output (docs/method.md section 7).
 struct autoencoder_compact_fine_wider {
   static constexpr std::array<int, 4> encoder{64, 128, 256, 256};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-fine-wider";         ///< preset name in files
@@ -68,8 +68,8 @@ struct autoencoder_compact_fine_wider {
 
 /// An experimental variant of `compact-fine-wider` with a 384-wide latent, 64-128-256-384: latent
 /// (H/16) x (W/16) x 384, 8 map values per latent value instead of the paper's 12, for the normals'
-/// and the diffuse albedo's detail that a code of the paper's size does not hold (models/README.md,
-/// "Run 28" and "Run 31"; 4.5 M parameters, 17.9 MB). studies/widen_latent.py starts it from a
+/// and the diffuse albedo's detail that a code of the paper's size does not hold (studies/linear_codes.cpp;
+/// 4.5 M parameters, 17.9 MB). studies/widen_latent.py starts it from a
 /// compact-fine-wider (or narrower four-level) file with the same output.
 struct autoencoder_compact_fine_widest {
   static constexpr std::array<int, 4> encoder{64, 128, 256, 384};  ///< encoder widths; latent = last
@@ -78,7 +78,7 @@ struct autoencoder_compact_fine_widest {
 
 /// An experimental variant of `compact-fine-widest` with a 512-wide latent, 64-128-256-512: 6 map
 /// values per latent value, the compression at which the best linear code of a 16 x 16 cell comes
-/// near 0.2x the estimator's a_d error (models/README.md "Run 31"). 5.5 M parameters: 22.1 MB as
+/// near 0.2x the estimator's a_d error (studies/linear_codes.cpp). 5.5 M parameters: 22.1 MB as
 /// floats, over the repository's 20 MB a file, 11.1 MB with half-float kernels (`convert-weights
 /// --half`). studies/widen_latent.py starts it from a narrower four-level file with the same output.
 struct autoencoder_compact_fine_512 {

@@ -52,7 +52,7 @@ struct estimator_compact_orientation : estimator_compact {
 /// The orientation inputs of `estimator_compact_orientation` with the doubled-angle rotation output
 /// of `estimator_compact_doubled_angle`: the structure tensor gives each photo's orientation as a
 /// doubled angle, and the head can pass it on through the wrap at alpha = +-pi/2, which a tanh
-/// output of alpha / (pi/2) cannot (experimental; models/README.md "Run 22").
+/// output of alpha / (pi/2) cannot. The shipped estimator's preset (docs/model-card.md).
 struct estimator_compact_orientation_doubled_angle : estimator_compact {
   static constexpr int input_channels = 6;                                    ///< RGB and 3 orientation channels
   static constexpr bool doubled_angle = true;                                 ///< rotation as a doubled-angle vector
