@@ -5,6 +5,8 @@
 # `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
 # screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
 # (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
+# `--clang` adds what a Clang build needs: clang, and libomp-dev, LLVM's OpenMP runtime with the
+# omp.h clang reads (GCC's libgomp serves only GCC; without it CMake finds no OpenMP for clang).
 set -euo pipefail
 web=0
 for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
@@ -12,6 +14,7 @@ packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
           libapriltag-dev)  # AprilTag marker frames: anisocap markers, corner detection in rectify
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
+if [[ " $* " == *" --clang "* ]]; then packages+=(clang libomp-dev); fi
 if ((web)); then
   packages+=(chromium)
   command -v npm >/dev/null || packages+=(nodejs npm)
