@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.." || exit 1
   echo '/// The umbrella header: every public header of anisocap (scripts/umbrella.sh writes it). Including'
   echo '/// single headers (for instance `anisocap/render/renderer.hpp`) compiles faster when only a part is'
   echo '/// needed. Folders, each including only those before it: core, ad, nn, brdf, render, data,'
-  echo '/// networks, training, pipeline, calibration, export (README.md "Architecture").'
+  echo '/// networks, training, pipeline, calibration, export (docs/architecture.md).'
   for folder in core ad nn brdf render data networks training pipeline calibration export; do
     [ -d include/anisocap/$folder ] || continue
     echo

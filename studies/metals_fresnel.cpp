@@ -115,7 +115,7 @@ int run_with(const study_options& o) {
               pipeline.kernel = kernel_options::parse("full");  // the kernel the refine-only runs use
               pipeline.refine.steps = o.steps;
               pipeline.refine.learning_rate = float(o.learning_rate);
-              maps = capture_material(cap, photos, *estimator, *autoencoder, pipeline).maps;
+              maps = capture_once(cap, photos, *estimator, *autoencoder, pipeline).maps;
             } else {
               maps = initial_guess(cap, photos);
               refine_options ro;

@@ -1,6 +1,6 @@
 // Numerical stability of the capture: the scenarios of
 // tests/pipeline/stability_test.cpp at bench size, printed as Markdown tables (studies/README.md,
-// "Numerical stability"). Every run is `capture_material` with the refine stage only (first guess from
+// "Numerical stability"). Every run is `capture_once` with the refine stage only (first guess from
 // the photographs, then per-texel Adam, as `anisocap capture --stages refine`), exposure
 // normalisation on unless a row says otherwise.
 //
@@ -49,7 +49,7 @@ run_result run_refine(const capture& cap, const std::vector<image>& photos, int 
   o.kernel = kernel_options::parse("full");
   o.normalise_exposure = normalise;
   const auto t0 = std::chrono::steady_clock::now();
-  run_result r{capture_material(cap, photos, o), 0};
+  run_result r{capture_once(cap, photos, o), 0};
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;
 }

@@ -226,7 +226,7 @@ int main(int argc, char** argv) {
         observer_seconds += seconds_since(t_in);
       };
       const auto t_all = clock_type::now();
-      capture_result pr = capture_material(cap, photos, estimator, autoencoder, po);
+      capture_result pr = capture_once(cap, photos, estimator, autoencoder, po);
       const double total = seconds_since(t_all);
       double pre_seconds = 0, ft_seconds = 0;
       for (const auto& st : pr.stages) {

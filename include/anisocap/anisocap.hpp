@@ -3,13 +3,14 @@
 /// The umbrella header: every public header of anisocap (scripts/umbrella.sh writes it). Including
 /// single headers (for instance `anisocap/render/renderer.hpp`) compiles faster when only a part is
 /// needed. Folders, each including only those before it: core, ad, nn, brdf, render, data,
-/// networks, training, pipeline, calibration, export (README.md "Architecture").
+/// networks, training, pipeline, calibration, export (docs/architecture.md).
 
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/simd.hpp"
+#include "anisocap/core/srgb.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/core/tensor.hpp"
 
@@ -35,6 +36,7 @@
 #include "anisocap/nn/schedule.hpp"
 #include "anisocap/nn/upsample.hpp"
 
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/brdf/ward.hpp"
 
@@ -64,11 +66,14 @@
 #include "anisocap/training/training.hpp"
 
 #include "anisocap/pipeline/capture.hpp"
+#include "anisocap/pipeline/capture_material.hpp"
 #include "anisocap/pipeline/encode.hpp"
 #include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
 #include "anisocap/pipeline/finetune.hpp"
 #include "anisocap/pipeline/fingerprint.hpp"
+#include "anisocap/pipeline/networks.hpp"
+#include "anisocap/pipeline/progress_line.hpp"
 #include "anisocap/pipeline/refine.hpp"
 
 #include "anisocap/calibration/camera.hpp"
@@ -78,7 +83,6 @@
 #include "anisocap/calibration/rectify.hpp"
 
 #include "anisocap/export/blender.hpp"
-#include "anisocap/export/canonical_maps.hpp"
 #include "anisocap/export/conversion.hpp"
 #include "anisocap/export/export.hpp"
 #include "anisocap/export/fidelity.hpp"

@@ -19,7 +19,7 @@
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/networks/presets.hpp"
 #include "anisocap/nn/safetensors.hpp"
 
@@ -1062,7 +1062,12 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models";
   REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 6 --seed 3 --kind spun", t.path).status == 0);
   const std::string common = "capture syn/capture.json --finetune-steps 5 --steps 5 --no-view";
-  const std::string both = " --models '" + models.string() + "' --also-models '" + (models / "next").string() + "'";
+  // A complete second folder: the shipped estimator with the second prior's auto-encoder.
+  const fs::path second = t.path / "second";
+  fs::create_directories(second / "compact");
+  fs::copy_file(models / "compact/estimator.safetensors", second / "compact/estimator.safetensors");
+  fs::copy_file(models / "also/compact/autoencoder.safetensors", second / "compact/autoencoder.safetensors");
+  const std::string both = " --models '" + models.string() + "' --also-models '" + second.string() + "'";
   // Without the residual start's run: a choice between the two folders' standard runs.
   auto r = run(common + " -o both --no-also-residual --also-models-above 0" + both, t.path);
   INFO(r.output);
@@ -1078,7 +1083,7 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   // Each folder alone gives the loss the selection reported for it: the choice is of whole runs.
   for (const char* side : {"chosen", "other"}) {
     const std::string dir = std::string("alone_") + side;
-    r = run(common + " -o " + dir + " --no-also-residual --models '" + m.at(side).get<std::string>() + "'", t.path);
+    r = run(common + " -o " + dir + " --no-also-residual --no-also-models --models '" + m.at(side).get<std::string>() + "'", t.path);
     REQUIRE(r.status == 0);
     const double alone = nlohmann::json::parse(read_text(t.path / dir / "report.json")).at("loss").get<double>();
     CHECK(alone == m.at(side == std::string("chosen") ? "loss" : "other_loss").get<double>());
@@ -1090,10 +1095,10 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   INFO(r.output);
   REQUIRE(r.status == 0);
   CHECK(r.output.find("now the weights in " + models.string() + " with the residual start") != std::string::npos);
-  CHECK(r.output.find("now the weights in " + (models / "next").string()) != std::string::npos);
+  CHECK(r.output.find("now the weights in " + second.string()) != std::string::npos);
   // Each folder's standard run alone is checked above to give the loss "both" reported for it; the
   // first folder with the residual start alone is the third run.
-  r = run(common + " -o first_residual --no-also-residual --finetune-residual --models '" + models.string() + "'", t.path);
+  r = run(common + " -o first_residual --no-also-residual --no-also-models --finetune-residual --models '" + models.string() + "'", t.path);
   REQUIRE(r.status == 0);
   const double residual_alone = nlohmann::json::parse(read_text(t.path / "first_residual/report.json")).at("loss").get<double>();
   CHECK(nlohmann::json::parse(read_text(t.path / "three/report.json")).at("loss").get<double>() ==
@@ -1109,8 +1114,8 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   // whole run as a complete folder holding that estimator and that auto-encoder.
   fs::create_directories(t.path / "decoder_only/compact");
   fs::create_directories(t.path / "complete/compact");
-  fs::copy_file(models / "next/compact/autoencoder.safetensors", t.path / "decoder_only/compact/autoencoder.safetensors");
-  fs::copy_file(models / "next/compact/autoencoder.safetensors", t.path / "complete/compact/autoencoder.safetensors");
+  fs::copy_file(models / "also/compact/autoencoder.safetensors", t.path / "decoder_only/compact/autoencoder.safetensors");
+  fs::copy_file(models / "also/compact/autoencoder.safetensors", t.path / "complete/compact/autoencoder.safetensors");
   fs::copy_file(models / "compact/estimator.safetensors", t.path / "complete/compact/estimator.safetensors");
   const std::string first = " --no-also-residual --also-models-above 0 --models '" + models.string() + "'";
   r = run(common + " -o decoder_only" + first + " --also-models decoder_only", t.path);
@@ -1140,8 +1145,8 @@ TEST_CASE("capture --also-models: runs the networks with both folders' weights a
   fs::create_directories(t.path / "empty");
   r = run(common + " -o none --also-models empty", t.path);
   CHECK(r.status != 0);
-  CHECK(r.output.find("--also-models: no compact weights in empty") != std::string::npos);
-  r = run(common + " -o none --stages refine --also-models '" + (models / "next").string() + "'", t.path);
+  CHECK(r.output.find("empty: no second prior there") != std::string::npos);
+  r = run(common + " -o none --stages refine --also-models '" + second.string() + "'", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("--also-models chooses between the network stages' results") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "none/report.json"));
@@ -1206,7 +1211,7 @@ TEST_CASE("eval --stages: the auto-encoder left out gives refined rows only; unk
   CHECK(alone.find(",refined,") != std::string::npos);
   CHECK(alone != er);
   check_refused("eval -o bad" + common + " --stages estimate,bogus", t.path, "unknown stage 'bogus'", "bad");
-  check_refused("eval -o bad" + common + " --stages refine --also-models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models/next").string() + "'",
+  check_refused("eval -o bad" + common + " --stages refine --also-models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models/also").string() + "'",
                 t.path, "--also-models chooses between the network stages' results", "bad");
 }
 

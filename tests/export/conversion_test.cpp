@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/export/conversion.hpp"
 #include "anisocap/export/fidelity.hpp"
 

@@ -13,7 +13,7 @@
 
 #include "../data/test_folder.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/export/viewer.hpp"
 #include "anisocap/render/renderer.hpp"
 

@@ -34,18 +34,18 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
   estimation_network<estimator_tiny> estimator(1);
   auto_encoder<autoencoder_tiny> straight(2);
   const auto encoder_before = straight.enc<0>().weight.value;
-  const capture_result a = capture_material(s.cap, s.photos, estimator, straight, o);
+  const capture_result a = capture_once(s.cap, s.photos, estimator, straight, o);
   for (std::size_t i = 0; i < encoder_before.size(); ++i) REQUIRE(straight.enc<0>().weight.value[i] == encoder_before[i]);
   o.finetune.observer = nullptr;
 
   std::filesystem::remove_all(o.checkpoint.folder);
   auto_encoder<autoencoder_tiny> first(2);
   o.finetune.steps = 5;
-  capture_material(s.cap, s.photos, estimator, first, o);
+  capture_once(s.cap, s.photos, estimator, first, o);
   auto_encoder<autoencoder_tiny> second(2);
   o.finetune.steps = 8;
   o.checkpoint.resume = true;
-  const capture_result b = capture_material(s.cap, s.photos, estimator, second, o);
+  const capture_result b = capture_once(s.cap, s.photos, estimator, second, o);
   CHECK(b.stages[2].resumed);
   CHECK(b.stages[2].steps == 3);
   for (std::size_t i = 0; i < straight.dec<4>().weight.value.size(); ++i)
@@ -67,7 +67,7 @@ TEST_CASE("pipeline: every stage runs on a non-square size that is not a multipl
   int estimate_reports = 0;
   o.finetune.progress_every = 4;
   o.progress = [&](const std::string& stage, const optimisation_progress&) { estimate_reports += stage == "estimate"; };
-  const capture_result r = capture_material(s.cap, s.photos, estimator, autoencoder, o);
+  const capture_result r = capture_once(s.cap, s.photos, estimator, autoencoder, o);
   REQUIRE(r.stages.size() == 4);
   CHECK(r.stages[0].name == "estimate");
   CHECK(r.stages[2].name == "finetune");
@@ -108,9 +108,9 @@ TEST_CASE("fine-tune residual start: the fine-tune starts at the estimate itself
   o.finetune.steps = 10;
   o.stages.refine = false;
   auto_encoder<autoencoder_tiny> plain_ae(2), residual_ae(2);
-  const capture_result plain = capture_material(s.cap, s.photos, estimator, plain_ae, o);
+  const capture_result plain = capture_once(s.cap, s.photos, estimator, plain_ae, o);
   o.finetune.residual = true;
-  const capture_result r = capture_material(s.cap, s.photos, estimator, residual_ae, o);
+  const capture_result r = capture_once(s.cap, s.photos, estimator, residual_ae, o);
   REQUIRE(r.stages.size() == 3);
   // Without it the (untrained) decoder's maps of z are far from the estimate; with it the encode
   // stage's maps are the estimate: the same image loss.
@@ -259,12 +259,12 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
       unguarded_losses.push_back(loss_and_gradient<all_features>(maps(), s.cap, targets, nullptr));  // the whole tile's, crops or not
     };
     auto_encoder<autoencoder_tiny> a(2);
-    const capture_result wild = capture_material(s.cap, s.photos, estimator, a, o);
+    const capture_result wild = capture_once(s.cap, s.photos, estimator, a, o);
     CHECK(wild.stages[2].restarts == 0);
     o.finetune.observer = nullptr;
     o.finetune.guard.factor = 1.5;
     auto_encoder<autoencoder_tiny> b(2);
-    const capture_result guarded = capture_material(s.cap, s.photos, estimator, b, o);
+    const capture_result guarded = capture_once(s.cap, s.photos, estimator, b, o);
     CHECK(guarded.stages[2].restarts > 0);
     CHECK(guarded.stages[2].restarts < 10);  // each restart resumes from the snapshot's loss: no endless going back
     CHECK(guarded.stages[2].steps == 40);
@@ -278,7 +278,7 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
     CHECK_THROWS_AS([&] {
       o.finetune.guard.factor = 0.9;
       auto_encoder<autoencoder_tiny> c(2);
-      capture_material(s.cap, s.photos, estimator, c, o);
+      capture_once(s.cap, s.photos, estimator, c, o);
     }(), std::invalid_argument);
   }
 }

@@ -89,7 +89,7 @@ TEST_CASE("floors are in the files' values: the capture scales them by each imag
   o.refine.steps = 0;
   o.kernel = kernel_options::parse("full");
   no_networks none;
-  const capture_result r = capture_material(cap, photos, none, none, o, &start);
+  const capture_result r = capture_once(cap, photos, none, none, o, &start);
   // What the pipeline must have fitted: the normalised capture with floors f x exposure x scale.
   capture c = cap;
   std::vector<image> p = photos;

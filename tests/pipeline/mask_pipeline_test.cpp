@@ -25,12 +25,12 @@ capture_result run(const capture& cap, const std::vector<image>& photos, const s
   o.finetune.steps = 4;
   o.finetune.crop.cells = crop_cells;
   o.refine.steps = 6;
-  return capture_material(cap, photos, estimator, autoencoder, o, nullptr, masks);
+  return capture_once(cap, photos, estimator, autoencoder, o, nullptr, masks);
 }
 
 }  // namespace
 
-TEST_CASE("capture_material: masked pixels never reach the maps or the losses") {
+TEST_CASE("capture_once: masked pixels never reach the maps or the losses") {
   const two_threads threads;
   const int w = 40, h = 24;
   const capture cap = random_capture(5, 4);

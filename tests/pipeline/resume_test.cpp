@@ -51,7 +51,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
     o.checkpoint.seconds = 1e9;  // check-points only where stop_after asks
 
     auto_encoder<autoencoder_tiny> straight(2);
-    const capture_result a = capture_material(cap, photos, estimator, straight, o);
+    const capture_result a = capture_once(cap, photos, estimator, straight, o);
     REQUIRE(a.stages[2].restarts > 1);
     REQUIRE(a.stages[2].steps == 40);
     const std::vector<float> expected = decoder_weights(straight);
@@ -63,7 +63,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
       o.finetune.stop_after = stop;
       o.checkpoint.resume = false;
       auto_encoder<autoencoder_tiny> first(2);
-      const capture_result stopped = capture_material(cap, photos, estimator, first, o);
+      const capture_result stopped = capture_once(cap, photos, estimator, first, o);
       REQUIRE(stopped.stopped);
       REQUIRE(stopped.stages[2].restarts <= a.stages[2].restarts);
       stopped_after_restart += stopped.stages[2].restarts > 0 && stopped.stages[2].restarts < a.stages[2].restarts;
@@ -71,7 +71,7 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
       o.finetune.stop_after = -1;
       o.checkpoint.resume = true;
       auto_encoder<autoencoder_tiny> second(2);  // a new process: fresh weights, everything else from the check-point
-      const capture_result b = capture_material(cap, photos, estimator, second, o);
+      const capture_result b = capture_once(cap, photos, estimator, second, o);
       CHECK(b.stages[2].resumed);
       CHECK(b.stages[2].steps == 40 - stop);
       CHECK(b.stages[2].restarts == a.stages[2].restarts);
@@ -97,14 +97,14 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   o.checkpoint.seconds = 1e9;
   {
     auto_encoder<autoencoder_tiny> ae(2);
-    REQUIRE(capture_material(cap, photos, estimator, ae, o).stopped);
+    REQUIRE(capture_once(cap, photos, estimator, ae, o).stopped);
   }
   o.finetune.stop_after = -1;
   o.checkpoint.resume = true;
   auto resume_error = [&](const capture& c, const std::vector<image>& p, const capture_options& opts) -> std::string {
     auto_encoder<autoencoder_tiny> ae(2);
     try {
-      capture_material(c, p, estimator, ae, opts);
+      capture_once(c, p, estimator, ae, opts);
     } catch (const std::runtime_error& e) {
       return e.what();
     }
@@ -137,14 +137,14 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   // Other weights are another capture too.
   {
     auto_encoder<autoencoder_tiny> other(3);
-    CHECK_THROWS_WITH_AS(capture_material(cap, photos, estimator, other, o), doctest::Contains("autoencoder_weights"), std::runtime_error);
+    CHECK_THROWS_WITH_AS(capture_once(cap, photos, estimator, other, o), doctest::Contains("autoencoder_weights"), std::runtime_error);
   }
   // More steps are the same capture continued; the same inputs resume.
   capture_options longer = o;
   longer.finetune.steps = 9;
   {
     auto_encoder<autoencoder_tiny> ae(2);
-    const capture_result r = capture_material(cap, photos, estimator, ae, longer);
+    const capture_result r = capture_once(cap, photos, estimator, ae, longer);
     CHECK(r.stages[2].resumed);
     CHECK(r.stages[2].steps == 6);
   }

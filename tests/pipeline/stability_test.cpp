@@ -79,7 +79,7 @@ double fraction_at_or_above(const std::vector<image>& photos, float level) {
 capture_result run_tiny(const capture& cap, const std::vector<image>& photos, const capture_options& o) {
   estimation_network<estimator_tiny> estimator(1);
   auto_encoder<autoencoder_tiny> autoencoder(2);
-  return capture_material(cap, photos, estimator, autoencoder, o);
+  return capture_once(cap, photos, estimator, autoencoder, o);
 }
 
 /// Largest difference per parameter group between two map sets, for messages and checks.
@@ -188,11 +188,11 @@ TEST_CASE("stability: a photograph with a NaN or infinite pixel is refused by th
     capture_options po = measured_capture_options();
     po.stages = pipeline_stages{false, false, false, true};
     po.refine.steps = 5;
-    CHECK_THROWS_AS(capture_material(s.cap, photos, estimator, autoencoder, po), std::invalid_argument);
+    CHECK_THROWS_AS(capture_once(s.cap, photos, estimator, autoencoder, po), std::invalid_argument);
   }
 }
 
-// Scaling a capture's intensities and photographs by one factor must not change its maps: capture_material
+// Scaling a capture's intensities and photographs by one factor must not change its maps: capture_once
 // normalises the exposure first (pipeline/exposure.hpp). For a power of two the normalised inputs
 // are bit-identical, and so must the maps be. For 1e-4 and 1e4 they agree up to float rounding
 // (relative 1e-7), which the optimisers then amplify: Adam's first steps move each variable by

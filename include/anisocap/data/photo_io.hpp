@@ -184,4 +184,23 @@ inline std::vector<image> photo_masks(const std::vector<photo>& photos) {
   return out;
 }
 
+/// A capture description (capture.json) with its photographs loaded as a capture reads them.
+struct capture_photographs {
+  capture description;
+  std::vector<photo> photos;  ///< one per configuration: pixels (exposure applied), mask, clipped counts
+  /// The photographs' pixels (photo_pixels).
+  std::vector<image> pixels() const { return photo_pixels(photos); }
+  /// Their masks: the weight of each pixel in the loss (photo_masks).
+  std::vector<image> masks() const { return photo_masks(photos); }
+};
+
+/// Reads `capture_file` (read_capture) and loads its photographs and masks relative to its folder
+/// (load_capture_photos with `options`). Throws io_error naming the file and the problem.
+inline capture_photographs read_capture_photographs(const std::filesystem::path& capture_file, const photo_options& options = {}) {
+  capture_photographs c;
+  c.description = read_capture(capture_file);
+  c.photos = load_capture_photos(c.description, capture_file.parent_path(), options);
+  return c;
+}
+
 }  // namespace anisocap

@@ -6,7 +6,7 @@
 ///     peak 1 / (4 pi a_x a_y) for k = 1); k per target is the value that minimises the measured
 ///     error (export/fidelity.hpp, README "Exports"), then each target's (roughness, anisotropy)
 ///     parametrisation is inverted and clamped to its range;
-///   - rotation: the canonical form (export/canonical_maps.hpp) puts the wide axis on the rotated
+///   - rotation: the canonical form (brdf/canonical_maps.hpp) puts the wide axis on the rotated
 ///     tangent, which is the axis every target stretches;
 ///   - specular colour and Fresnel: normal-incidence reflectance a'_s matched exactly, grazing
 ///     reflectance a'_s / F0 as far as the target's Fresnel allows;

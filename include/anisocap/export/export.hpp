@@ -5,7 +5,7 @@
 ///   mitsuba  Mitsuba 0.6 scene with the `ward` BSDF (export/mitsuba.hpp)
 ///   blender  Blender 4.x Python script building a Principled BSDF node tree (export/blender.hpp)
 ///   mtlx     MaterialX document with Autodesk Standard Surface (export/materialx.hpp)
-/// The maps are brought into canonical form first (export/canonical_maps.hpp); the conversions and
+/// The maps are brought into canonical form first (brdf/canonical_maps.hpp); the conversions and
 /// their measured error are in export/conversion.hpp and export/fidelity.hpp.
 #include <filesystem>
 #include <optional>
@@ -13,7 +13,7 @@
 #include <string_view>
 
 #include "anisocap/export/blender.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/export/gltf.hpp"
 #include "anisocap/export/materialx.hpp"
 #include "anisocap/export/mitsuba.hpp"

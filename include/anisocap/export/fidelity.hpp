@@ -63,7 +63,7 @@ inline ward_parameters<float> texel_parameters(const material_maps& maps, std::s
   return p;
 }
 
-/// Measures every target on `maps` (canonical form expected: export/canonical_maps.hpp).
+/// Measures every target on `maps` (canonical form expected: brdf/canonical_maps.hpp).
 inline fidelity_result measure_fidelity(const material_maps& maps, const fidelity_options& o = {}) {
   const std::vector<vec3> dirs = fidelity_directions(o);
   std::array<double, target_count> diff{};

@@ -31,7 +31,7 @@ struct autoencoder_compact {
 /// An experimental compact variant with twice the latent: (H/32) x (W/32) x 256, the last two
 /// encoder layers (and the first two decoder layers) 256 wide. The compact latent holds 96 input
 /// values per latent value, this one 48 (the paper's 12); 3.5 M parameters against 1.4 M
-/// (models/README.md, "A wider latent").
+/// (docs/model-card.md, "Architecture").
 struct autoencoder_compact_wide {
   static constexpr std::array<int, 5> encoder{32, 64, 128, 256, 256};  ///< encoder widths; latent = last
   static constexpr const char* name = "compact-wide";                   ///< preset name in files

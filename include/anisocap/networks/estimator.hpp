@@ -43,7 +43,7 @@ struct estimator_compact_doubled_angle : estimator_compact {
 /// The compact widths with three more input channels per photograph: the image's local
 /// orientation and contrast from its structure tensor (network_space::orientation_channels), so the
 /// rotation's evidence reaches the network without having to be learnt from pixels. Only the first
-/// encoder layer's weights differ from `estimator_compact`'s (experimental; models/README.md).
+/// encoder layer's weights differ from `estimator_compact`'s (experimental; docs/model-card.md).
 struct estimator_compact_orientation : estimator_compact {
   static constexpr int input_channels = 6;                         ///< RGB and 3 orientation channels
   static constexpr const char* name = "compact-orientation";       ///< preset name in files

@@ -73,16 +73,48 @@ using compact_autoencoder_presets =
     preset_list<autoencoder_compact, autoencoder_compact_wide, autoencoder_compact_fine, autoencoder_compact_fine_wide,
                 autoencoder_compact_fine_wider, autoencoder_compact_fine_widest, autoencoder_compact_fine_512>;
 
+/// The estimator preset a capture runs by default: the shipped estimator's. The program also runs
+/// the trainer's default (estimator_compact; trainable_estimator_presets); the others of
+/// compact_estimator_presets are experimental.
+using shipped_estimator_presets = preset_list<estimator_compact_orientation_doubled_angle>;
+
+/// The compact estimator presets the program trains and captures with: the trainer's default and
+/// the shipped one.
+using trainable_estimator_presets = preset_list<estimator_compact, estimator_compact_orientation_doubled_angle>;
+
+/// The compact auto-encoder presets a capture runs by default: the shipped first and second
+/// priors'. The others of compact_autoencoder_presets are experimental.
+using shipped_autoencoder_presets = preset_list<autoencoder_compact, autoencoder_compact_fine_512>;
+
+/// Calls `f.template operator()<P>()` with the estimator preset P of `List` that `file` names
+/// (estimator_compact for a file without a preset). Throws std::invalid_argument naming the file
+/// and `List`'s presets for any other.
+template <class List, class F>
+decltype(auto) with_estimator_preset(const std::filesystem::path& file, F&& f) {
+  const std::string preset = weights_preset(file);
+  return List::call(preset.empty() ? estimator_compact::name : preset, f, [&] {
+    return file.string() + ": an estimator of preset \"" + preset + "\", not a compact one (" + List::joined() + ")";
+  });
+}
+
+/// Calls `f.template operator()<P>()` with the auto-encoder preset P of `List` that `file` names
+/// (autoencoder_compact for a file without a preset). Throws std::invalid_argument naming the file
+/// and `List`'s presets for any other.
+template <class List, class F>
+decltype(auto) with_autoencoder_preset(const std::filesystem::path& file, F&& f) {
+  const std::string preset = weights_preset(file);
+  return List::call(preset.empty() ? autoencoder_compact::name : preset, f, [&] {
+    return file.string() + ": an auto-encoder of preset \"" + preset + "\", not a compact one (" + List::joined() + ")";
+  });
+}
+
 /// Calls `f.template operator()<P>()` with the compact estimator preset P that `file` names (one of
 /// compact_estimator_presets; estimator_compact for a file without a preset). Throws
 /// std::invalid_argument naming the file for any other preset (e.g. "paper", whose weights do not
 /// fit a compact network).
 template <class F>
 decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, F&& f) {
-  const std::string preset = weights_preset(file);
-  return compact_estimator_presets::call(preset.empty() ? estimator_compact::name : preset, f, [&] {
-    return file.string() + ": an estimator of preset \"" + preset + "\", not a compact one (" + compact_estimator_presets::joined() + ")";
-  });
+  return with_estimator_preset<compact_estimator_presets>(file, f);
 }
 
 /// Calls `f.template operator()<P>()` with the compact auto-encoder preset P that `file` names (one
@@ -90,11 +122,7 @@ decltype(auto) with_compact_estimator_preset(const std::filesystem::path& file, 
 /// std::invalid_argument naming the file for any other preset.
 template <class F>
 decltype(auto) with_compact_autoencoder_preset(const std::filesystem::path& file, F&& f) {
-  const std::string preset = weights_preset(file);
-  return compact_autoencoder_presets::call(preset.empty() ? autoencoder_compact::name : preset, f, [&] {
-    return file.string() + ": an auto-encoder of preset \"" + preset + "\", not a compact one (" +
-           compact_autoencoder_presets::joined() + ")";
-  });
+  return with_autoencoder_preset<compact_autoencoder_presets>(file, f);
 }
 
 }  // namespace anisocap

@@ -13,7 +13,7 @@
 ///
 /// A network's weights may be stored as IEEE half floats ("F16", weight_storage::f16): the loaders
 /// read F16 tensors into float parameters, and save_weights and convert_weights write them, which
-/// halves a file (models/README.md measures what it changes in the networks' outputs).
+/// halves a file (docs/model-card.md gives what it changes in the networks' outputs).
 #include <algorithm>
 #include <bit>
 #include <cstddef>

@@ -82,20 +82,55 @@ struct kernel_options {
   }
 };
 
-/// Options of `capture_material`, one struct per stage. The defaults are the fast schedule
-/// (finetune_options); `paper()` is the paper's.
+/// When capture_material runs the network stages a second time and keeps the better fit against
+/// the photographs (lower final image loss; the first on a tie). Each applies only where the first
+/// run's final image loss is above `above`.
+struct second_run_options {
+  /// Again on the same networks with the fine-tune started at the estimate itself
+  /// (finetune_options::residual), where the first run did not have that start, the stages include
+  /// encode and fine-tune, and the auto-encoder's projection of the estimate fits the photographs
+  /// at least `residual_ratio` times worse than the estimate (projection_ratio). On the 16-material
+  /// family comparison it took the novel-view error from 0.033 to 0.023 (docs/results.md).
+  bool residual = true;
+  /// Then with the networks' second prior (networks::has_second_prior), where the better fit so far
+  /// is still above `above`. On Table 1's two 20-material samples it lowers the refined novel-view
+  /// error by 4% and 19% for about a third more time (docs/results.md).
+  bool second_prior = true;
+  /// Final image loss at or below which no second run is made (0: always).
+  double above = 0.1;
+  /// The residual start's condition on projection_ratio (0: none). The ratio is measured before
+  /// any fine-tuning and, unlike the final loss, hardly moves with the photographs' noise.
+  double residual_ratio = 1.4;
+  /// Throws std::invalid_argument for impossible values.
+  void validate() const {
+    if (!(above >= 0) || !std::isfinite(above)) throw std::invalid_argument("second_run.above must be a finite number >= 0");
+    if (!(residual_ratio >= 0) || !std::isfinite(residual_ratio))
+      throw std::invalid_argument("second_run.residual_ratio must be a finite number >= 0");
+  }
+};
+
+/// Options of a capture, one struct per stage. `capture_options{}` is the `anisocap capture`
+/// default (the fast schedule); `thorough()` and `paper()` are the other named schedules.
 struct capture_options {
   pipeline_stages stages{};
   estimate_options estimate{};
   finetune_options finetune{};
+  /// The refine after the network stages: the maps start near the answer (500 steps at 3e-3).
   refine_options refine = refine_options::after_networks();
   /// When > 0, refine also from a second start with both lobe widths at least this, and keep per
   /// texel group the fit with the lower loss (refine_two_starts). 0: one start.
   float second_start_lobe_width = 0.0f;
-  /// After the refine, one neighbourhood restart per radius, in this order
-  /// (refine_neighbour_restarts). Empty: none. The program sets {8} where the network stages run
-  /// (its measured default, docs/method.md 8.4); a library caller asks for it here.
-  std::vector<int> neighbour_restarts;
+  /// After the refine that follows the network stages, one neighbourhood restart per radius, in
+  /// this order (refine_neighbour_restarts; docs/method.md 8.4). Empty: none.
+  std::vector<int> neighbour_restarts{8};
+  /// The refine when the network stages do not run (no networks, or start maps): it starts from the
+  /// first guess, far from the answer, so it takes refine_options' own 1000 steps at 0.03.
+  refine_options refine_alone{};
+  /// Neighbourhood restarts after the refine alone: none by default (each round would be another
+  /// whole refine, and nothing was measured).
+  std::vector<int> neighbour_restarts_alone{};
+  /// capture_material's second runs of the network stages.
+  second_run_options second_run{};
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
   /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
@@ -106,11 +141,17 @@ struct capture_options {
   checkpoint_options checkpoint{};
   /// Progress of every stage (estimate: windows; fine-tune and refine every `progress_every` of theirs).
   std::function<void(const std::string& stage, const optimisation_progress&)> progress;
+  /// The choices capture_material makes (a second run tried or not, and why; which fit was kept),
+  /// one sentence each; none when unset.
+  std::function<void(const std::string& message)> log;
 
+  /// The fast schedule, the default: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine
+  /// 500 at 3e-3, one neighbourhood restart round at radius 8 (about 30 s for 256 x 256 on 2 cores).
+  static capture_options fast() { return {}; }
   /// The thorough schedule: fine-tune 2000 steps (finetune_options::thorough), refine 1000. On the
   /// 16-material family comparison it lowers every parameter's error and the novel-view loss by 20%
-  /// (metals: spun 16%, foil 31%) for 2.2x the time (studies/README.md "Longer fine-tunes, longer
-  /// refines and a second start"). For metals, or wherever accuracy matters more than time.
+  /// (metals: spun 16%, foil 31%) for 2.2x the time (docs/results.md). For metals, or wherever
+  /// accuracy matters more than time.
   static capture_options thorough() {
     capture_options o;
     o.finetune = finetune_options::thorough();
@@ -118,12 +159,33 @@ struct capture_options {
     return o;
   }
   /// The paper's schedule (section 5): fine-tune 5000 steps at 7.5e-4 without warm-up, refine 500
-  /// steps at 1e-4.
+  /// steps at 1e-4, no neighbourhood restarts.
   static capture_options paper() {
     capture_options o;
     o.finetune = finetune_options::paper();
     o.refine = refine_options::paper();
+    o.neighbour_restarts.clear();
     return o;
+  }
+  /// The schedule of a name: fast, thorough or paper. Throws std::invalid_argument for another.
+  static capture_options schedule(std::string_view name) {
+    if (name == "fast") return fast();
+    if (name == "thorough") return thorough();
+    if (name == "paper") return paper();
+    throw std::invalid_argument("unknown schedule '" + std::string(name) + "' (fast, thorough, paper)");
+  }
+  /// Throws std::invalid_argument naming the field for impossible values.
+  void validate() const {
+    refine.validate();
+    refine_alone.validate();
+    estimate.validate();
+    finetune.validate();
+    second_run.validate();
+    if (!(second_start_lobe_width >= 0 && second_start_lobe_width <= 1))
+      throw std::invalid_argument("second_start_lobe_width must be in [0, 1]");
+    for (const auto* radii : {&neighbour_restarts, &neighbour_restarts_alone})
+      for (int r : *radii)
+        if (r < 1) throw std::invalid_argument("a neighbour restart's radius must be at least 1 texel (got " + std::to_string(r) + ")");
   }
 };
 
@@ -142,6 +204,17 @@ struct stage_report {
   std::vector<double> restart_replaced_fractions{};
 };
 
+/// What capture_material chose between when it could run the network stages more than once
+/// (second_run_options): the kept run and the other one of its last choice.
+struct run_choice {
+  std::filesystem::path chosen, other;  ///< the weights folders of the kept and the other run
+  double loss = 0, other_loss = 0;      ///< their final image losses against the photographs
+  double other_seconds = 0;             ///< the time the other run's stages took
+  bool other_ran = true;                ///< false: its condition was not met, the other did not run
+  bool chosen_residual = false, other_residual = false;  ///< whether each run's fine-tune had the residual start
+  double projection_ratio = 0;          ///< the first run's projection_ratio (NaN when encode or estimate did not run)
+};
+
 /// The result: the map set and a report per stage.
 struct capture_result {
   material_maps maps;
@@ -157,6 +230,10 @@ struct capture_result {
   double loss = 0;
   /// The fine-tune returned at its `stop_after` (refine did not run); resume from the check-point.
   bool stopped = false;
+  /// Whether the network stages ran (capture_material runs the refine alone without networks).
+  bool networks_ran = false;
+  /// capture_material's choice between runs, where a second run was possible.
+  std::optional<run_choice> choice;
 
   /// The time the stages took, in seconds (the sum of stages' seconds).
   double stage_seconds() const {
@@ -176,7 +253,7 @@ struct capture_result {
 /// Stands for the networks of a capture that runs without them.
 struct no_networks {};
 
-/// The fingerprint of capture_material's check-points: what their contents depend on. The
+/// The fingerprint of capture_once's check-points: what their contents depend on. The
 /// photographs' pixels, the configurations (positions and intensities; file names do not matter),
 /// the start maps, the networks' weights, and the options of the stages that check-point (estimate
 /// and fine-tune, with the kernel, the renderer's and the exposure options). Not the step counts:
@@ -227,7 +304,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
 
 namespace capture_detail {
 
-/// Prepares the check-point folder of capture_material: when resuming, refuses a folder whose
+/// Prepares the check-point folder of capture_once: when resuming, refuses a folder whose
 /// fingerprint differs from `now` (or that holds stages without one), naming what differs; when
 /// not, removes the stages a previous run left there. Then writes `now` as fingerprint.txt.
 inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool resume, const fingerprint& now) {
@@ -259,24 +336,25 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
 
 }  // namespace capture_detail
 
-/// Captures the map set of one material from its photographs (one per configuration of `cap`).
-/// `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
+/// One run of exactly the stages and options in `o` (capture_material, the entry point, resolves
+/// the schedules and adds the second runs): the map set of one material from its photographs (one
+/// per configuration of `cap`). `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
 /// `no_networks` for both to run the first guess and refine alone. `start`, when given, replaces
 /// the estimate (or the first guess). `masks` (optional, one 1-channel image per photograph,
 /// 0 = left out, e.g. clipped pixels: data/photo_io.hpp; other values weigh the pixel) keep pixels out of every image loss (the
 /// first guess, fine-tune with or without crops, refine and every stage's reported loss); the
 /// estimator still sees whole photographs.
 template <class Estimator = no_networks, class AutoEncoderNet = no_networks>
-capture_result capture_material(const capture& given_cap, const std::vector<image>& given_photos, Estimator& estimator,
-                                AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr,
-                                const std::vector<image>& masks = {}) {
+capture_result capture_once(const capture& given_cap, const std::vector<image>& given_photos, Estimator& estimator,
+                            AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr,
+                            const std::vector<image>& masks = {}) {
   namespace fs = std::filesystem;
   using clock = std::chrono::steady_clock;
   if (given_photos.empty() || given_photos.size() != given_cap.images.size())
-    throw std::invalid_argument("capture_material: need one photograph per configuration");
+    throw std::invalid_argument("capture_once: need one photograph per configuration");
   constexpr bool has_networks = !std::is_same_v<Estimator, no_networks> && !std::is_same_v<AutoEncoderNet, no_networks>;
-  if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_material: the estimate and encode stages need networks");
-  if (start && o.stages.estimate) throw std::invalid_argument("capture_material: start maps replace the estimate stage");
+  if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_once: the estimate and encode stages need networks");
+  if (start && o.stages.estimate) throw std::invalid_argument("capture_once: start maps replace the estimate stage");
   o.refine.validate();
   if (o.stages.estimate) o.estimate.validate();
   if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
@@ -397,11 +475,11 @@ capture_result capture_material(const capture& given_cap, const std::vector<imag
   return result;
 }
 
-/// capture_material without networks: the first guess (or `start`) and refine, with `masks` as there.
-inline capture_result capture_material(const capture& cap, const std::vector<image>& photos, const capture_options& o,
-                                       const material_maps* start = nullptr, const std::vector<image>& masks = {}) {
+/// capture_once without networks: the first guess (or `start`) and refine, with `masks` as there.
+inline capture_result capture_once(const capture& cap, const std::vector<image>& photos, const capture_options& o,
+                                   const material_maps* start = nullptr, const std::vector<image>& masks = {}) {
   no_networks none;
-  return capture_material(cap, photos, none, none, o, start, masks);
+  return capture_once(cap, photos, none, none, o, start, masks);
 }
 
 }  // namespace anisocap

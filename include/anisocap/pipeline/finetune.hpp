@@ -33,7 +33,7 @@ namespace anisocap {
 /// is the start, and the fine-tune ends with the last snapshot's decoder when the whole tile
 /// renders better with it. A snapshot costs a copy of the decoder's weights and Adam moments (3x
 /// the decoder's size). Large learning rates diverge on some materials after hundreds of good
-/// steps; this keeps what those steps gained (studies/README.md "Run time against error").
+/// steps; this keeps what those steps gained (docs/results.md "Run time against error").
 struct finetune_guard_options {
   double factor = 1.5;  ///< 0: off; else above 1
   int every = 50;       ///< steps between snapshots
@@ -57,7 +57,7 @@ struct checkpoint_options {
   double seconds = 60;
 };
 
-/// Options of `finetune`. The defaults are the fast schedule of studies/README.md "Run time against
+/// Options of `finetune`. The defaults are the fast schedule of docs/results.md "Run time against
 /// error": 800 steps at 8e-3 after a 200-step linear warm-up reach the error of the paper's 5000
 /// steps at 7.5e-4 (`paper()`) in about a fifth of the time.
 struct finetune_options {
@@ -88,8 +88,8 @@ struct finetune_options {
   std::function<void(int updates, double loss, const std::function<material_maps()>& maps)> observer;
 
   /// The thorough schedule's fine-tune (capture_options::thorough): the fast one run for 2000
-  /// steps. On metals the fine-tune is still descending at 800 (studies/README.md "Longer
-  /// fine-tunes, longer refines and a second start").
+  /// steps. On metals the fine-tune is still descending at 800 (docs/results.md "Run time
+  /// against error").
   static finetune_options thorough() {
     finetune_options o;
     o.steps = 2000;

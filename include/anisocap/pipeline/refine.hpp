@@ -50,7 +50,7 @@ struct refine_options {
   int freeze_every = 25;
 
   /// After the networks the maps start near the answer: 500 steps (the paper's count) at 3e-3
-  /// (studies/README.md "Run time against error").
+  /// (docs/results.md "Run time against error").
   static refine_options after_networks() {
     refine_options o;
     o.steps = 500;

@@ -26,7 +26,7 @@ struct eval_settings {
 /// eval's work once its options are checked and e.out is locked: captures each material (of
 /// `families`, e.families read), writing table.md and table.csv into e.out (atomically) after
 /// every material.
-inline void evaluate_materials(const eval_settings& e, const std::vector<material_kind>& families, const model_choice& models,
+inline void evaluate_materials(const eval_settings& e, const std::vector<material_kind>& families, const networks& nets,
                                const capture_options& options) {
   struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
   std::map<std::string, row_sum> rows;
@@ -91,7 +91,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         auto photos = render(truth, cap);
         add_sensor_noise(photos, e.noise, seed ^ hash64(std::uint64_t(n) * 2 + (set == "beta")));
         const auto t0 = std::chrono::steady_clock::now();
-        const capture_result pr = run_capture(cap, photos, models, options);
+        const capture_result pr = capture_material(cap, photos, nets, options);
         const double sec = seconds_since(t0);
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
                      static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
@@ -124,7 +124,7 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
 /// The paper's Table 1 on procedural validation materials (docs/method.md section 9): per N, set and
 /// stage the mean over materials of each per-parameter MSE, the novel-view image loss and seconds
 /// per material.
-inline void eval_command(const eval_settings& e, const model_choice& models, const capture_options& options) {
+inline void eval_command(const eval_settings& e, const model_choice& models, const capture_options& options, bool also_models_given) {
   if (e.count < 1 || e.min_size < 1 || e.max_size < e.min_size) throw std::invalid_argument("eval: need --count >= 1 and 1 <= --min-size <= --max-size");
   for (const auto& set : e.sets)
     if (set != "alpha" && set != "beta") throw std::invalid_argument("eval: --sets takes alpha and beta, got '" + set + "'");
@@ -133,12 +133,13 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
       throw std::invalid_argument("eval: --images values must be >= 4 and >= --fresnel + 2");
   e.noise.validate();
   const std::vector<material_kind> families = material_kinds_from_names(e.families);
-  options.finetune.validate();  // reject impossible options before any work
-  options.refine.validate();
-  if (options.stages.networks() && !models.present()) throw std::invalid_argument("eval needs the " + models.preset + " weights in " + (models.models / models.preset).string());
+  options.validate();  // reject impossible options before any work
+  if (also_models_given && !options.stages.networks())
+    throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run (--stages)");
+  const networks nets = options.stages.networks() ? load_program_networks(models) : networks{};
   output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
   try {
-    evaluate_materials(e, families, models, options);
+    evaluate_materials(e, families, nets, options);
   } catch (...) {
     lock.release_empty();  // weights that fail to load (or hold NaN) leave no empty folder
     throw;
@@ -175,11 +176,7 @@ inline void add_eval_command(CLI::App& app) {
   c->callback([e, models, options, c] {
     capture_options o = *options;
     o.stages = pipeline_stages::parse(e->stages);
-    refine_alone_schedule(o, *c);
-    resolve_neighbour_restarts(o, *c);
-    model_choice m = *models;
-    resolve_second_run(m, o.stages, *c);
-    eval_command(*e, m, o);
+    eval_command(*e, *models, o, c->count("--also-models") > 0);
   });
 }
 

@@ -1,6 +1,6 @@
 #pragma once
 // Training subcommands of the `anisocap` program (train-estimator, train-autoencoder) and the
-// networks' evaluation (eval-networks); models/README.md.
+// networks' evaluation (eval-networks); docs/model-card.md.
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
@@ -23,7 +23,7 @@ struct train_settings {
   training::train_options options;
   std::string inputs = "truth";  ///< auto-encoder: what the encoder reads, truth or estimates
   /// Auto-encoder with estimates as inputs: the estimator weights that make them.
-  std::string input_estimator = model_choice{}.estimator().string();
+  std::string input_estimator = shipped_weights_file("estimator.safetensors").string();
 };
 
 /// The --preset choices of a trainer: the compact presets' names (networks/presets.hpp), the paper's
@@ -44,13 +44,13 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                    "the levels above the latent twice as wide), compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
                    "map values per latent value) and compact-fine-512 (a 512-wide latent: 6 map values per latent value; "
                    "22 MB as floats, 11 MB with convert-weights --half)")
-        ->check(CLI::IsMember(preset_choices<autoencoder_paper, compact_autoencoder_presets>()));
+        ->check(CLI::IsMember(preset_choices<autoencoder_paper, program_autoencoder_presets>()));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, paper, or the experimental compact variants compact-doubled-angle (the rotation "
                     "read from a doubled-angle vector), compact-orientation (each photo's structure-tensor orientation as 3 "
                     "more input channels) and compact-orientation-doubled-angle (both)")
-        ->check(CLI::IsMember(preset_choices<estimator_paper, compact_estimator_presets>()));
+        ->check(CLI::IsMember(preset_choices<estimator_paper, program_estimator_presets>()));
   cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
   cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
   cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for the compact-fine presets)"
@@ -159,8 +159,8 @@ void train_in_locked_folder(const train_settings& s, Train train) {
 
 /// Settings of eval-networks.
 struct network_eval_settings {
-  std::string estimator = model_choice{}.estimator().string();
-  std::string autoencoder = model_choice{}.autoencoder().string();
+  std::string estimator = shipped_weights_file("estimator.safetensors").string();
+  std::string autoencoder = shipped_weights_file("autoencoder.safetensors").string();
   int count = 30;
   int size = 256;
   int window = 0;  ///< > 0: the estimator runs as the pipeline's estimate does, over sliding windows of this side (0: the whole material at once)
@@ -278,8 +278,8 @@ inline void evaluate_networks(const network_eval_settings& s) {
   if (s.window % 64 != 0)
     throw std::invalid_argument("eval-networks: --window " + std::to_string(s.window) + " is not a multiple of 64 (the estimator's)");
   if (s.window > 0) s.windows().validate();
-  with_compact_estimator_preset(s.estimator, [&]<class P>() {
-    with_compact_autoencoder_preset(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
+  with_estimator_preset<program_estimator_presets>(s.estimator, [&]<class P>() {
+    with_autoencoder_preset<program_autoencoder_presets>(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
   });
 }
 
@@ -306,7 +306,7 @@ inline void add_train_commands(CLI::App& app) {
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
-    train_in_locked_folder<estimation_network, estimator_paper, compact_estimator_presets>(
+    train_in_locked_folder<estimation_network, estimator_paper, program_estimator_presets>(
         *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
   });
   auto ae = std::make_shared<train_settings>();
@@ -314,10 +314,10 @@ inline void add_train_commands(CLI::App& app) {
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    train_in_locked_folder<auto_encoder, autoencoder_paper, compact_autoencoder_presets>(
+    train_in_locked_folder<auto_encoder, autoencoder_paper, program_autoencoder_presets>(
         *ae, [&s = *ae](const training::train_options& o, auto& net) {
           if (s.inputs == "truth") return training::train_autoencoder(o, net);
-          with_compact_estimator_preset(s.input_estimator, [&]<class P>() {
+          with_estimator_preset<program_estimator_presets>(s.input_estimator, [&]<class P>() {
             auto estimator = std::make_unique<estimation_network<P>>();
             nn::load_weights(s.input_estimator, *estimator);
             training::train_autoencoder(o, net, *estimator);

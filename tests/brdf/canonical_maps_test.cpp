@@ -1,4 +1,4 @@
-// export/canonical_maps.hpp: the canonical form renders every pixel as before, and is canonical.
+// brdf/canonical_maps.hpp: the canonical form renders every pixel as before, and is canonical.
 #include <doctest/doctest.h>
 
 #include <cmath>
@@ -7,7 +7,7 @@
 
 #include "../render/render_reference.hpp"
 #include "anisocap/data/procedural.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/renderer.hpp"
 

@@ -1,7 +1,7 @@
 // The `anisocap` program: synthesize procedural captures, render map sets, capture materials from
 // photographs, evaluate, train the networks, a self-contained demo, the calibration of real
 // photographs (markers, photograph, rectify), the viewer page and exports. One file per command under
-// examples/commands/; `anisocap --help` and `anisocap <command> --help` list every option with its
+// examples/anisocap/commands/, compiled in groups; `anisocap --help` and `anisocap <command> --help` list every option with its
 // default.
 #include <omp.h>
 
@@ -10,36 +10,25 @@
 #include <cstdio>
 #include <exception>
 
+#include "commands.hpp"
 #include "commands/options.hpp"
-
-#include "commands/capture.hpp"
-#include "commands/demo.hpp"
-#include "commands/eval.hpp"
-#include "commands/export.hpp"
-#include "commands/markers.hpp"
-#include "commands/photograph.hpp"
-#include "commands/rectify.hpp"
-#include "commands/render.hpp"
-#include "commands/synthesize.hpp"
-#include "commands/train.hpp"
-#include "commands/view.hpp"
 
 int main(int argc, char** argv) {
   CLI::App app{"anisocap: capture anisotropic SVBRDFs (Ward + Fresnel) from a few photographs"};
   app.option_defaults()->always_capture_default();
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("anisocap ") + ANISOCAP_VERSION);
-  anisocap::commands::add_synthesize_command(app);
-  anisocap::commands::add_render_command(app);
-  anisocap::commands::add_capture_command(app);
-  anisocap::commands::add_eval_command(app);
-  anisocap::commands::add_train_commands(app);
-  anisocap::commands::add_demo_command(app);
-  anisocap::commands::add_view_command(app);
-  anisocap::commands::add_export_command(app);
-  anisocap::commands::add_rectify_command(app);
-  anisocap::commands::add_photograph_command(app);
-  anisocap::commands::add_markers_command(app);
+  anisocap::commands::register_synthesize(app);
+  anisocap::commands::register_render(app);
+  anisocap::commands::register_capture(app);
+  anisocap::commands::register_eval(app);
+  anisocap::commands::register_training(app);
+  anisocap::commands::register_demo(app);
+  anisocap::commands::register_view(app);
+  anisocap::commands::register_export(app);
+  anisocap::commands::register_rectify(app);
+  anisocap::commands::register_photograph(app);
+  anisocap::commands::register_markers(app);
   anisocap::commands::add_threads_option(&app);  // before the command or after it
   for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; })) anisocap::commands::add_threads_option(command);
   try {

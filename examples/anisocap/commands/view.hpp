@@ -8,7 +8,7 @@
 #include <memory>
 
 #include "anisocap/data/map_io.hpp"
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/export/viewer.hpp"
 
 namespace anisocap::commands {

@@ -6,8 +6,8 @@
 #include <memory>
 #include <optional>
 
-#include "anisocap/export/canonical_maps.hpp"
 #include "anisocap/export/viewer.hpp"
+#include "anisocap/pipeline/progress_line.hpp"
 #include "common.hpp"
 
 namespace anisocap::commands {
@@ -26,16 +26,32 @@ struct capture_settings {
   std::optional<float> floor;  ///< --floor: replaces every image's floor (capture_image::floor)
 };
 
-/// Runs a capture: writes the map set (canonical, export/canonical_maps.hpp), the viewer page
+/// The end of a capture in a few lines: what was made, where, how well it fits the photographs,
+/// and what to do next.
+inline void print_capture_summary(const capture_result& r, const fs::path& out, double seconds, bool view) {
+  std::string path;
+  for (const auto& st : r.stages)
+    if (st.ran || st.resumed) {
+      char step[80];
+      std::snprintf(step, sizeof step, "%s%s %.4f", path.empty() ? "" : " -> ", st.name.c_str(), st.loss);
+      path += step;
+    }
+  std::fprintf(stderr,
+               "capture: done in %.0f s: %dx%d maps, image loss %.4f against the photographs (%s)\n"
+               "  maps and previews   %s/  (diffuse, specular, normal, lobes, rotation, fresnel: .exr and .png)\n"
+               "  photos vs renders   %s\n",
+               seconds, r.maps.width(), r.maps.height(), r.loss, path.c_str(), out.c_str(), (out / "contact_sheet.png").c_str());
+  if (view) std::fprintf(stderr, "  look at it          open %s in a browser\n", (out / "material.html").c_str());
+  std::fprintf(stderr, "  export              anisocap export %s --format gltf -o %s  (or mitsuba, blender, mtlx)\n"
+               "  details             %s\n", out.c_str(), (out / "material.gltf").c_str(), (out / "report.json").c_str());
+}
+
+/// Runs a capture: writes the map set (canonical, brdf/canonical_maps.hpp), the viewer page
 /// (unless `s.view` is off), re-renders, novel views, a contact sheet and report.json into `s.out`; returns the report. `parsed` is the command (to see which options were given).
 inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
   const auto start = std::chrono::steady_clock::now();
   capture_options& o = s.options;
-  o.finetune.validate();  // impossible options and missing weights are refused before any work
-  o.refine.validate();
-  if (parsed->count("--models") > 0 && !s.models.present())
-    throw std::invalid_argument("--models " + s.models.models.string() + ": no " + s.models.preset + " weights there (" +
-                                s.models.estimator().string() + ", " + s.models.autoencoder().string() + ")");
+  o.validate();  // impossible options are refused before any work
   capture cap = read_capture(s.capture_file);
   if (s.floor) {
     if (!(std::isfinite(*s.floor) && *s.floor >= 0)) throw std::invalid_argument("--floor must be a finite number >= 0");
@@ -100,36 +116,37 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   } cleanup{lock, s.out / ".checkpoint"};
   const double load_seconds = seconds_since(start);
 
-  // Which stages: "auto" runs the networks when their weights are there (and no --init), else refine alone.
-  std::string stages_text = s.stages;
-  if (stages_text == "auto") {
-    stages_text = s.models.present() && !s.init ? "all" : "refine";
-    if (!s.models.present())
-      std::fprintf(stderr, "capture: no %s weights in %s: running the per-texel refine alone (train them with "
-                   "`anisocap train-estimator` / `train-autoencoder`, or pass --models)\n", s.models.preset.c_str(),
-                   (s.models.models / s.models.preset).c_str());
-  }
-  o.stages = pipeline_stages::parse(stages_text);
-  const bool networks = o.stages.networks();
-  if (networks && s.init) throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
-  refine_alone_schedule(o, *parsed);
-  resolve_neighbour_restarts(o, *parsed);
-  resolve_second_run(s.models, o.stages, *parsed);
+  // Which stages: "auto" runs the networks where their weights are found (and no --init), else
+  // the refine alone (capture_material's own rule); a list given runs those, and needs the weights.
+  const bool explicit_stages = s.stages != "auto";
+  if (explicit_stages) o.stages = pipeline_stages::parse(s.stages);
+  if (s.init && explicit_stages && o.stages.networks())
+    throw std::invalid_argument("--init replaces the network stages: use it with --stages refine");
+  networks nets;
+  if (!s.init && o.stages.networks())
+    nets = explicit_stages || parsed->count("--models") > 0 ? load_program_networks(s.models) : find_program_networks(s.models);
+  if (parsed->count("--also-models") > 0 && nets.empty())
+    throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run "
+                                "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
+  const bool with_networks = !nets.empty();
+  const std::string stages_text = !with_networks ? "refine" : explicit_stages ? s.stages : "all";
   o.checkpoint = {s.out / ".checkpoint", s.resume};
   o.finetune.progress_every = 25;
   o.refine.progress_every = std::max(1, o.refine.steps / 50);
-  o.progress = print_progress;
+  o.refine_alone.progress_every = std::max(1, o.refine_alone.steps / 50);
+  progress_line progress;
+  o.progress = std::ref(progress);
+  o.log = print_capture_choice;
   std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", photos.size(), photos[0].width(),
                photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
 
-  model_selection selection;
-  capture_result result = run_capture(cap, photos, s.models, o, start_maps ? &*start_maps : nullptr, masks, &selection);
+  capture_result result = capture_material(cap, photos, nets, o, masks, start_maps ? &*start_maps : nullptr);
+  progress.finish();
   const std::string kernel_used = kernel_analysis{result.features, 0, 0, 0}.describe();
   if (o.kernel.auto_tolerance > 0) std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_used.c_str());
 
   const auto t_write = std::chrono::steady_clock::now();
-  material_maps& maps = result.maps;
-  canonicalise(maps);
+  const material_maps& maps = result.maps;  // canonical (capture_material)
   create_output_folder(s.out);
   // Every result file is staged under a temporary name and all are renamed into place together at
   // the end: a failure while producing any of them leaves the folder's earlier results as they were.
@@ -162,24 +179,27 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                                 {"loss", st.loss}, {"seconds", st.seconds}, {"evaluated_fraction", st.evaluated_fraction},
                                 {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction},
                                 {"restart_replaced_fractions", st.restart_replaced_fractions}});
-  report["refine"] = {{"steps", o.refine.steps}, {"learning_rate", o.refine.learning_rate},
-                      {"stop", o.refine.min_relative_improvement}, {"freeze", o.refine.freeze_tolerance},
-                      {"neighbour_restarts", o.neighbour_restarts}};
-  if (networks)
+  const refine_options& refined = with_networks ? o.refine : o.refine_alone;
+  report["refine"] = {{"steps", refined.steps}, {"learning_rate", refined.learning_rate},
+                      {"stop", refined.min_relative_improvement}, {"freeze", refined.freeze_tolerance},
+                      {"neighbour_restarts", with_networks ? o.neighbour_restarts : o.neighbour_restarts_alone}};
+  if (with_networks)
     report["finetune"] = {{"steps", o.finetune.steps}, {"learning_rate", o.finetune.learning_rate}, {"warmup", o.finetune.warmup},
                           {"half_life", o.finetune.half_life}, {"crop", o.finetune.crop.cells}, {"guard", o.finetune.guard.factor},
                           {"residual", o.finetune.residual}, {"preset", s.models.preset}};
-  if (o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
+  if (with_networks && o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
   report["loss"] = result.loss;
-  if (s.models.second_run() && networks)
-    report["models"] = {{"chosen", fs::absolute(selection.chosen).string()}, {"loss", selection.loss},
-                        {"other", fs::absolute(selection.other).string()}, {"other_ran", selection.other_ran},
-                        {"other_loss", selection.other_ran ? nlohmann::json(selection.other_loss) : nlohmann::json()},
-                        {"other_seconds", selection.other_seconds}, {"above", s.models.alternative_above},
-                        {"chosen_residual", selection.chosen_residual}, {"other_residual", selection.other_residual},
-                        {"residual_ratio", s.models.residual_ratio},
-                        {"projection_ratio", std::isfinite(selection.projection_ratio) ? nlohmann::json(selection.projection_ratio)
-                                                                                       : nlohmann::json()}};
+  if (result.choice) {
+    const run_choice& c = *result.choice;
+    report["models"] = {{"chosen", fs::absolute(c.chosen).string()}, {"loss", c.loss},
+                        {"other", fs::absolute(c.other).string()}, {"other_ran", c.other_ran},
+                        {"other_loss", c.other_ran ? nlohmann::json(c.other_loss) : nlohmann::json()},
+                        {"other_seconds", c.other_seconds}, {"above", o.second_run.above},
+                        {"chosen_residual", c.chosen_residual}, {"other_residual", c.other_residual},
+                        {"residual_ratio", o.second_run.residual_ratio},
+                        {"projection_ratio", std::isfinite(c.projection_ratio) ? nlohmann::json(c.projection_ratio) : nlohmann::json()}};
+  }
+  report["networks"] = nets.describe();
   report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)
@@ -195,9 +215,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   cleanup.succeeded = true;
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume
-  std::fprintf(stderr, "capture:");
-  for (const auto& st : result.stages) std::fprintf(stderr, " %s %.4f (%.1f s)", st.name.c_str(), st.loss, st.seconds);
-  std::fprintf(stderr, "; maps, renders, contact sheet and report.json in %s\n", s.out.c_str());
+  print_capture_summary(result, s.out, seconds_since(start), s.view);
   return report;
 }
 

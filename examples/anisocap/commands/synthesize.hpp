@@ -2,7 +2,7 @@
 // `anisocap synthesize`: a procedural material, its map set, rendered inputs and capture.json.
 #include <memory>
 
-#include "anisocap/export/canonical_maps.hpp"
+#include "anisocap/brdf/canonical_maps.hpp"
 #include "common.hpp"
 
 namespace anisocap::commands {
@@ -37,7 +37,7 @@ inline void synthesize(const synthesize_settings& a) {
     if (!options.kind) throw std::invalid_argument("unknown --kind '" + a.kind + "'");
   }
   material_maps truth = generate_material(a.seed, a.width, a.height, options);
-  canonicalise(truth);  // the written truth/ is canonical (export/canonical_maps.hpp); renders are unchanged
+  canonicalise(truth);  // the written truth/ is canonical (brdf/canonical_maps.hpp); renders are unchanged
   capture cap;
   if (a.set == "alpha") cap = set_alpha(a.images, a.seed, a.width, a.height, a.fresnel);
   else if (a.set == "beta") cap = set_beta(a.images, a.seed, a.width, a.height);

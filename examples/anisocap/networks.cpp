@@ -1,0 +1,28 @@
+// The program's network weights: the one translation unit that instantiates the pipeline for
+// every preset a capture can run (load_networks), so that the others compile without it.
+#include <cstdio>
+
+#include "anisocap/pipeline/networks.hpp"
+#include "commands/common.hpp"
+
+namespace anisocap::commands {
+
+networks load_program_networks(const model_choice& m) {
+  try {
+    return load_networks<program_estimator_presets, program_autoencoder_presets, true>(m.models, m.options());
+  } catch (const std::invalid_argument& e) {
+    // Name the options a user gives, beside the library's message.
+    throw std::invalid_argument(std::string(e.what()) + " (--models, --preset, --also-models)");
+  }
+}
+
+networks find_program_networks(const model_choice& m) {
+  if (!m.models.empty() || !find_models_folder(m.preset).empty()) return load_program_networks(m);
+  std::string places;
+  for (const auto& p : models_search_path()) places += (places.empty() ? "" : ", ") + p.string();
+  std::fprintf(stderr, "capture: no %s network weights found (looked in %s): running the per-texel refine alone (set "
+               "ANISOCAP_MODELS or pass --models)\n", m.preset.c_str(), places.c_str());
+  return {};
+}
+
+}  // namespace anisocap::commands
