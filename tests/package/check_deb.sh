@@ -11,10 +11,11 @@ trap 'rm -rf "$work"' EXIT
 deb=$(ls "$work"/deb/anisocap_*.deb)
 echo "package: $(basename "$deb") ($(du -h "$deb" | cut -f1))"
 dpkg-deb --info "$deb" | grep -E "Package|Version|Depends" || true
+contents=$(dpkg-deb --contents "$deb")
 for path in ./usr/bin/anisocap ./usr/share/anisocap/models/compact/estimator.safetensors \
             ./usr/share/anisocap/models/also/compact/autoencoder.safetensors ./usr/include/anisocap/anisocap.hpp \
             ./usr/lib/cmake/anisocap/anisocapConfig.cmake ./usr/share/pkgconfig/anisocap.pc; do
-  dpkg-deb --contents "$deb" | grep -q " $path\$" || { echo "the package lacks $path"; exit 1; }
+  grep -q " $path\$" <<<"$contents" || { echo "the package lacks $path"; exit 1; }
 done
 dpkg -x "$deb" "$work/root"
 unset ANISOCAP_MODELS
