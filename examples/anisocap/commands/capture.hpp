@@ -125,8 +125,12 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   networks nets;
   if (!s.init && o.stages.networks())
     nets = explicit_stages || parsed->count("--models") > 0 ? load_program_networks(s.models) : find_program_networks(s.models);
-  if (parsed->count("--also-models") > 0 && nets.empty())
-    throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run "
+  // A second run asked for by name needs the network stages it would repeat.
+  const bool asked_models = parsed->count("--also-models") > 0;
+  const bool asked_residual = parsed->count("--also-residual") > 0 && o.second_run.residual;
+  if (nets.empty() && (asked_models || asked_residual))
+    throw std::invalid_argument(std::string(asked_models ? "--also-models" : "--also-residual") +
+                                " chooses between the network stages' results, and these stages do not run "
                                 "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
   const bool with_networks = !nets.empty();
   const std::string stages_text = !with_networks ? "refine" : explicit_stages ? s.stages : "all";

@@ -30,8 +30,8 @@ class progress_line {
     stage_ = stage;
     last_ = now;
     char text[200];
-    std::snprintf(text, sizeof text, "  %-9s %3d%%  step %5d/%-5d  loss %.5f  %5.1f s left", stage.c_str(),
-                  p.steps > 0 ? int(100.0 * p.step / p.steps) : 100, p.step, p.steps, p.loss, p.seconds_left);
+    std::snprintf(text, sizeof text, "  %s step %5d/%-5d %3d%%  loss %.5f  %5.1f s left", stage.c_str(), p.step, p.steps,
+                  p.steps > 0 ? int(100.0 * p.step / p.steps) : 100, p.loss, p.seconds_left);
     if (terminal_) {
       std::fprintf(stream_, "\r%s\033[K", text);
       open_ = !stage_end;
