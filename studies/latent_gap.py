@@ -19,7 +19,7 @@ original ranges (studies/train_torch.py per_parameter_mse):
     (training::map_losses without the render term).
 
     python3 studies/latent_gap.py --tool build-studies/studies/anisocap_study_torch_training_data \
-        --autoencoder models/next/autoencoder_compact_fine_wider_run53.safetensors --markdown out.md
+        --autoencoder WIDER.safetensors --markdown out.md
 
 The materials come from the tool's `materials --evaluation --materials original` (eval-networks'
 seeds and kinds). One thread by default (--threads).
