@@ -46,78 +46,90 @@ inline void print_capture_summary(const capture_result& r, const fs::path& out, 
                "  details             %s\n", out.c_str(), (out / "material.gltf").c_str(), (out / "report.json").c_str());
 }
 
-/// Runs a capture: writes the map set (canonical, brdf/canonical_maps.hpp), the viewer page
-/// (unless `s.view` is off), re-renders, novel views, a contact sheet and report.json into `s.out`; returns the report. `parsed` is the command (to see which options were given).
-inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
-  const auto start = std::chrono::steady_clock::now();
-  capture_options& o = s.options;
-  o.validate();  // impossible options are refused before any work
-  capture cap = read_capture(s.capture_file);
+/// What the capture command reads: the description (with --floor applied), the photographs and
+/// their masks, what was clipped or masked per photograph (said on stderr, kept for report.json),
+/// and the --truth and --init map sets.
+struct capture_command_inputs {
+  capture cap;
+  std::vector<image> photos, masks;
+  nlohmann::json photo_report = nlohmann::json::array();
+  std::optional<material_maps> truth, start_maps;
+  std::vector<fs::path> files;  ///< every file read: outputs never replace one
+};
+
+/// Reads what `s` names, checking sizes; says on stderr which pixels are clipped or masked.
+inline capture_command_inputs read_capture_command_inputs(const capture_settings& s) {
+  capture_command_inputs in;
+  in.cap = read_capture(s.capture_file);
   if (s.floor) {
     if (!(std::isfinite(*s.floor) && *s.floor >= 0)) throw std::invalid_argument("--floor must be a finite number >= 0");
-    for (capture_image& im : cap.images) im.floor = *s.floor;
+    for (capture_image& im : in.cap.images) im.floor = *s.floor;
   }
-  const std::vector<photo> loaded = load_capture_photos(cap, s.capture_file.parent_path(), s.photos);
-  const std::vector<image> photos = photo_pixels(loaded);
-  const std::vector<image> masks = photo_masks(loaded);
+  const std::vector<photo> loaded = load_capture_photos(in.cap, s.capture_file.parent_path(), s.photos);
+  in.photos = photo_pixels(loaded);
+  in.masks = photo_masks(loaded);
   // Clipped and masked pixels, per image: never fitted silently.
-  nlohmann::json photo_report = nlohmann::json::array();
   for (std::size_t i = 0; i < loaded.size(); ++i) {
     const photo& p = loaded[i];
-    const capture_image& entry = cap.images[i];
+    const capture_image& entry = in.cap.images[i];
     if (p.clipped > 0)
       std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels clipped, %s\n", i, entry.file.c_str(), 100.0 * p.clipped_fraction(),
                    s.photos.exclude_clipped ? "excluded from the loss" : "FITTED (--fit-clipped)");
     if (!entry.mask.empty())
       std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, entry.file.c_str(),
                    100.0 * p.masked_fraction(), entry.mask.c_str(), p.clipped > 0 && s.photos.exclude_clipped ? " and clipping" : "");
-    photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure}, {"floor", entry.floor},
-                            {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
+    in.photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure}, {"floor", entry.floor},
+                               {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
   }
-  if (photos.size() < 4)
+  if (in.photos.size() < 4)
     std::fprintf(stderr, "capture: warning: %zu photograph%s cannot separate the maps' parameters (the problem is ill-posed: many "
                  "map sets render the same); the method needs about 8 (docs/method.md section 6), at least 4\n",
-                 photos.size(), photos.size() == 1 ? "" : "s");
-  std::optional<material_maps> truth, start_maps;
+                 in.photos.size(), in.photos.size() == 1 ? "" : "s");
+  const image& first = in.photos[0];
   auto check_size = [&](const material_maps& m, const fs::path& file) {
-    if (m.width() != photos[0].width() || m.height() != photos[0].height())
+    if (m.width() != first.width() || m.height() != first.height())
       throw std::invalid_argument(file.string() + ": the maps are " + std::to_string(m.width()) + "x" + std::to_string(m.height()) +
-                                  " but the photographs are " + std::to_string(photos[0].width()) + "x" + std::to_string(photos[0].height()));
+                                  " but the photographs are " + std::to_string(first.width()) + "x" + std::to_string(first.height()));
   };
-  if (s.truth) check_size(*(truth = read_maps(*s.truth)), *s.truth);
-  if (s.init) check_size(*(start_maps = read_maps(*s.init)), *s.init);
-  // Outputs stay inside OUT and never replace an input; checked before any work.
-  std::vector<fs::path> inputs = capture_inputs(cap, s.capture_file);
+  if (s.truth) check_size(*(in.truth = read_maps(*s.truth)), *s.truth);
+  if (s.init) check_size(*(in.start_maps = read_maps(*s.init)), *s.init);
+  in.files = capture_inputs(in.cap, s.capture_file);
   for (const auto& folder : {s.truth, s.init})
     if (folder) {
       const auto files = map_files(*folder);
-      inputs.insert(inputs.end(), files.begin(), files.end());
+      in.files.insert(in.files.end(), files.begin(), files.end());
     }
-  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(cap, s.out / "renders");
-  outputs.insert(outputs.end(), renders.begin(), renders.end());
-  for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
-  refuse_overwriting_inputs(outputs, inputs);
-  output_lock lock(s.out);
-  // A failed run leaves nothing but a check-point with completed stages, and says so.
-  struct on_failure {
-    output_lock& lock;
-    fs::path checkpoint;
-    bool succeeded = false;
-    ~on_failure() {
-      if (succeeded) return;
-      std::error_code ec;
-      if (fs::exists(checkpoint / "estimate", ec) || fs::exists(checkpoint / "finetune", ec))
-        std::fprintf(stderr, "capture: failed; the completed stages are kept in %s: after fixing the cause, the same command with "
-                     "--resume continues from them\n", checkpoint.c_str());
-      else
-        fs::remove_all(checkpoint, ec);
-      lock.release_empty();
-    }
-  } cleanup{lock, s.out / ".checkpoint"};
-  const double load_seconds = seconds_since(start);
+  return in;
+}
 
-  // Which stages: "auto" runs the networks where their weights are found (and no --init), else
-  // the refine alone (capture_material's own rule); a list given runs those, and needs the weights.
+/// A failed capture leaves nothing but a check-point with completed stages, and says so.
+class capture_failure_cleanup {
+ public:
+  capture_failure_cleanup(output_lock& lock, fs::path checkpoint) : lock_(lock), checkpoint_(std::move(checkpoint)) {}
+  capture_failure_cleanup(const capture_failure_cleanup&) = delete;
+  capture_failure_cleanup& operator=(const capture_failure_cleanup&) = delete;
+  ~capture_failure_cleanup() {
+    if (succeeded) return;
+    std::error_code ec;
+    if (fs::exists(checkpoint_ / "estimate", ec) || fs::exists(checkpoint_ / "finetune", ec))
+      std::fprintf(stderr, "capture: failed; the completed stages are kept in %s: after fixing the cause, the same command with "
+                   "--resume continues from them\n", checkpoint_.c_str());
+    else
+      fs::remove_all(checkpoint_, ec);
+    lock_.release_empty();
+  }
+  bool succeeded = false;
+
+ private:
+  output_lock& lock_;
+  fs::path checkpoint_;
+};
+
+/// The networks the command's stages run with, and the stages in `o`: "auto" runs the networks
+/// where their weights are found (and no --init), else the refine alone (capture_material's own
+/// rule); a list given runs those, and needs the weights. Refuses --init with network stages, and
+/// a second run asked for by name without them. `stages_text` says what runs.
+inline networks choose_networks(const capture_settings& s, capture_options& o, const CLI::App* parsed, std::string& stages_text) {
   const bool explicit_stages = s.stages != "auto";
   if (explicit_stages) o.stages = pipeline_stages::parse(s.stages);
   if (s.init && explicit_stages && o.stages.networks())
@@ -125,57 +137,34 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   networks nets;
   if (!s.init && o.stages.networks())
     nets = explicit_stages || parsed->count("--models") > 0 ? load_program_networks(s.models) : find_program_networks(s.models);
-  // A second run asked for by name needs the network stages it would repeat.
   const bool asked_models = parsed->count("--also-models") > 0;
   const bool asked_residual = parsed->count("--also-residual") > 0 && o.second_run.residual;
   if (nets.empty() && (asked_models || asked_residual))
     throw std::invalid_argument(std::string(asked_models ? "--also-models" : "--also-residual") +
                                 " chooses between the network stages' results, and these stages do not run "
                                 "(--stages without estimate, encode and fine-tune, --init, or no weights in --models)");
-  const bool with_networks = !nets.empty();
-  const std::string stages_text = !with_networks ? "refine" : explicit_stages ? s.stages : "all";
-  o.checkpoint = {s.out / ".checkpoint", s.resume};
-  o.finetune.progress_every = 25;
-  o.refine.progress_every = std::max(1, o.refine.steps / 50);
-  o.refine_alone.progress_every = std::max(1, o.refine_alone.steps / 50);
-  progress_line progress;
-  o.progress = std::ref(progress);
-  o.log = print_capture_choice;
-  std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", photos.size(), photos[0].width(),
-               photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
+  stages_text = nets.empty() ? "refine" : explicit_stages ? s.stages : "all";
+  return nets;
+}
 
-  capture_result result = capture_material(cap, photos, nets, o, masks, start_maps ? &*start_maps : nullptr);
-  progress.finish();
+/// report.json of a capture (without its timings): inputs, options as run, every stage, the choice
+/// between runs, the novel views and, with --truth, the errors.
+inline nlohmann::json capture_report(const capture_settings& s, const capture_options& o, const capture_command_inputs& in,
+                                     const capture_result& result, const networks& nets, const capture& novel) {
+  const bool with_networks = result.networks_ran;
   const std::string kernel_used = kernel_analysis{result.features, 0, 0, 0}.describe();
-  if (o.kernel.auto_tolerance > 0) std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_used.c_str());
-
-  const auto t_write = std::chrono::steady_clock::now();
-  const material_maps& maps = result.maps;  // canonical (capture_material)
-  create_output_folder(s.out);
-  // Every result file is staged under a temporary name and all are renamed into place together at
-  // the end: a failure while producing any of them leaves the folder's earlier results as they were.
-  file_transaction files;
-  const std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
-  if (s.view) files.stage(s.out / "material.html", viewer_html(maps, {s.out.filename().string()}));
-  const std::vector<image> rerenders = render(maps, cap);
-  stage_images(rerenders, cap, s.out / "renders", files, inputs);
-  write_png(make_capture_sheet(photos, rerenders, maps, truth ? &*truth : nullptr), s.out / "contact_sheet.png", files);
-  const capture novel = novel_view_set(1, maps.width(), maps.height());
-  stage_images(render(maps, novel), novel, s.out / "novel", files);
-  const double write_seconds = seconds_since(t_write);
-
   nlohmann::json report;
   report["capture"] = fs::absolute(s.capture_file).string();
-  report["images"] = photos.size();
-  report["width"] = photos[0].width();
-  report["height"] = photos[0].height();
+  report["images"] = in.photos.size();
+  report["width"] = in.photos[0].width();
+  report["height"] = in.photos[0].height();
   report["kernel"] = o.kernel.auto_tolerance > 0 ? "auto" : kernel_used;
   report["kernel_used"] = kernel_used;
   report["precision"] = o.render.double_precision ? "double" : "float";
   report["exposure_scale"] = result.exposure_scale;
   report["saturation"] = s.photos.saturation;
   report["clipped_excluded"] = s.photos.exclude_clipped;
-  report["photos"] = photo_report;
+  report["photos"] = in.photo_report;
   report["threads"] = omp_get_max_threads();
   report["stages"] = nlohmann::json::array();
   for (const auto& st : result.stages)
@@ -204,14 +193,66 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                         {"projection_ratio", std::isfinite(c.projection_ratio) ? nlohmann::json(c.projection_ratio) : nlohmann::json()}};
   }
   report["networks"] = nets.describe();
-  report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)
     report["novel_views"].push_back({{"file", "novel/" + v.file}, {"camera", v.camera}, {"light", v.light}, {"intensity", v.intensity}});
-  if (truth) {
-    report["errors"] = errors_to_json(compare_maps(maps, *truth));
-    report["errors"]["novel_view_image_loss"] = novel_view_error(maps, *truth, novel);
+  if (in.truth) {
+    report["errors"] = errors_to_json(compare_maps(result.maps, *in.truth));
+    report["errors"]["novel_view_image_loss"] = novel_view_error(result.maps, *in.truth, novel);
   }
+  return report;
+}
+
+/// Runs a capture: writes the map set (canonical, brdf/canonical_maps.hpp), the viewer page
+/// (unless `s.view` is off), re-renders, novel views, a contact sheet and report.json into `s.out`;
+/// returns the report. `parsed` is the command (to see which options were given).
+inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
+  const auto start = std::chrono::steady_clock::now();
+  capture_options& o = s.options;
+  o.validate();  // impossible options are refused before any work
+  const capture_command_inputs in = read_capture_command_inputs(s);
+  // Outputs stay inside OUT and never replace an input; checked before any work.
+  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
+  outputs.insert(outputs.end(), renders.begin(), renders.end());
+  for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
+  refuse_overwriting_inputs(outputs, in.files);
+  output_lock lock(s.out);
+  capture_failure_cleanup cleanup(lock, s.out / ".checkpoint");
+  const double load_seconds = seconds_since(start);
+
+  std::string stages_text;
+  const networks nets = choose_networks(s, o, parsed, stages_text);
+  o.checkpoint = {s.out / ".checkpoint", s.resume};
+  o.finetune.progress_every = 25;
+  o.refine.progress_every = std::max(1, o.refine.steps / 50);
+  o.refine_alone.progress_every = std::max(1, o.refine_alone.steps / 50);
+  progress_line progress;
+  o.progress = std::ref(progress);
+  o.log = print_capture_choice;
+  std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", in.photos.size(), in.photos[0].width(),
+               in.photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
+  const capture_result result = capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
+  progress.finish();
+  if (o.kernel.auto_tolerance > 0)
+    std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{result.features, 0, 0, 0}.describe().c_str());
+
+  // Every result file is staged under a temporary name and all are renamed into place together at
+  // the end: a failure while producing any of them leaves the folder's earlier results as they were.
+  const auto t_write = std::chrono::steady_clock::now();
+  const material_maps& maps = result.maps;  // canonical (capture_material)
+  create_output_folder(s.out);
+  file_transaction files;
+  const std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
+  if (s.view) files.stage(s.out / "material.html", viewer_html(maps, {s.out.filename().string()}));
+  const std::vector<image> rerenders = render(maps, in.cap);
+  stage_images(rerenders, in.cap, s.out / "renders", files, in.files);
+  write_png(make_capture_sheet(in.photos, rerenders, maps, in.truth ? &*in.truth : nullptr), s.out / "contact_sheet.png", files);
+  const capture novel = novel_view_set(1, maps.width(), maps.height());
+  stage_images(render(maps, novel), novel, s.out / "novel", files);
+  const double write_seconds = seconds_since(t_write);
+
+  nlohmann::json report = capture_report(s, o, in, result, nets, novel);
+  report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["peak_memory_bytes"] = peak_resident_bytes();
   files.stage(s.out / "report.json", report.dump(2) + "\n");
   files.commit();
