@@ -5,6 +5,8 @@
 # `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
 # screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
 # (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
+# `--blender` adds Debian's Blender (3.4.1 on Debian 12; about 150 packages, ~1 minute to install),
+# which renders the Blender export with Cycles in the ctest blender_render. scripts/test.sh passes it.
 # `--clang` adds what a Clang build needs: clang, and libomp-dev, LLVM's OpenMP runtime with the
 # omp.h clang reads (GCC's libgomp serves only GCC; without it CMake finds no OpenMP for clang).
 set -euo pipefail
@@ -15,6 +17,7 @@ packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb
           libapriltag-dev)  # AprilTag marker frames: anisocap markers, corner detection in rectify
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if [[ " $* " == *" --clang "* ]]; then packages+=(clang libomp-dev); fi
+if [[ " $* " == *" --blender "* ]]; then packages+=(blender); fi
 if ((web)); then
   packages+=(chromium)
   command -v npm >/dev/null || packages+=(nodejs npm)

@@ -8,7 +8,7 @@
 # ANISOCAP_TEST_ARCHS=native); ANISOCAP_TEST_FULL=1 runs the whole suite on every architecture.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/install-deps.sh --web --clang
+bash scripts/install-deps.sh --web --clang --blender
 archs=${ANISOCAP_TEST_ARCHS:-"native x86-64-v3"}
 simd_suites=(core ad brdf render nn conv networks)
 jobs=$(nproc)
