@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs everything anisocap's build, tests and examples need, from Debian 12 packages.
 # `--studies` (also accepted as `--bench`) adds what the studies' PyTorch peer comparisons and
-# plots need (PyTorch CPU, matplotlib; studies/README.md).
+# plots need (PyTorch CPU, matplotlib; studies/README.md), and with it what the Python package's
+# PyTorch tests (python_torch: a skip without it) and bench/python_speed.py need.
 # `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
 # screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
 # (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
@@ -14,7 +15,8 @@ web=0
 for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
-          libapriltag-dev)  # AprilTag marker frames: anisocap markers, corner detection in rectify
+          libapriltag-dev   # AprilTag marker frames: anisocap markers, corner detection in rectify
+          python3-dev pybind11-dev python3-numpy python3-pytest)  # the Python package and its tests (examples/python/)
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if [[ " $* " == *" --clang "* ]]; then packages+=(clang libomp-dev); fi
 if [[ " $* " == *" --blender "* ]]; then packages+=(blender); fi
