@@ -4,6 +4,7 @@
 // document are checked further by the ctests gltf_validator and export_scripts.
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <numbers>
@@ -65,7 +66,9 @@ TEST_CASE("base64 round trip") {
 TEST_CASE("glTF export: structure, extensions and the anisotropy texture's channel layout") {
   testing::test_folder dir;
   const material_maps maps = test_maps();
-  export_material(maps, export_format::gltf, dir / "m.gltf");
+  export_options with_anisotropy;
+  with_anisotropy.conversion.gltf_anisotropy_use = gltf_anisotropy::on;
+  export_material(maps, export_format::gltf, dir / "m.gltf", with_anisotropy);
   const auto doc = nlohmann::json::parse(read_text(dir / "m.gltf"));
   CHECK(doc["asset"]["version"] == "2.0");
   const auto& material = doc["materials"][0];
@@ -84,13 +87,51 @@ TEST_CASE("glTF export: structure, extensions and the anisotropy texture's chann
   material_maps canonical = maps;
   canonicalise(canonical);
   for (std::size_t i = 0; i < canonical.texel_count(); ++i) {
-    const gltf_texel g = to_gltf(texel_parameters(canonical, i));
+    const gltf_texel g = to_gltf(texel_parameters(canonical, i), with_anisotropy.conversion, true);
     const double dx = pixels[3 * i] / 255.0 * 2 - 1, dy = pixels[3 * i + 1] / 255.0 * 2 - 1;
     CHECK(std::abs(dx - std::cos(canonical.plane(rotation)[i])) < 1.0 / 255 + 1e-6);
     CHECK(std::abs(dy - std::sin(canonical.plane(rotation)[i])) < 1.0 / 255 + 1e-6);
     CHECK(std::abs(pixels[3 * i + 2] / 255.0 - g.anisotropy_strength) < 0.5 / 255 + 1e-6);
   }
   stbi_image_free(pixels);
+}
+
+TEST_CASE("glTF export: KHR_materials_anisotropy where it fits better, no normal texture for flat normals") {
+  testing::test_folder dir;
+  material_maps maps = test_maps();
+  canonicalise(maps);
+  auto exported = [&](const material_maps& m, gltf_anisotropy use, const char* name) {
+    export_options o;
+    o.conversion.gltf_anisotropy_use = use;
+    export_material(m, export_format::gltf, dir / name, o);
+    return nlohmann::json::parse(read_text(dir / name));
+  };
+  const auto off = exported(maps, gltf_anisotropy::off, "off.gltf");
+  CHECK_FALSE(off["materials"][0]["extensions"].contains("KHR_materials_anisotropy"));
+  CHECK(off["extensionsUsed"].size() == 1);
+  CHECK(off["images"].size() == 4);  // base colour, metallic-roughness, normal, specular
+  const auto on = exported(maps, gltf_anisotropy::on, "on.gltf");
+  CHECK(on["materials"][0]["extensions"].contains("KHR_materials_anisotropy"));
+  CHECK(on["extensionsUsed"].size() == 2);
+  // Automatic: the variant whose glTF model has the lower error on the maps.
+  const int stride = std::max(1, std::max(maps.width(), maps.height()) / 16);
+  const bool anisotropic_better = gltf_error(maps, true, {}, stride) <= gltf_error(maps, false, {}, stride);
+  const auto automatic = exported(maps, gltf_anisotropy::automatic, "auto.gltf");
+  CHECK(automatic["materials"][0]["extensions"].contains("KHR_materials_anisotropy") == anisotropic_better);
+  // A lobe stretched along +x on flat normals needs the extension; on strongly tilted normals the
+  // extension's tangent-plane direction cannot follow and the isotropic lobe about the normal wins.
+  material_maps stretched = maps;
+  for (std::size_t i = 0; i < stretched.texel_count(); ++i) {
+    stretched.plane(lobe_x)[i] = 0.4f, stretched.plane(lobe_y)[i] = 0.08f, stretched.plane(rotation)[i] = 0.0f;
+    stretched.plane(normal_x)[i] = stretched.plane(normal_y)[i] = 0.0f;
+  }
+  CHECK(gltf_uses_anisotropy(stretched, {}));
+  const auto flat = exported(stretched, gltf_anisotropy::automatic, "flat.gltf");
+  CHECK_FALSE(flat["materials"][0].contains("normalTexture"));
+  material_maps tilted = stretched;
+  for (std::size_t i = 0; i < tilted.texel_count(); ++i) tilted.plane(normal_y)[i] = (i % 2 ? 0.3f : -0.3f);
+  CHECK_FALSE(gltf_uses_anisotropy(tilted, {}));
+  CHECK(exported(tilted, gltf_anisotropy::automatic, "tilted.gltf")["materials"][0].contains("normalTexture"));
 }
 
 TEST_CASE("Mitsuba export: ward balanced with textured alphas, rows bottom first") {

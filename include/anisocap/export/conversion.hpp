@@ -21,11 +21,20 @@
 
 namespace anisocap::exports {
 
-/// Ratios GGX alpha / Ward sigma per target (defaults: the measured minimisers, README "Exports").
+/// Whether the glTF export uses KHR_materials_anisotropy.
+enum class gltf_anisotropy {
+  automatic,  ///< whichever of the two the glTF model follows more closely on the maps (export/fidelity.hpp)
+  on,         ///< always: anisotropic GGX, its direction in the mesh's tangent plane
+  off,        ///< never: isotropic GGX about the normal-mapped normal
+};
+
+/// Ratios GGX alpha / Ward sigma per target (defaults: the measured minimisers, README "Exports"),
+/// and the glTF export's use of KHR_materials_anisotropy.
 struct conversion_options {
   double gltf_scale = 0.9;              ///< glTF KHR_materials_anisotropy
   double blender_scale = 0.9;           ///< Blender Principled BSDF
   double standard_surface_scale = 0.9;  ///< Standard Surface
+  gltf_anisotropy gltf_anisotropy_use = gltf_anisotropy::automatic;  ///< see gltf_anisotropy
 };
 
 namespace detail {
@@ -42,13 +51,20 @@ inline double wrap_turns(double radians) {
 }  // namespace detail
 
 /// glTF: a_b = r^2, a_t = mix(r^2, 1, s^2) (KHR_materials_anisotropy), so r = sqrt(k sigma_y) and
-/// s = sqrt((k sigma_x - a_b) / (1 - a_b)); F0 colour and weight w from KHR_materials_specular:
-/// w f0_c = a'_s,c at normal incidence, w = a'_s / F0 (mean over channels) at grazing, w <= 1.
-inline gltf_texel to_gltf(const ward_parameters<float>& p, const conversion_options& o = {}) {
+/// s = sqrt((k sigma_x - a_b) / (1 - a_b)); without the extension (`anisotropic` false) one
+/// alpha = r^2 = k sqrt(sigma_x sigma_y), the lobe of the same peak. F0 colour and weight w from
+/// KHR_materials_specular: w f0_c = a'_s,c at normal incidence, w = a'_s / F0 (mean over channels)
+/// at grazing, w <= 1.
+inline gltf_texel to_gltf(const ward_parameters<float>& p, const conversion_options& o = {}, bool anisotropic = true) {
   gltf_texel g;
-  const double ab = std::clamp(o.gltf_scale * p.sy, 1e-4, 1.0), at = std::clamp(o.gltf_scale * p.sx, ab, 1.0);
-  g.roughness = std::sqrt(ab);
-  g.anisotropy_strength = ab < 1 ? std::sqrt((at - ab) / (1 - ab)) : 0.0;
+  g.anisotropic = anisotropic;
+  if (anisotropic) {
+    const double ab = std::clamp(o.gltf_scale * p.sy, 1e-4, 1.0), at = std::clamp(o.gltf_scale * p.sx, ab, 1.0);
+    g.roughness = std::sqrt(ab);
+    g.anisotropy_strength = ab < 1 ? std::sqrt((at - ab) / (1 - ab)) : 0.0;
+  } else {
+    g.roughness = std::sqrt(std::clamp(o.gltf_scale * std::sqrt(double(p.sx) * p.sy), 1e-4, 1.0));
+  }
   g.anisotropy_angle = p.alpha;
   const rgb s{p.specular[0], p.specular[1], p.specular[2]};
   const double f0 = std::max(double(p.f0), 1e-4);

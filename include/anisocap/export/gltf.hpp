@@ -4,12 +4,15 @@
 /// data URIs), a quad of the material's size in scene units (longest side 1; `gltf_options::width`
 /// gives a physical size in metres) in the XY plane facing +Z, UV (0,0) at the top-left texel, tangent
 /// +X. The material is metallic-roughness (metallic 0) with
-///   - KHR_materials_anisotropy: anisotropyTexture RG = direction (cos, sin) of the wide axis in the
-///     tangent frame remapped from [-1, 1] to [0, 1], B = strength (linear);
+///   - KHR_materials_anisotropy where it fits the maps better than isotropic GGX
+///     (`gltf_uses_anisotropy`, export/fidelity.hpp): anisotropyTexture RG = direction (cos, sin)
+///     of the wide axis in the tangent frame remapped from [-1, 1] to [0, 1], B = strength (linear);
 ///   - KHR_materials_specular: specularTexture A = weight w (linear), specularColorTexture RGB =
 ///     F0 colour (sRGB) with specularColorFactor 25 = 1 / 0.04 (0.04: F0 of the default IOR 1.5);
-///   - baseColorTexture (sRGB), metallicRoughnessTexture G = roughness (linear), normalTexture (linear).
+///   - baseColorTexture (sRGB), metallicRoughnessTexture G = roughness (linear), normalTexture (linear;
+///     left out where every normal is flat, which 8 bits cannot encode exactly).
 /// The per-texel values come from exports::to_gltf (export/conversion.hpp).
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -36,7 +39,11 @@ inline std::string gltf_document(const material_maps& maps, const gltf_options& 
   using nlohmann::json;
   const int w = maps.width(), h = maps.height();
   const std::size_t n = maps.texel_count();
-  const auto texels = convert_texels(maps, [&](const ward_parameters<float>& p) { return to_gltf(p, options.conversion); });
+  const bool anisotropic = gltf_uses_anisotropy(maps, options.conversion);
+  const auto texels = convert_texels(maps, [&](const ward_parameters<float>& p) { return to_gltf(p, options.conversion, anisotropic); });
+  // A flat normal has no 8-bit code (128 decodes to 0.0039, a 0.3 degree tilt): maps with flat
+  // normals only get no normal texture.
+  const bool flat = std::all_of(texels.begin(), texels.end(), [](const gltf_texel& g) { return g.nx == 0 && g.ny == 0; });
   texture8 base(w, h, 3), metal_rough(w, h, 3), normal(w, h, 3), anisotropy(w, h, 3), specular(w, h, 4);
   for (std::size_t i = 0; i < n; ++i) {
     const gltf_texel& g = texels[i];
@@ -91,8 +98,8 @@ inline std::string gltf_document(const material_maps& maps, const gltf_options& 
   };
   const auto base_texture = add_texture(base, "base_color");
   const auto metal_rough_texture = add_texture(metal_rough, "metallic_roughness");
-  const auto normal_texture = add_texture(normal, "normal");
-  const auto anisotropy_texture = add_texture(anisotropy, "anisotropy");
+  const auto normal_texture = flat ? 0 : add_texture(normal, "normal");
+  const auto anisotropy_texture = anisotropic ? add_texture(anisotropy, "anisotropy") : 0;
   const auto specular_texture = add_texture(specular, "specular");
 
   json material = {
@@ -102,17 +109,22 @@ inline std::string gltf_document(const material_maps& maps, const gltf_options& 
         {"metallicFactor", 0.0},
         {"roughnessFactor", 1.0},
         {"metallicRoughnessTexture", {{"index", metal_rough_texture}}}}},
-      {"normalTexture", {{"index", normal_texture}}},
       {"extensions",
-       {{"KHR_materials_anisotropy", {{"anisotropyStrength", 1.0}, {"anisotropyRotation", 0.0}, {"anisotropyTexture", {{"index", anisotropy_texture}}}}},
-        {"KHR_materials_specular",
+       {{"KHR_materials_specular",
          {{"specularFactor", 1.0},
           {"specularTexture", {{"index", specular_texture}}},
           {"specularColorFactor", {25.0, 25.0, 25.0}},
           {"specularColorTexture", {{"index", specular_texture}}}}}}}};
+  if (!flat) material["normalTexture"] = {{"index", normal_texture}};
+  json extensions_used = {"KHR_materials_specular"};
+  if (anisotropic) {
+    material["extensions"]["KHR_materials_anisotropy"] = {
+        {"anisotropyStrength", 1.0}, {"anisotropyRotation", 0.0}, {"anisotropyTexture", {{"index", anisotropy_texture}}}};
+    extensions_used.push_back("KHR_materials_anisotropy");
+  }
   json doc = {
       {"asset", {{"version", "2.0"}, {"generator", "anisocap export"}}},
-      {"extensionsUsed", {"KHR_materials_anisotropy", "KHR_materials_specular"}},
+      {"extensionsUsed", extensions_used},
       {"scene", 0},
       {"scenes", {{{"nodes", {0}}}}},
       {"nodes", {{{"name", "material sample"}, {"mesh", 0}}}},

@@ -16,6 +16,12 @@
 /// "fresnel_mix" rule) for all three, where Blender and Standard Surface use the lobe's directional
 /// albedo instead: a difference in the diffuse term only, at grazing angles.
 ///   - glTF (KHR_materials_specular): F_c = w (f0_c + (1 - f0_c)(1 - v.h)^5), Schlick to F90 = w.
+///     glTF alone is written as its specification text defines the frame (KHR_materials_anisotropy,
+///     "Implementation"): the anisotropy direction T and B = n_g x T lie in the mesh's tangent plane
+///     (not re-aligned to the normal-mapped normal N), N enters only N.H, N.L and N.V, and a texel is
+///     lit wherever N.L > 0, also where N faces away from the viewer (N.V clamped to 0). The target's
+///     cosine is N.L (`shading_cosine`). V is not clamped to 1 as the extension's sample code does
+///     (the Smith term exceeds 1 at grazing angles; three.js does not clamp it either).
 ///   - Blender Principled BSDF (4.x): dielectric Fresnel of the IOR, its F0 tinted per channel by
 ///     Specular Tint (grazing reflection stays white).
 ///   - Standard Surface (MaterialX): specular * specular_color * dielectric Fresnel of specular_IOR.
@@ -96,6 +102,7 @@ struct gltf_texel {
   rgb specular_color{};          ///< KHR_materials_specular: F0 colour f0_c (after its min(..., 1))
   double specular = 1;           ///< KHR_materials_specular: weight w (F90)
   double nx = 0, ny = 0;         ///< normal texture (tangent space)
+  bool anisotropic = true;       ///< the material uses KHR_materials_anisotropy (else isotropic GGX about N)
 };
 struct blender_texel {
   rgb base_color{};
@@ -135,18 +142,55 @@ inline double cos_vh(const vec3& l, const vec3& v) {
 }
 }  // namespace detail
 
-/// glTF 2.0 metallic-roughness (metallic 0) + KHR_materials_anisotropy + KHR_materials_specular.
-inline rgb evaluate(const gltf_texel& p, const vec3& l_geo, const vec3& v_geo) {
-  const shading_frame f(p.nx, p.ny, p.anisotropy_angle);
-  const vec3 l = f.local(l_geo), v = f.local(v_geo);
+/// The unit normal of a glTF normal texture value (n_x, n_y): (n_x, n_y, sqrt(1 - n_x^2 - n_y^2)).
+inline vec3 gltf_normal(const gltf_texel& p) {
+  const double nz = std::sqrt(std::max(1.0 - p.nx * p.nx - p.ny * p.ny, 1e-6));
+  const double len = std::sqrt(p.nx * p.nx + p.ny * p.ny + nz * nz);
+  return {p.nx / len, p.ny / len, nz / len};
+}
+
+/// glTF 2.0 metallic-roughness (metallic 0) + KHR_materials_anisotropy + KHR_materials_specular, as
+/// the specifications define it (file comment): l and v in the mesh's frame (z the geometric
+/// normal, x the glTF tangent), zero where either is below the mesh or N.L <= 0.
+inline rgb evaluate(const gltf_texel& p, const vec3& l, const vec3& v) {
+  auto dot = [](const vec3& a, const vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; };
   if (l[2] <= 0 || v[2] <= 0) return {0, 0, 0};
+  const vec3 n = gltf_normal(p);
+  const double nl = dot(n, l);
+  if (nl <= 0) return {0, 0, 0};
+  const double nv = std::max(dot(n, v), 0.0);
+  vec3 h{l[0] + v[0], l[1] + v[1], l[2] + v[2]};
+  const double hl = std::sqrt(dot(h, h));
+  for (double& c : h) c /= hl;
+  const double nh = std::max(dot(n, h), 0.0);
   const double ab = std::max(p.roughness * p.roughness, 1e-4);
-  const double s2 = p.anisotropy_strength * p.anisotropy_strength;
-  const double at = ab + (1 - ab) * s2;
-  const double m5 = std::pow(1 - detail::cos_vh(l, v), 5);
+  double d, vis;
+  if (p.anisotropic) {
+    const double at = ab + (1 - ab) * p.anisotropy_strength * p.anisotropy_strength;
+    const double c = std::cos(p.anisotropy_angle), s = std::sin(p.anisotropy_angle);
+    const vec3 t{c, s, 0}, b{-s, c, 0};
+    const double a2 = at * ab;
+    const vec3 f{ab * dot(t, h), at * dot(b, h), a2 * nh};
+    const double w2 = a2 / std::max(dot(f, f), 1e-300);
+    d = a2 * w2 * w2 / std::numbers::pi;
+    const double gv = nl * std::hypot(at * dot(t, v), ab * dot(b, v), nv), gl = nv * std::hypot(at * dot(t, l), ab * dot(b, l), nl);
+    vis = 0.5 / std::max(gv + gl, 1e-12);
+  } else {
+    const double a2 = ab * ab, q = nh * nh * (a2 - 1) + 1;
+    d = a2 / (std::numbers::pi * q * q);
+    const double gv = nl * std::sqrt(nv * nv * (1 - a2) + a2), gl = nv * std::sqrt(nl * nl * (1 - a2) + a2);
+    vis = 0.5 / std::max(gv + gl, 1e-12);
+  }
+  const double m5 = std::pow(1 - std::clamp(dot(v, h), 0.0, 1.0), 5);
   rgb fresnel;
   for (int c = 0; c < 3; ++c) fresnel[c] = p.specular * (p.specular_color[c] + (1 - p.specular_color[c]) * m5);
-  return detail::layered(p.base_color, fresnel, ggx_specular(l, v, at, ab));
+  return detail::layered(p.base_color, fresnel, d * vis);
+}
+
+/// The cosine a glTF renderer multiplies the BRDF by: max(0, N.l) with the normal-mapped N.
+inline double shading_cosine(const gltf_texel& p, const vec3& l) {
+  const vec3 n = gltf_normal(p);
+  return std::max(0.0, n[0] * l[0] + n[1] * l[1] + n[2] * l[2]);
 }
 
 /// Blender's Principled BSDF (GGX, dielectric).
