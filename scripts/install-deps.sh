@@ -5,7 +5,8 @@
 # PyTorch tests (python_torch: a skip without it) and bench/python_speed.py need.
 # `--web` adds what the export and viewer tests need: headless Chromium (the viewer page is
 # screenshotted in a real browser) and Node.js with the Khronos glTF validator from npm
-# (gltf-validator, which checks the glTF export). scripts/test.sh passes it.
+# (gltf-validator, which checks the glTF export) and three.js (npm three, pinned: the ctest
+# threejs_fidelity renders the glTF export with it). scripts/test.sh passes it.
 # `--blender` adds Debian's Blender (3.4.1 on Debian 12; about 150 packages, ~1 minute to install),
 # which renders the Blender export with Cycles in the ctest blender_render. scripts/test.sh passes it.
 # `--clang` adds what a Clang build needs: clang, and libomp-dev, LLVM's OpenMP runtime with the
@@ -34,4 +35,8 @@ fi
 if ((web)) && ! (cd "$(npm root -g)" && [[ -f gltf-validator/package.json ]]); then
   SUDO=""; [[ $(id -u) -ne 0 ]] && SUDO=sudo
   $SUDO npm install -g --no-fund --no-audit gltf-validator
+fi
+if ((web)) && ! (cd "$(npm root -g)" && [[ -f three/package.json ]] && grep -q '"version": "0.187.0"' three/package.json); then
+  SUDO=""; [[ $(id -u) -ne 0 ]] && SUDO=sudo
+  $SUDO npm install -g --no-fund --no-audit three@0.187.0
 fi
