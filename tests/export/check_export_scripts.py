@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """The Blender and MaterialX exports of `anisocap export`, checked without Blender or MaterialX:
 the Blender script parses (python's ast) and builds a Principled BSDF whose anisotropy, rotation,
-tangent, normal, IOR, tint, colour and roughness inputs are all linked from texture or map nodes of
-the right kinds; the MaterialX document is well-formed XML binding every Standard Surface input it
+tangent, normal, IOR, tint, colour and roughness inputs (and for Blender 3.x, Specular and Metallic)
+are all linked from texture or map nodes of the right kinds, and names the export folder's absolute
+path for its textures (the Blender renders themselves: check_blender_render.py); the MaterialX document is well-formed XML binding every Standard Surface input it
 sets to an image of a file that exists, with matching types.
 Usage: check_export_scripts.py ANISOCAP_PROGRAM"""
 import ast
@@ -45,14 +46,19 @@ def check_blender(folder):
     if len(principled) != 1:
         fail("expected one Principled BSDF node")
     into = {to_socket: (src, from_socket) for src, from_socket, to, to_socket in links if to == principled[0]}
-    for socket in ["Base Color", "Roughness", "Anisotropic", "Anisotropic Rotation", "IOR", "Specular Tint", "Normal", "Tangent"]:
+    for socket in ["Base Color", "Roughness", "Anisotropic", "Anisotropic Rotation", "IOR", "Specular Tint", "Specular", "Metallic", "Normal", "Tangent"]:
         if socket not in into:
             fail(f"Principled BSDF input '{socket}' is not linked")
     if created.get(into["Tangent"][0]) != "ShaderNodeTangent" or "direction_type = \"UV_MAP\"" not in source:
         fail("the tangent does not come from a Tangent node on the UV map")
     if created.get(into["Normal"][0]) != "ShaderNodeNormalMap":
         fail("the normal does not come from a Normal Map node")
-    for socket in ["Base Color", "Roughness", "Anisotropic", "Anisotropic Rotation", "IOR", "Specular Tint"]:
+    if "bpy.app.version >= (4, 0, 0)" not in source:
+        fail("the Blender script does not set its Fresnel inputs per Blender version")
+    folders = [node.value.value for node in ast.walk(tree) if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "TEXTURES" for t in node.targets)]
+    if folders != [os.path.abspath(folder)]:
+        fail(f"the Blender script's TEXTURES is {folders}, not the export folder {os.path.abspath(folder)}")
+    for socket in ["Base Color", "Roughness", "Anisotropic", "Anisotropic Rotation", "IOR", "Specular Tint", "Specular", "Metallic"]:
         src = into[socket][0]
         if not src.startswith("texture:") or not os.path.exists(os.path.join(folder, src[len("texture:"):])):
             fail(f"'{socket}' is not read from an exported texture file")

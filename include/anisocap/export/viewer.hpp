@@ -15,8 +15,10 @@
 ///   camera, light  positions in scene units;  intensity  light intensity r,g,b (default: pi |light|^2,
 ///   so a white Lambertian texel under the light renders as 1);  exposure  stops;  mode  render,
 ///   diffuse, specular, lobes, fresnel, normal, rotation;  view  perspective (default) or texel
-///   (one canvas pixel per texel, row 0 at the top: the image `anisocap render` writes);  ui  0
-///   hides the controls.
+///   (one canvas pixel per texel, row 0 at the top: the image `anisocap render` writes);  repeat
+///   1 (default) or 2: in the perspective view, the material laid 2 x 2 times side by side, as a
+///   tile (`anisocap export --tileable`, export/tileable.hpp) covers a surface, centred on the
+///   origin (the texel view always shows one copy);  ui  0 hides the controls.
 /// Displayed values are 2^exposure R, clamped to [0, 1] and sRGB-encoded (the inverse is exact up
 /// to 8-bit rounding), so a screenshot can be compared with a render.
 #include <cstdint>
@@ -104,13 +106,14 @@ drag: orbit camera &middot; shift-drag: move light &middot; wheel: zoom
 <option value="specular">specular albedo</option><option value="lobes">lobe widths</option>
 <option value="fresnel">Fresnel F0</option><option value="normal">normal</option>
 <option value="rotation">rotation</option></select></label>
+<label><input id="repeat" type="checkbox"> 2 x 2 repeats</label>
 </div>
 <script id="maps" type="application/octet-stream">@DATA@</script>
 <script>
 "use strict";
 const W = @WIDTH@, H = @HEIGHT@, N = Math.max(W, H);
 const modes = ["render", "diffuse", "specular", "lobes", "fresnel", "normal", "rotation"];
-const state = { camera: [0, -0.9, 1.6], light: [0.3, 0.3, 1.0], intensity: null, exposure: 0, mode: "render", view: "perspective", ui: true };
+const state = { camera: [0, -0.9, 1.6], light: [0.3, 0.3, 1.0], intensity: null, exposure: 0, mode: "render", view: "perspective", repeat: 1, ui: true };
 function parseHash() {
   for (const part of location.hash.replace(/^#/, "").split("&")) {
     const [key, value] = part.split("=");
@@ -120,6 +123,7 @@ function parseHash() {
     else if (key === "exposure" && Number.isFinite(numbers[0])) state.exposure = numbers[0];
     else if (key === "mode" && modes.includes(value)) state.mode = value;
     else if (key === "view" && (value === "texel" || value === "perspective")) state.view = value;
+    else if (key === "repeat" && (value === "1" || value === "2")) state.repeat = +value;
     else if (key === "ui") state.ui = value !== "0";
   }
 }
@@ -142,11 +146,12 @@ const vertexSource = `#version 300 es
 uniform mat4 view_projection;
 uniform vec2 half_extent;
 uniform bool texel_view;
+uniform highp int repeat;  // highp in both stages: a uniform shared by them must match
 out vec2 uv;
 void main() {
   vec2 corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
   uv = corner;
-  vec3 p = vec3((corner * 2.0 - 1.0) * half_extent, 0.0);
+  vec3 p = vec3((corner * 2.0 - 1.0) * half_extent * float(repeat), 0.0);
   gl_Position = texel_view ? vec4(corner * 2.0 - 1.0, 0.0, 1.0) : view_projection * vec4(p, 1.0);
 }`;
 // The BRDF of brdf/ward.hpp (ward_evaluate) with the scene model of render/renderer.hpp.
@@ -159,6 +164,7 @@ uniform float exposure_scale;
 uniform int mode;
 uniform bool texel_view;
 uniform ivec2 size;
+uniform highp int repeat;  // highp in both stages: a uniform shared by them must match
 in vec2 uv;
 out vec4 colour;
 const float PI = 3.14159265358979;
@@ -193,13 +199,16 @@ vec3 srgb(vec3 c) {
 void main() {
   ivec2 texel;
   if (texel_view) texel = ivec2(gl_FragCoord.x, float(size.y) - gl_FragCoord.y);
-  else texel = ivec2(uv.x * float(size.x), (1.0 - uv.y) * float(size.y));
+  else {  // uv spans the repeat x repeat copies: the texel of the copy under this point
+    vec2 local = fract(uv * float(repeat));
+    texel = ivec2(local.x * float(size.x), (1.0 - local.y) * float(size.y));
+  }
   texel = clamp(texel, ivec2(0), size - 1);
   vec4 m0 = texelFetch(maps0, texel, 0), m1 = texelFetch(maps1, texel, 0), m2 = texelFetch(maps2, texel, 0);
   float n = float(max(size.x, size.y));
   vec3 p;  // texel centre in the texel view (as the renderer), the exact point in perspective
   if (texel_view) p = vec3((float(texel.x) + 0.5 - 0.5 * float(size.x)) / n, (0.5 * float(size.y) - (float(texel.y) + 0.5)) / n, 0.0);
-  else p = vec3((uv.x - 0.5) * float(size.x) / n, (uv.y - 0.5) * float(size.y) / n, 0.0);
+  else p = vec3((uv.x - 0.5) * float(size.x * repeat) / n, (uv.y - 0.5) * float(size.y * repeat) / n, 0.0);
   vec3 c;
   if (mode == 0) c = srgb(exposure_scale * radiance(m0, m1, m2, p));
   else if (mode == 1) c = srgb(m0.rgb);
@@ -263,6 +272,7 @@ function draw() {
   gl.uniform3fv(u("intensity"), intensity());
   gl.uniform1f(u("exposure_scale"), Math.pow(2, state.exposure));
   gl.uniform1i(u("mode"), modes.indexOf(state.mode));
+  gl.uniform1i(u("repeat"), texel ? 1 : state.repeat);
   gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
   document.getElementById("exposure_value").textContent = state.exposure.toFixed(1);
 }
@@ -271,14 +281,16 @@ function redraw(record) {
   if (record) {
     const f = a => a.map(x => +x.toFixed(4)).join(",");
     history.replaceState(null, "", "#camera=" + f(state.camera) + "&light=" + f(state.light) + "&exposure=" + state.exposure +
-                         "&mode=" + state.mode + "&view=" + state.view + (state.intensity ? "&intensity=" + f(state.intensity) : ""));
+                         "&mode=" + state.mode + "&view=" + state.view + (state.repeat !== 1 ? "&repeat=" + state.repeat : "") + (state.intensity ? "&intensity=" + f(state.intensity) : ""));
   }
   if (!pending) { pending = true; requestAnimationFrame(() => { pending = false; draw(); }); }
 }
 const ui = document.getElementById("ui");
 if (!state.ui) ui.style.display = "none";
 const exposure = document.getElementById("exposure"), height = document.getElementById("height"), mode = document.getElementById("mode");
-exposure.value = state.exposure; height.value = state.light[2]; mode.value = state.mode;
+const repeat = document.getElementById("repeat");
+exposure.value = state.exposure; height.value = state.light[2]; mode.value = state.mode; repeat.checked = state.repeat === 2;
+repeat.onchange = () => { state.repeat = repeat.checked ? 2 : 1; redraw(true); };
 exposure.oninput = () => { state.exposure = +exposure.value; redraw(true); };
 height.oninput = () => { state.light[2] = +height.value; redraw(true); };
 mode.onchange = () => { state.mode = mode.value; redraw(true); };
