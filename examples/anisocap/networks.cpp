@@ -17,7 +17,12 @@ networks load_program_networks(const model_choice& m) {
 }
 
 networks find_program_networks(const model_choice& m) {
-  if (!m.models.empty() || !find_models_folder(m.preset).empty()) return load_program_networks(m);
+  if (!m.models.empty()) return load_program_networks(m);
+  if (const auto found = find_models_folder(m.preset); !found.empty()) {
+    model_choice at = m;
+    at.models = found;  // load_networks need not search again
+    return load_program_networks(at);
+  }
   std::string places;
   for (const auto& p : models_search_path()) places += (places.empty() ? "" : ", ") + p.string();
   std::fprintf(stderr, "capture: no %s network weights found (looked in %s): running the per-texel refine alone (set "

@@ -160,6 +160,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
   report["height"] = in.photos[0].height();
   report["kernel"] = o.kernel.auto_tolerance > 0 ? "auto" : kernel_used;
   report["kernel_used"] = kernel_used;
+  report["f0_source"] = result.f0_source;
   report["precision"] = o.render.double_precision ? "double" : "float";
   report["exposure_scale"] = result.exposure_scale;
   report["saturation"] = s.photos.saturation;
@@ -235,6 +236,12 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   progress.finish();
   if (o.kernel.auto_tolerance > 0)
     std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{result.features, 0, 0, 0}.describe().c_str());
+  if (result.f0_source != "photographs")
+    std::fprintf(stderr, "capture: F0 is not determined by these photographs (each sees the Fresnel factor F / F0 within %g of 1): "
+                 "fresnel.exr holds %s; a photograph with the light away from the camera at a low angle measures it\n",
+                 o.kernel.auto_tolerance,
+                 result.f0_source == "estimate" ? "the networks' estimate"
+                                                : ("the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4)).c_str());
 
   // Every result file is staged under a temporary name and all are renamed into place together at
   // the end: a failure while producing any of them leaves the folder's earlier results as they were.

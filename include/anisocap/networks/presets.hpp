@@ -93,7 +93,7 @@ template <class List, class F>
 decltype(auto) with_estimator_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
   return List::call(preset.empty() ? estimator_compact::name : preset, f, [&] {
-    return file.string() + ": an estimator of preset \"" + preset + "\", not a compact one (" + List::joined() + ")";
+    return file.string() + ": an estimator of preset \"" + preset + "\", not one this build runs (" + List::joined() + ")";
   });
 }
 
@@ -104,7 +104,7 @@ template <class List, class F>
 decltype(auto) with_autoencoder_preset(const std::filesystem::path& file, F&& f) {
   const std::string preset = weights_preset(file);
   return List::call(preset.empty() ? autoencoder_compact::name : preset, f, [&] {
-    return file.string() + ": an auto-encoder of preset \"" + preset + "\", not a compact one (" + List::joined() + ")";
+    return file.string() + ": an auto-encoder of preset \"" + preset + "\", not one this build runs (" + List::joined() + ")";
   });
 }
 

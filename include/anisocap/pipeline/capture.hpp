@@ -68,6 +68,12 @@ struct kernel_options {
   /// `features`. It picks the full kernel for anisotropic materials with Fresnel and normals, so
   /// it costs no accuracy there, and skips the terms a sample does not show.
   double auto_tolerance = 1e-3;
+  /// F0 written where the kernel leaves Fresnel out and no network gave an estimate (no networks
+  /// and no start maps): the photographs do not determine F0 there (every one sees F / F0 within
+  /// the tolerance of 1), so the maps carry a prior, not the kernel's placeholder F0 = 1. 0.04 is
+  /// the reflectance at normal incidence of a dielectric of refractive index 1.5 (fabrics,
+  /// plastics, coatings). With networks the estimate's F0 is kept instead.
+  float prior_f0 = 0.04f;
 
   /// The kernel of a name: full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like.
   static kernel_options parse(const std::string& name) {
@@ -224,6 +230,10 @@ struct capture_result {
   std::optional<material_maps> after_finetune;
   /// The kernel the fine-tune and refine losses used (options.kernel's, or the automatic choice).
   brdf_features features = all_features;
+  /// Where the F0 map comes from: "photographs" (the kernel fitted the Fresnel term), "estimate"
+  /// (the photographs do not determine F0, e.g. a flash capture, so the networks' estimate, or the
+  /// start maps', is kept) or "prior" (the same without networks: kernel_options::prior_f0).
+  std::string f0_source = "photographs";
   /// The factor photographs and intensities were multiplied by (1 without normalisation).
   double exposure_scale = 1.0;
   /// The image loss of `maps` (full kernel) against the photographs as the optimisers saw them.
@@ -402,7 +412,23 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
     maps = start ? *start : initial_guess(cap, photos, {}, masks);
     first.ran = !start;
   }
-  result.features = o.kernel.auto_tolerance > 0 ? analyse_kernel(maps, cap, o.kernel.auto_tolerance).features : o.kernel.features;
+  // F0 where the kernel leaves Fresnel out: the estimate's (or the start's), else the prior. The
+  // kernel is chosen on the maps as they will be written, so that the full kernel renders them on
+  // these configurations as the reduced one does.
+  const bool estimated_f0 = o.stages.estimate || start;
+  const std::vector<float> prior_f0 = estimated_f0 ? std::vector<float>(maps.plane(fresnel_f0), maps.plane(fresnel_f0) + maps.texel_count())
+                                                   : std::vector<float>(maps.texel_count(), o.kernel.prior_f0);
+  auto keep_prior_f0 = [&](material_maps& m) {
+    if (!result.features.fresnel) std::copy(prior_f0.begin(), prior_f0.end(), m.plane(fresnel_f0));
+  };
+  if (o.kernel.auto_tolerance > 0) {
+    material_maps analysed = maps;
+    std::copy(prior_f0.begin(), prior_f0.end(), analysed.plane(fresnel_f0));
+    result.features = analyse_kernel(analysed, cap, o.kernel.auto_tolerance).features;
+  } else {
+    result.features = o.kernel.features;
+  }
+  if (!result.features.fresnel) result.f0_source = estimated_f0 ? "estimate" : "prior";
   first.loss = image_loss(maps, result.features);
   first.seconds = seconds_since(t0);
   result.stages.push_back(first);
@@ -428,6 +454,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
         finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co,
                                       residual ? &*residual : nullptr);
         maps = std::move(fr.maps);
+        keep_prior_f0(maps);
         result.after_finetune = maps;
         result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});
         if (fr.stopped) {  // as if killed: the check-point holds the rest
@@ -470,6 +497,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
       r.restart_replaced_fractions = nr.replaced_fraction;
     }
   }
+  keep_prior_f0(maps);
   result.loss = image_loss(maps, all_features);
   result.maps = std::move(maps);
   return result;

@@ -96,12 +96,6 @@ class prior_of final : public networks::prior {
   auto_encoder<AutoEncoderPreset> autoencoder_;
 };
 
-/// The preset a weight file records, or `fallback` for a file without one.
-inline std::string preset_or(const std::filesystem::path& file, const char* fallback) {
-  const std::string p = weights_preset(file);
-  return p.empty() ? fallback : p;
-}
-
 /// The prior of these two files, dispatched on the presets they record among `EstimatorPresets`
 /// and `AutoEncoderPresets` (`paper`, where `Paper`: the paper pair).
 template <class EstimatorPresets, class AutoEncoderPresets, bool Paper>
@@ -113,21 +107,10 @@ std::shared_ptr<const networks::prior> load_prior(const std::filesystem::path& f
     if constexpr (Paper) p = std::make_shared<prior_of<estimator_paper, autoencoder_paper>>(estimator_file, autoencoder_file);
     else throw std::invalid_argument("this program was built without the paper preset's pipeline (load_networks<..., true>)");
   } else {
-    const std::string e = preset_or(estimator_file, estimator_compact::name), a = preset_or(autoencoder_file, autoencoder_compact::name);
-    p = EstimatorPresets::call(
-        e,
-        [&]<class E>() -> std::shared_ptr<networks::prior> {
-          return AutoEncoderPresets::call(
-              a, [&]<class A>() -> std::shared_ptr<networks::prior> { return std::make_shared<prior_of<E, A>>(estimator_file, autoencoder_file); },
-              [&] {
-                return autoencoder_file.string() + ": an auto-encoder of preset \"" + a + "\", which a capture does not run (" +
-                       AutoEncoderPresets::joined() + ")";
-              });
-        },
-        [&] {
-          return estimator_file.string() + ": an estimator of preset \"" + e + "\", which a capture does not run (" +
-                 EstimatorPresets::joined() + ")";
-        });
+    p = with_estimator_preset<EstimatorPresets>(estimator_file, [&]<class E>() -> std::shared_ptr<networks::prior> {
+      return with_autoencoder_preset<AutoEncoderPresets>(
+          autoencoder_file, [&]<class A>() -> std::shared_ptr<networks::prior> { return std::make_shared<prior_of<E, A>>(estimator_file, autoencoder_file); });
+    });
   }
   p->folder = folder;
   return p;
