@@ -41,8 +41,8 @@ DISTANCE = 2.0
 #          to a'_s / F0 only (leather: 0.007 / 0.031, 4.3x less), so grazing highlights are too bright
 #          where F0 > a'_s (twill, leather, velvet); a smaller Specular fitted to the curve cost more
 #          at normal incidence than it gained;
-#   diffuse  3.x's Disney diffuse darkens at grazing angles (a weight (1 - 0.5 F)(1 - 0.5 F) with
-#          roughness-dependent retro-reflection), Lambert's does not.
+#   diffuse  the Principled diffuse (Burley's) darkens at grazing mirror configurations, Lambert's
+#          does not.
 GOAL = {"near-normal": 0.10, "45": 0.10, "grazing": 0.20}
 BOUNDS = {
     "plain": {"near-normal": 0.19, "45": 0.23, "grazing": 0.43},  # lobe; metal fit on its high-F0 texels
