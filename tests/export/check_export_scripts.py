@@ -3,7 +3,8 @@
 the Blender script parses (python's ast) and builds a Principled BSDF whose anisotropy, rotation,
 tangent, normal, IOR, tint, colour and roughness inputs (and for Blender 3.x, Specular and Metallic)
 are all linked from texture or map nodes of the right kinds, and names the export folder's absolute
-path for its textures (the Blender renders themselves: check_blender_render.py); the MaterialX document is well-formed XML binding every Standard Surface input it
+path for its textures (the Blender renders themselves: check_blender_render.py); `--tileable`
+exports a tile and refuses an overlap too small to blend; the MaterialX document is well-formed XML binding every Standard Surface input it
 sets to an image of a file that exists, with matching types.
 Usage: check_export_scripts.py ANISOCAP_PROGRAM"""
 import ast
@@ -110,6 +111,14 @@ def main():
         subprocess.run([program, "export", f"{work}/syn/truth", "--format", "mtlx", "-o", f"{work}/mtlx"], check=True)
         check_blender(f"{work}/blender")
         check_materialx(f"{work}/mtlx")
+        tile = subprocess.run([program, "export", f"{work}/syn/truth", "--format", "blender", "--tileable", "-o", f"{work}/tile"], capture_output=True, text=True)
+        if tile.returncode != 0 or "made into a" not in tile.stderr or not os.path.exists(f"{work}/tile/material.py"):
+            fail(f"export --tileable failed: {tile.stderr}")
+        check_blender(f"{work}/tile")
+        small = subprocess.run([program, "export", f"{work}/syn/truth", "--format", "blender", "--tileable", "--tile-overlap", "0.03", "-o", f"{work}/small"],
+                               capture_output=True, text=True)
+        if small.returncode == 0 or "--tileable" not in small.stderr or os.path.exists(f"{work}/small"):
+            fail("an overlap of under 2 texels must fail with a message naming --tileable and write nothing")
         bad = subprocess.run([program, "export", f"{work}/nothing", "--format", "gltf", "-o", f"{work}/x.gltf"], capture_output=True, text=True)
         if bad.returncode == 0 or "nothing" not in bad.stderr or os.path.exists(f"{work}/x.gltf"):
             fail("exporting a missing map set must fail with a message naming it and write nothing")
