@@ -12,6 +12,7 @@
 #include "anisocap/brdf/ward.hpp"
 #include "anisocap/render/capture.hpp"
 #include "anisocap/render/renderer.hpp"
+#include "anisocap/render/texel_radiance.hpp"
 
 namespace anisocap::testing {
 
@@ -53,36 +54,16 @@ inline capture random_capture(int n, std::uint64_t seed) {
   return c;
 }
 
-/// Radiance of texel (x, y) under one configuration with parameters in T (double or dual).
+/// Radiance of texel (x, y) under one configuration with parameters in T (double or dual): the
+/// library's scalar texel_radiance, which follows docs/method.md literally, without the renderer's SIMD.
 template <class T, brdf_features F = all_features>
 std::array<T, 3> reference_radiance(const ward_parameters<T>& p, const capture_image& im, int x, int y, int w, int h) {
-  const auto pos = texel_position(x, y, w, h);
-  std::array<double, 3> l{im.light[0] - pos[0], im.light[1] - pos[1], double(im.light[2])};
-  std::array<double, 3> v{im.camera[0] - pos[0], im.camera[1] - pos[1], double(im.camera[2])};
-  const double r2 = l[0] * l[0] + l[1] * l[1] + l[2] * l[2];
-  const double lr = std::sqrt(r2), vr = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-  for (auto& c : l) c /= lr;
-  for (auto& c : v) c /= vr;
-  const auto f = ward_evaluate<F>(p, l, v);
-  // n_s . l with the same normal as the BRDF.
-  T nx = p.nx * 0.0, ny = p.ny * 0.0, nz = nx + 1.0;
-  if constexpr (F.normal_map) {
-    using std::sqrt; using ad::sqrt;
-    nx = p.nx; ny = p.ny; nz = sqrt(1.0 - nx * nx - ny * ny);
-  }
-  const T cos_l = nx * l[0] + ny * l[1] + nz * l[2];
-  std::array<T, 3> out;
-  for (int c = 0; c < 3; ++c) out[c] = f[c] * cos_l * (double(im.intensity[c]) / r2);
-  return out;
+  return texel_radiance<T, F>(p, im, x, y, w, h);
 }
 
 template <class T>
 ward_parameters<T> texel_parameters(const material_maps& m, int x, int y) {
-  ward_parameters<T> p;
-  for (int c = 0; c < 3; ++c) { p.diffuse[c] = m.at(diffuse_r + c, x, y); p.specular[c] = m.at(specular_r + c, x, y); }
-  p.sx = m.at(lobe_x, x, y); p.sy = m.at(lobe_y, x, y); p.f0 = m.at(fresnel_f0, x, y);
-  p.nx = m.at(normal_x, x, y); p.ny = m.at(normal_y, x, y); p.alpha = m.at(rotation, x, y);
-  return p;
+  return texel_ward_parameters<T>(m, x, y);
 }
 
 template <class T>

@@ -18,12 +18,15 @@
 ///   (one canvas pixel per texel, row 0 at the top: the image `anisocap render` writes);  repeat
 ///   1 (default) or 2: in the perspective view, the material laid 2 x 2 times side by side, as a
 ///   tile (`anisocap export --tileable`, export/tileable.hpp) covers a surface, centred on the
-///   origin (the texel view always shows one copy);  ui  0 hides the controls.
+///   origin (the texel view always shows one copy);  overlay  none (default), diffuse, specular, lobes,
+///   fresnel, normal or rotation: with the uncertainty (viewer_options::uncertainty), that map's
+///   parameters' largest ratio (viewer_options::uncertainty) blended in magenta over the view;  ui  0 hides the controls.
 /// Displayed values are 2^exposure R, clamped to [0, 1] and sRGB-encoded (the inverse is exact up
 /// to 8-bit rounding), so a screenshot can be compared with a render.
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <stdexcept>
 #include <string_view>
 #include <vector>
 
@@ -35,6 +38,11 @@ namespace anisocap {
 /// Options of the viewer page.
 struct viewer_options {
   std::string title = "anisocap material";  ///< page title (HTML-escaped when written)
+  /// How uncertain each parameter of each texel is, as its posterior standard deviation over its
+  /// standard deviation before any photograph (pipeline/uncertainty.hpp, uncertainty_result::ratio():
+  /// 0 where the photographs fix it, 1 where they say nothing), or null: with it the page offers
+  /// the uncertainty overlay.
+  const material_maps* uncertainty = nullptr;
 };
 
 namespace detail {
@@ -86,7 +94,7 @@ inline std::vector<float> viewer_texels(const material_maps& m) {
   return out;
 }
 
-/// The page, with @WIDTH@, @HEIGHT@, @TITLE@ and @DATA@ to fill in.
+/// The page, with @WIDTH@, @HEIGHT@, @TITLE@, @DATA@ and @UNCERTAINTY@ to fill in.
 inline constexpr std::string_view viewer_template = R"HTML(<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>@TITLE@</title>
 <style>
@@ -107,13 +115,21 @@ drag: orbit camera &middot; shift-drag: move light &middot; wheel: zoom
 <option value="fresnel">Fresnel F0</option><option value="normal">normal</option>
 <option value="rotation">rotation</option></select></label>
 <label><input id="repeat" type="checkbox"> 2 x 2 repeats</label>
+<label id="overlay_label">uncertainty of <select id="overlay">
+<option value="none">(none)</option><option value="diffuse">diffuse albedo</option>
+<option value="specular">specular albedo</option><option value="lobes">lobe widths</option>
+<option value="fresnel">Fresnel F0</option><option value="normal">normal</option>
+<option value="rotation">rotation</option></select></label>
+<div id="overlay_key">magenta: sd / prior sd, from 0 (fixed by the photographs) to 1 (they say nothing)</div>
 </div>
 <script id="maps" type="application/octet-stream">@DATA@</script>
+<script id="uncertainty" type="application/octet-stream">@UNCERTAINTY@</script>
 <script>
 "use strict";
 const W = @WIDTH@, H = @HEIGHT@, N = Math.max(W, H);
 const modes = ["render", "diffuse", "specular", "lobes", "fresnel", "normal", "rotation"];
-const state = { camera: [0, -0.9, 1.6], light: [0.3, 0.3, 1.0], intensity: null, exposure: 0, mode: "render", view: "perspective", repeat: 1, ui: true };
+const overlays = ["none", "diffuse", "specular", "lobes", "fresnel", "normal", "rotation"];
+const state = { camera: [0, -0.9, 1.6], light: [0.3, 0.3, 1.0], intensity: null, exposure: 0, mode: "render", view: "perspective", repeat: 1, overlay: "none", ui: true };
 function parseHash() {
   for (const part of location.hash.replace(/^#/, "").split("&")) {
     const [key, value] = part.split("=");
@@ -124,6 +140,7 @@ function parseHash() {
     else if (key === "mode" && modes.includes(value)) state.mode = value;
     else if (key === "view" && (value === "texel" || value === "perspective")) state.view = value;
     else if (key === "repeat" && (value === "1" || value === "2")) state.repeat = +value;
+    else if (key === "overlay" && overlays.includes(value)) state.overlay = value;
     else if (key === "ui") state.ui = value !== "0";
   }
 }
@@ -142,6 +159,19 @@ function makeTexture(unit, offset) {
   gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, W, H, 0, gl.RGBA, gl.FLOAT, texels.subarray(offset, offset + 4 * W * H));
 }
 for (let t = 0; t < 3; ++t) makeTexture(t, t * 4 * W * H);
+// The uncertainty (sd / prior sd, laid out as the maps), when the page has it; else zeros.
+const uncertaintyText = document.getElementById("uncertainty").textContent.trim();
+const hasUncertainty = uncertaintyText.length > 0;
+const ratios = hasUncertainty ? new Float32Array(Uint8Array.from(atob(uncertaintyText), c => c.charCodeAt(0)).buffer)
+                              : new Float32Array(3 * 4 * W * H);
+for (let t = 0; t < 3; ++t) {
+  const tex = gl.createTexture();
+  gl.activeTexture(gl.TEXTURE3 + t);
+  gl.bindTexture(gl.TEXTURE_2D, tex);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, W, H, 0, gl.RGBA, gl.FLOAT, ratios.subarray(t * 4 * W * H, (t + 1) * 4 * W * H));
+}
 const vertexSource = `#version 300 es
 uniform mat4 view_projection;
 uniform vec2 half_extent;
@@ -158,7 +188,8 @@ void main() {
 const fragmentSource = `#version 300 es
 precision highp float;
 precision highp sampler2D;
-uniform sampler2D maps0, maps1, maps2;
+uniform sampler2D maps0, maps1, maps2, spread0, spread1, spread2;
+uniform int overlay;
 uniform vec3 camera, light, intensity;
 uniform float exposure_scale;
 uniform int mode;
@@ -217,6 +248,12 @@ void main() {
   else if (mode == 4) c = srgb(vec3(m0.a));
   else if (mode == 5) c = 0.5 + 0.5 * vec3(m2.z, m2.w, sqrt(max(1.0 - m2.z * m2.z - m2.w * m2.w, 0.0)));
   else c = vec3(m1.a / PI + 0.5);
+  if (overlay > 0) {  // the largest sd / prior sd of the parameters the chosen map holds
+    vec4 s0 = texelFetch(spread0, texel, 0), s1 = texelFetch(spread1, texel, 0), s2 = texelFetch(spread2, texel, 0);
+    float r = overlay == 1 ? max(s0.r, max(s0.g, s0.b)) : overlay == 2 ? max(s1.r, max(s1.g, s1.b))
+            : overlay == 3 ? max(s2.x, s2.y) : overlay == 4 ? s0.a : overlay == 5 ? max(s2.z, s2.w) : s1.a;
+    c = mix(c, vec3(1.0, 0.0, 1.0), 0.8 * clamp(r, 0.0, 1.0));
+  }
   colour = vec4(c, 1.0);
 }`;
 function compile(type, source) {
@@ -234,6 +271,7 @@ if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProg
 gl.useProgram(program);
 const u = name => gl.getUniformLocation(program, name);
 gl.uniform1i(u("maps0"), 0); gl.uniform1i(u("maps1"), 1); gl.uniform1i(u("maps2"), 2);
+gl.uniform1i(u("spread0"), 3); gl.uniform1i(u("spread1"), 4); gl.uniform1i(u("spread2"), 5);
 gl.uniform2i(u("size"), W, H);
 gl.uniform2f(u("half_extent"), 0.5 * W / N, 0.5 * H / N);
 const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
@@ -273,6 +311,7 @@ function draw() {
   gl.uniform1f(u("exposure_scale"), Math.pow(2, state.exposure));
   gl.uniform1i(u("mode"), modes.indexOf(state.mode));
   gl.uniform1i(u("repeat"), texel ? 1 : state.repeat);
+  gl.uniform1i(u("overlay"), hasUncertainty ? overlays.indexOf(state.overlay) : 0);
   gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
   document.getElementById("exposure_value").textContent = state.exposure.toFixed(1);
 }
@@ -281,7 +320,7 @@ function redraw(record) {
   if (record) {
     const f = a => a.map(x => +x.toFixed(4)).join(",");
     history.replaceState(null, "", "#camera=" + f(state.camera) + "&light=" + f(state.light) + "&exposure=" + state.exposure +
-                         "&mode=" + state.mode + "&view=" + state.view + (state.repeat !== 1 ? "&repeat=" + state.repeat : "") + (state.intensity ? "&intensity=" + f(state.intensity) : ""));
+                         "&mode=" + state.mode + "&view=" + state.view + (state.repeat !== 1 ? "&repeat=" + state.repeat : "") + (state.overlay !== "none" ? "&overlay=" + state.overlay : "") + (state.intensity ? "&intensity=" + f(state.intensity) : ""));
   }
   if (!pending) { pending = true; requestAnimationFrame(() => { pending = false; draw(); }); }
 }
@@ -291,6 +330,10 @@ const exposure = document.getElementById("exposure"), height = document.getEleme
 const repeat = document.getElementById("repeat");
 exposure.value = state.exposure; height.value = state.light[2]; mode.value = state.mode; repeat.checked = state.repeat === 2;
 repeat.onchange = () => { state.repeat = repeat.checked ? 2 : 1; redraw(true); };
+const overlay = document.getElementById("overlay");
+overlay.value = state.overlay;
+overlay.onchange = () => { state.overlay = overlay.value; redraw(true); };
+if (!hasUncertainty) { document.getElementById("overlay_label").style.display = "none"; document.getElementById("overlay_key").style.display = "none"; }
 exposure.oninput = () => { state.exposure = +exposure.value; redraw(true); };
 height.oninput = () => { state.light[2] = +height.value; redraw(true); };
 mode.onchange = () => { state.mode = mode.value; redraw(true); };
@@ -335,13 +378,21 @@ inline void replace_all(std::string& text, std::string_view key, std::string_vie
 /// The viewer page for `maps` (see the file comment).
 inline std::string viewer_html(const material_maps& maps, const viewer_options& options = {}) {
   const std::vector<float> texels = detail::viewer_texels(maps);
+  std::string spread;  // sd / prior sd in the maps' layout, when given
+  if (options.uncertainty) {
+    if (options.uncertainty->width() != maps.width() || options.uncertainty->height() != maps.height())
+      throw std::invalid_argument("viewer_html: the uncertainty maps' size differs from the maps'");
+    const std::vector<float> r = detail::viewer_texels(*options.uncertainty);
+    spread = detail::base64(reinterpret_cast<const unsigned char*>(r.data()), r.size() * sizeof(float));
+  }
   // float32 little-endian, as JavaScript's Float32Array reads it on every platform browsers run on.
   const std::string data = detail::base64(reinterpret_cast<const unsigned char*>(texels.data()), texels.size() * sizeof(float));
   std::string page(detail::viewer_template);
   detail::replace_all(page, "@WIDTH@", std::to_string(maps.width()));
   detail::replace_all(page, "@HEIGHT@", std::to_string(maps.height()));
   detail::replace_all(page, "@TITLE@", detail::html_escape(options.title));
-  const std::size_t at = page.find("@DATA@");  // last: the data itself is never searched
+  page.replace(page.find("@UNCERTAINTY@"), 13, spread);  // base64 holds no '@': the next search never matches inside it
+  const std::size_t at = page.find("@DATA@");
   page.replace(at, 6, data);
   return page;
 }

@@ -1,0 +1,234 @@
+#pragma once
+/// @file
+/// How well the photographs determine each parameter of each texel: the posterior standard
+/// deviation of the Laplace approximation at the captured maps (docs/method.md, "Per-texel
+/// uncertainty").
+///
+/// The image loss compares log(B + 0.01) of photograph and render. Read as a likelihood, each
+/// used pixel channel is a Gaussian measurement of log(R + 0.01) with standard deviation `noise`
+/// (in the loss's units: 0.01 is about 1% of a bright pixel's value), weighed by its mask value;
+/// a render at or below its image's floor is no measurement. At the captured parameters theta the
+/// Gauss-Newton information of a texel is
+///
+///     H = sum over images k, channels c of  m_k (d log(R_kc + 0.01) / d theta)^T (...) / noise^2,
+///
+/// the derivatives exact (forward-mode duals through brdf/ward.hpp). Before any photograph each
+/// parameter is spread uniformly over its range (uncertainty_prior_sd), so the posterior
+/// covariance is (H + diag(1 / prior_sd^2))^-1: where the photographs say nothing about a
+/// parameter (F0 under a flash, alpha of an isotropic texel, the lobe under no highlight) its
+/// standard deviation stays the prior's. `noise` is by default the weighted RMS of the residuals at
+/// the maps, at least uncertainty_options::min_noise: the capture's own sensor noise and misfit.
+#include <Eigen/Dense>
+
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+
+#include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/brdf/ward.hpp"
+#include "anisocap/ad/forward/dual.hpp"
+#include "anisocap/data/image_io.hpp"
+#include "anisocap/data/map_io.hpp"
+#include "anisocap/render/capture.hpp"
+#include "anisocap/render/renderer.hpp"
+#include "anisocap/render/texel_radiance.hpp"
+
+namespace anisocap {
+
+/// Each parameter's spread before any photograph, in the maps' units: the standard deviation of a
+/// uniform distribution over its range (range / sqrt(12)). Albedos, lobe widths and F0 over
+/// [0, 1], the normal's x and y over [-0.5, 0.5] (60 degrees of tilt), alpha over [-pi/2, pi/2).
+inline const std::array<double, parameter_count> uncertainty_prior_sd = [] {
+  std::array<double, parameter_count> sd{};
+  const double unit = 1.0 / std::sqrt(12.0);
+  sd.fill(unit);
+  sd[rotation] = std::numbers::pi * unit;
+  return sd;
+}();
+
+/// The short name of parameter plane k: a_d.r, a_d.g, a_d.b, a_s.r, a_s.g, a_s.b, sigma_x,
+/// sigma_y, F0, n_x, n_y, alpha.
+inline const char* parameter_name(int k) {
+  static constexpr const char* names[parameter_count] = {"a_d.r", "a_d.g", "a_d.b", "a_s.r", "a_s.g", "a_s.b",
+                                                         "sigma_x", "sigma_y", "F0", "n_x", "n_y", "alpha"};
+  if (k < 0 || k >= parameter_count) throw std::out_of_range("parameter_name: no parameter " + std::to_string(k));
+  return names[k];
+}
+
+/// Options of texel_uncertainty.
+struct uncertainty_options {
+  /// Standard deviation of one log-radiance measurement (the loss's units); 0: the weighted RMS of
+  /// the residuals at the maps, at least `min_noise`.
+  double noise = 0;
+  /// The least noise assumed: renders of the maps themselves fit to float rounding, which would
+  /// claim every parameter exactly; 0.005 is half a percent of a pixel's value.
+  double min_noise = 0.005;
+  /// A parameter is determined at a texel where its posterior standard deviation is at most this
+  /// share of its prior's.
+  double determined_ratio = 0.5;
+  /// Throws std::invalid_argument for impossible values.
+  void validate() const {
+    if (!(noise >= 0) || !std::isfinite(noise)) throw std::invalid_argument("uncertainty noise must be a finite number >= 0");
+    if (!(min_noise > 0) || !std::isfinite(min_noise)) throw std::invalid_argument("uncertainty min_noise must be a finite number > 0");
+    if (!(determined_ratio > 0 && determined_ratio < 1))
+      throw std::invalid_argument("uncertainty determined_ratio must be in (0, 1)");
+  }
+};
+
+/// Per-texel posterior standard deviations and their summary.
+struct uncertainty_result {
+  /// Plane k holds parameter k's posterior standard deviation, in the maps' units.
+  material_maps sd;
+  /// The measurement noise used (uncertainty_options::noise or the residuals' RMS).
+  double noise = 0;
+  /// Per parameter, the share of texels where it is determined (sd <= determined_ratio x prior sd).
+  std::array<double, parameter_count> determined_share{};
+  /// Whether the photographs determine parameter k on at least half of the texels.
+  bool determined(int k) const { return determined_share.at(std::size_t(k)) >= 0.5; }
+  /// Each standard deviation over its parameter's before any photograph (uncertainty_prior_sd):
+  /// 0 where the photographs fix it, 1 where they say nothing (what the viewer's overlay shows).
+  material_maps ratio() const;
+};
+
+namespace uncertainty_detail {
+
+using texel_dual = ad::dual<double, parameter_count>;
+
+/// Texel (x, y)'s parameters as the 12 independent variables of a dual.
+inline ward_parameters<texel_dual> variables(const material_maps& m, int x, int y) {
+  ward_parameters<texel_dual> p;
+  for (int c = 0; c < 3; ++c) {
+    p.diffuse[c] = texel_dual::variable(m.at(diffuse_r + c, x, y), std::size_t(diffuse_r + c));
+    p.specular[c] = texel_dual::variable(m.at(specular_r + c, x, y), std::size_t(specular_r + c));
+  }
+  p.sx = texel_dual::variable(m.at(lobe_x, x, y), lobe_x);
+  p.sy = texel_dual::variable(m.at(lobe_y, x, y), lobe_y);
+  p.f0 = texel_dual::variable(m.at(fresnel_f0, x, y), fresnel_f0);
+  p.nx = texel_dual::variable(m.at(normal_x, x, y), normal_x);
+  p.ny = texel_dual::variable(m.at(normal_y, x, y), normal_y);
+  p.alpha = texel_dual::variable(m.at(rotation, x, y), rotation);
+  return p;
+}
+
+/// Pixel (x, y)'s weight in image k: its mask value (at most 1), 1 without masks.
+inline double pixel_weight(const loss_targets& t, std::size_t k, int x, int y) {
+  return t.masks.empty() ? 1.0 : std::min(1.0, double(t.masks[k].at(0, x, y)));
+}
+
+inline double floor_of(const loss_targets& t, std::size_t k) { return t.floors.empty() ? 0.0 : double(t.floors[k]); }
+
+}  // namespace uncertainty_detail
+
+/// The Gauss-Newton information of texel (x, y) for one measurement noise of 1 (divide by
+/// noise^2): sum over images and channels of m g g^T with g = d log(max(R, floor) + 0.01) / d theta.
+inline Eigen::Matrix<double, parameter_count, parameter_count> texel_information(const material_maps& maps, const capture& cap,
+                                                                               const loss_targets& targets, int x, int y) {
+  using namespace uncertainty_detail;
+  Eigen::Matrix<double, parameter_count, parameter_count> h = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
+  const ward_parameters<texel_dual> p = variables(maps, x, y);
+  for (std::size_t k = 0; k < cap.images.size(); ++k) {
+    const double m = pixel_weight(targets, k, x, y);
+    if (m <= 0) continue;
+    const auto radiance = texel_radiance<texel_dual>(p, cap.images[k], x, y, maps.width(), maps.height());
+    for (int c = 0; c < 3; ++c) {
+      if (!(radiance[std::size_t(c)].value > floor_of(targets, k))) continue;  // max(R, floor) does not move
+      Eigen::Matrix<double, parameter_count, 1> g;
+      const double scale = 1.0 / (radiance[std::size_t(c)].value + double(loss_epsilon));
+      for (int i = 0; i < parameter_count; ++i) g[i] = radiance[std::size_t(c)].grad[std::size_t(i)] * scale;
+      h.noalias() += m * g * g.transpose();
+    }
+  }
+  return h;
+}
+
+/// The weighted RMS of the log residuals log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01) of
+/// `maps` against the targets: the noise texel_uncertainty assumes by default.
+inline double residual_rms(const material_maps& maps, const capture& cap, const loss_targets& targets) {
+  using namespace uncertainty_detail;
+  double sum = 0, weight = 0;
+#pragma omp parallel for schedule(static) reduction(+ : sum, weight)
+  for (int y = 0; y < maps.height(); ++y)
+    for (int x = 0; x < maps.width(); ++x) {
+      const ward_parameters<double> p = texel_ward_parameters<double>(maps, x, y);
+      for (std::size_t k = 0; k < cap.images.size(); ++k) {
+        const double m = pixel_weight(targets, k, x, y);
+        if (m <= 0) continue;
+        const auto radiance = texel_radiance<double>(p, cap.images[k], x, y, maps.width(), maps.height());
+        for (int c = 0; c < 3; ++c) {
+          const double r = std::log(std::max(radiance[std::size_t(c)], floor_of(targets, k)) + double(loss_epsilon)) -
+                           double(targets.log_images[k].at(c, x, y));
+          sum += m * r * r;
+          weight += m;
+        }
+      }
+    }
+  return weight > 0 ? std::sqrt(sum / weight) : 0.0;
+}
+
+/// Per-texel posterior standard deviations of `maps` captured from the photographs behind
+/// `targets` under `cap` (the configurations and targets the capture fitted: exposure-normalised
+/// where it normalised). Throws std::invalid_argument when the sizes disagree.
+inline uncertainty_result texel_uncertainty(const material_maps& maps, const capture& cap, const loss_targets& targets,
+                                            const uncertainty_options& options = {}) {
+  options.validate();
+  if (targets.width != maps.width() || targets.height != maps.height() || targets.log_images.size() != cap.images.size())
+    throw std::invalid_argument("texel_uncertainty: the maps, the configurations and the photographs' targets disagree in size");
+  uncertainty_result result;
+  result.noise = options.noise > 0 ? options.noise : std::max(options.min_noise, residual_rms(maps, cap, targets));
+  result.sd = material_maps(maps.width(), maps.height());
+  Eigen::Matrix<double, parameter_count, parameter_count> prior = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
+  for (int i = 0; i < parameter_count; ++i) prior(i, i) = 1.0 / (uncertainty_prior_sd[std::size_t(i)] * uncertainty_prior_sd[std::size_t(i)]);
+  const double inv_noise2 = 1.0 / (result.noise * result.noise);
+  std::array<double, parameter_count> determined{};
+  const int w = maps.width(), h = maps.height();
+#pragma omp parallel
+  {
+    std::array<double, parameter_count> mine{};
+#pragma omp for schedule(dynamic, 4)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const Eigen::Matrix<double, parameter_count, parameter_count> precision = texel_information(maps, cap, targets, x, y) * inv_noise2 + prior;
+        const Eigen::Matrix<double, parameter_count, parameter_count> covariance =
+            precision.ldlt().solve(Eigen::Matrix<double, parameter_count, parameter_count>::Identity());
+        for (int i = 0; i < parameter_count; ++i) {
+          const double sd = std::sqrt(std::max(0.0, covariance(i, i)));
+          result.sd.at(i, x, y) = float(sd);
+          if (sd <= options.determined_ratio * uncertainty_prior_sd[std::size_t(i)]) mine[std::size_t(i)] += 1;
+        }
+      }
+#pragma omp critical
+    for (int i = 0; i < parameter_count; ++i) determined[std::size_t(i)] += mine[std::size_t(i)];
+  }
+  for (int i = 0; i < parameter_count; ++i) result.determined_share[std::size_t(i)] = determined[std::size_t(i)] / double(maps.texel_count());
+  return result;
+}
+
+inline material_maps uncertainty_result::ratio() const {
+  material_maps r = sd;
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < r.texel_count(); ++i) r.plane(k)[i] = float(r.plane(k)[i] / uncertainty_prior_sd[std::size_t(k)]);
+  return r;
+}
+
+/// The files of an uncertainty folder: the map set's files (data/map_io.hpp map_file_names, no
+/// height), each channel the posterior standard deviation of the parameter the map file holds
+/// there (normal.exr: n_x, n_y and 0; fresnel.exr and rotation.exr: the one value in R, G, B).
+inline std::vector<image> uncertainty_images(const uncertainty_result& u) {
+  material_maps m = u.sd;
+  std::vector<image> images = detail::map_images(m);
+  std::fill(images[4].plane(2), images[4].plane(2) + images[4].pixel_count(), 0.0f);  // not n_z of the standard deviations
+  return images;
+}
+
+/// Writes uncertainty_images(u) into `folder` (created), within `transaction` (data/image_io.hpp):
+/// nothing replaces an existing file until the transaction commits.
+inline void write_uncertainty(const uncertainty_result& u, const std::filesystem::path& folder, file_transaction& transaction) {
+  std::filesystem::create_directories(folder);
+  const std::vector<image> images = uncertainty_images(u);
+  for (std::size_t i = 0; i < images.size(); ++i) write_exr(images[i], folder / map_file_names[i], transaction);
+}
+
+}  // namespace anisocap

@@ -1,0 +1,151 @@
+// pipeline/uncertainty.hpp: the information's derivatives against finite differences, the
+// posterior falling back to the prior where the photographs say nothing (F0 under a flash), more
+// photographs making parameters surer, and the files' layout.
+#include <doctest/doctest.h>
+
+#include <cmath>
+
+#include "../data/test_folder.hpp"
+#include "../render/render_reference.hpp"
+#include "anisocap/pipeline/uncertainty.hpp"
+#include "anisocap/render/configurations.hpp"
+
+using namespace anisocap;
+using namespace anisocap::testing;
+
+namespace {
+
+/// The log radiance derivative of texel (x, y) by central differences, in double.
+std::array<double, parameter_count> finite_difference(const material_maps& maps, const capture_image& im, int x, int y, int c) {
+  std::array<double, parameter_count> g{};
+  for (int i = 0; i < parameter_count; ++i) {
+    const double h = 1e-6;
+    ward_parameters<double> plus = texel_ward_parameters<double>(maps, x, y), minus = plus;
+    auto entry = [i](ward_parameters<double>& p) -> double& {
+      if (i <= diffuse_b) return p.diffuse[std::size_t(i)];
+      if (i <= specular_b) return p.specular[std::size_t(i - specular_r)];
+      if (i == lobe_x) return p.sx;
+      if (i == lobe_y) return p.sy;
+      if (i == fresnel_f0) return p.f0;
+      if (i == normal_x) return p.nx;
+      if (i == normal_y) return p.ny;
+      return p.alpha;
+    };
+    entry(plus) += h;
+    entry(minus) -= h;
+    const double a = texel_radiance<double>(plus, im, x, y, maps.width(), maps.height())[std::size_t(c)];
+    const double b = texel_radiance<double>(minus, im, x, y, maps.width(), maps.height())[std::size_t(c)];
+    g[std::size_t(i)] = (std::log(a + double(loss_epsilon)) - std::log(b + double(loss_epsilon))) / (2 * h);
+  }
+  return g;
+}
+
+/// `count` flash photographs: the light beside the lens.
+capture flash_capture(int count, int size, std::uint64_t seed) {
+  random_generator rng(seed);
+  capture cap;
+  for (int i = 0; i < count; ++i) {
+    capture_image im = independent_configuration(rng, size, size);
+    im.light = im.camera;
+    im.light[0] += 0.05f;
+    cap.images.push_back(im);
+  }
+  return cap;
+}
+
+}  // namespace
+
+TEST_CASE("texel_information is the Gauss-Newton sum of the log radiance's derivatives, checked by finite differences") {
+  const material_maps maps = random_maps(5, 4, 11);
+  const capture cap = random_capture(3, 12);
+  const std::vector<image> photos = render(maps, cap);
+  const loss_targets targets = make_loss_targets(photos);
+  for (auto [x, y] : {std::pair{0, 0}, std::pair{3, 2}, std::pair{4, 3}}) {
+    Eigen::Matrix<double, parameter_count, parameter_count> expected = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
+    for (std::size_t k = 0; k < cap.images.size(); ++k)
+      for (int c = 0; c < 3; ++c) {
+        const auto g = finite_difference(maps, cap.images[k], x, y, c);
+        for (int i = 0; i < parameter_count; ++i)
+          for (int j = 0; j < parameter_count; ++j) expected(i, j) += g[std::size_t(i)] * g[std::size_t(j)];
+      }
+    const auto h = texel_information(maps, cap, targets, x, y);
+    for (int i = 0; i < parameter_count; ++i)
+      for (int j = 0; j < parameter_count; ++j) {
+        INFO("texel (" << x << ", " << y << "), entry (" << i << ", " << j << ")");
+        CHECK(h(i, j) == doctest::Approx(expected(i, j)).epsilon(1e-4).scale(1e-3 * (std::abs(expected(i, i)) + 1)));
+      }
+  }
+  // A masked pixel is no measurement; a render under its image's floor neither.
+  std::vector<image> masks(cap.images.size(), image(5, 4, 1));
+  for (image& m : masks) std::fill(m.plane(0), m.plane(0) + m.pixel_count(), 1.0f);
+  masks[0].at(0, 3, 2) = masks[1].at(0, 3, 2) = masks[2].at(0, 3, 2) = 0.0f;
+  CHECK(texel_information(maps, cap, make_loss_targets(photos, masks), 3, 2).isZero());
+  CHECK(texel_information(maps, cap, make_loss_targets(photos, {}, std::vector<float>(3, 1e9f)), 0, 0).isZero());
+}
+
+TEST_CASE("texel_uncertainty: the prior where the photographs say nothing, surer with more photographs") {
+  const int n = 16;
+  material_maps truth = random_maps(n, n, 5);
+  for (std::size_t i = 0; i < truth.texel_count(); ++i) truth.plane(fresnel_f0)[i] = 0.05f;
+  const capture flash = flash_capture(8, n, 3);
+  const loss_targets flash_targets = make_loss_targets(render(truth, flash));
+  uncertainty_options o;
+  o.noise = 0.02;
+  const uncertainty_result u = texel_uncertainty(truth, flash, flash_targets, o);
+  CHECK(u.noise == 0.02);
+  // A flash sees F / F0 = 1: F0 keeps the prior's spread on every texel, the diffuse albedo is measured.
+  for (std::size_t i = 0; i < truth.texel_count(); ++i) {
+    REQUIRE(u.sd.plane(fresnel_f0)[i] == doctest::Approx(uncertainty_prior_sd[fresnel_f0]).epsilon(0.02));
+    REQUIRE(u.sd.plane(diffuse_g)[i] < 0.2 * uncertainty_prior_sd[diffuse_g]);
+  }
+  CHECK(u.determined_share[fresnel_f0] == 0.0);
+  CHECK_FALSE(u.determined(fresnel_f0));
+  CHECK(u.determined(diffuse_r));
+  CHECK(u.determined_share[diffuse_r] == 1.0);
+
+  // Grazing photographs with the light opposite measure F0; more photographs shrink every spread.
+  capture more = flash;
+  random_generator rng(9);
+  for (int i = 0; i < 4; ++i) more.images.push_back(fresnel_configuration(rng, n, n));
+  const uncertainty_result v = texel_uncertainty(truth, more, make_loss_targets(render(truth, more)), o);
+  CHECK(v.determined_share[fresnel_f0] > 0.5);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < truth.texel_count(); ++i) REQUIRE(v.sd.plane(k)[i] <= u.sd.plane(k)[i] * (1 + 1e-4f));
+
+  // The noise, when not given, is the residuals' RMS, at least min_noise: maps that render the
+  // photographs exactly get min_noise.
+  CHECK(texel_uncertainty(truth, flash, flash_targets).noise == uncertainty_options{}.min_noise);
+  material_maps off = truth;
+  for (std::size_t i = 0; i < off.texel_count(); ++i) off.plane(diffuse_r)[i] *= 1.5f;
+  CHECK(texel_uncertainty(off, flash, flash_targets).noise == doctest::Approx(residual_rms(off, flash, flash_targets)));
+  CHECK(residual_rms(off, flash, flash_targets) > 0.01);
+
+  o.determined_ratio = 1.5;
+  CHECK_THROWS_WITH_AS(texel_uncertainty(truth, flash, flash_targets, o), doctest::Contains("determined_ratio"), std::invalid_argument);
+  CHECK_THROWS_AS(texel_uncertainty(random_maps(8, 8, 1), flash, flash_targets), std::invalid_argument);
+}
+
+TEST_CASE("write_uncertainty: the map set's files, each channel the standard deviation of the parameter there") {
+  const int n = 8;
+  const material_maps truth = random_maps(n, n, 2);
+  const capture cap = random_capture(4, 6);
+  const uncertainty_result u = texel_uncertainty(truth, cap, make_loss_targets(render(truth, cap)));
+  test_folder t;
+  {
+    file_transaction files;
+    write_uncertainty(u, t.path() / "uncertainty", files);
+    files.commit();
+  }
+  const image lobes = read_exr(t.path() / "uncertainty/lobes.exr"), normal = read_exr(t.path() / "uncertainty/normal.exr");
+  const image fresnel = read_exr(t.path() / "uncertainty/fresnel.exr"), rotation_sd = read_exr(t.path() / "uncertainty/rotation.exr");
+  CHECK_FALSE(std::filesystem::exists(t.path() / "uncertainty/height.exr"));
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) {
+      REQUIRE(lobes.at(0, x, y) == u.sd.at(lobe_x, x, y));
+      REQUIRE(lobes.at(1, x, y) == u.sd.at(lobe_y, x, y));
+      REQUIRE(normal.at(1, x, y) == u.sd.at(normal_y, x, y));
+      REQUIRE(normal.at(2, x, y) == 0.0f);
+      REQUIRE(fresnel.at(2, x, y) == u.sd.at(fresnel_f0, x, y));
+      REQUIRE(rotation_sd.at(0, x, y) == u.sd.at(rotation, x, y));
+    }
+}
