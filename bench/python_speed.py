@@ -6,8 +6,8 @@ Usage:
     OMP_NUM_THREADS=2 PYTHONPATH=BUILD/python /usr/bin/python3 bench/python_speed.py \\
         --program BUILD/anisocap [--runs 7] [--rounds 3] [--capture-size 64]
 
-1. Loss and gradient on 256 x 256 texels and 12 photographs (full kernel, float32, 2 threads on
-   both sides: OMP_NUM_THREADS=2 and torch.set_num_threads(2)): anisocap.loss_and_gradient on
+1. Loss and gradient on 256 x 256 texels and 12 photographs (full kernel, float32, the same
+   threads on both sides: OMP_NUM_THREADS and torch.set_num_threads of the same number): anisocap.loss_and_gradient on
    NumPy arrays, anisocap.torch.ImageLoss forward + backward on a tensor, and the same loss written
    in PyTorch (studies/reference/ward_reference.py) differentiated by autograd. Random maps in the
    parameters' ranges, photographs synthesized by anisocap (set alpha). The machine may be shared,
@@ -59,7 +59,7 @@ def median_seconds(fn, runs):
 
 
 def loss_table(runs, rounds):
-    torch.set_num_threads(2)
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))
     data = anisocap.synthesize(width=256, height=256, images=12, seed=1)
     configs, photos = data["configurations"], data["photos"]
     maps = random_maps(256, 2)
@@ -134,10 +134,14 @@ def main():
     parser.add_argument("--runs", type=int, default=7)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--capture-size", type=int, default=64)
+    parser.add_argument("--no-loss", action="store_true", help="leave out the loss table")
     args = parser.parse_args()
-    loss_table(args.runs, args.rounds)
+    print("load average before: %.1f %.1f %.1f" % os.getloadavg())
+    if not args.no_loss:
+        loss_table(args.runs, args.rounds)
     if args.program:
         capture_table(args.program, args.capture_size)
+    print("load average after: %.1f %.1f %.1f" % os.getloadavg())
 
 
 if __name__ == "__main__":

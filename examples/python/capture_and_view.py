@@ -35,8 +35,9 @@ def main():
         data = anisocap.synthesize(width=128, height=128, images=12, seed=1, kind="twill")
     photos, configurations = data["photos"], data["configurations"]
 
-    def progress(stage, step, steps, loss):
-        print(f"\r{stage}: step {step}/{steps}, loss {loss:.4f}   ", end="", flush=True)
+    def progress(stage, step, steps, loss):  # called after every step: show one in 25
+        if step % 25 == 0 or step == steps:
+            print(f"\r{stage}: step {step}/{steps}, loss {loss:.4f}   ", end="", flush=True)
 
     result = anisocap.capture(photos, configurations, masks=data.get("masks"), progress=progress)
     print(f"\nimage loss {result['loss']:.4f}; stages: " +

@@ -2,7 +2,7 @@
 //
 // One translation unit, since the capture pipeline for the shipped presets is most of the compile
 // time (docs/library.md) and would be paid again in every unit that loads networks. The pure-Python
-// package beside it (anisocap/__init__.py) documents the calls and adds what reads better in
+// package (package/anisocap/__init__.py) documents the calls and adds what reads better in
 // Python (paths, defaults, the weights' search beside the installed package).
 //
 // Arrays: a map set is H x W x 12 float32 (the planes in parameter_index order), a photograph or a
