@@ -12,6 +12,7 @@ void register_capture(CLI::App& app);
 void register_eval(CLI::App& app);
 void register_training(CLI::App& app);
 void register_demo(CLI::App& app);
+void register_plan(CLI::App& app);
 void register_view(CLI::App& app);
 void register_export(CLI::App& app);
 void register_rectify(CLI::App& app);

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   anisocap::commands::register_eval(app);
   anisocap::commands::register_training(app);
   anisocap::commands::register_demo(app);
+  anisocap::commands::register_plan(app);
   anisocap::commands::register_view(app);
   anisocap::commands::register_export(app);
   anisocap::commands::register_rectify(app);

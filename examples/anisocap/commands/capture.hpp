@@ -194,6 +194,12 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
                         {"projection_ratio", std::isfinite(c.projection_ratio) ? nlohmann::json(c.projection_ratio) : nlohmann::json()}};
   }
   report["networks"] = nets.describe();
+  if (result.uncertainty) {
+    nlohmann::json determined;
+    for (int k = 0; k < parameter_count; ++k) determined[parameter_name(k)] = result.uncertainty->determined_share[std::size_t(k)];
+    report["uncertainty"] = {{"folder", "uncertainty"}, {"noise", result.uncertainty->noise},
+                             {"determined_ratio", o.uncertainty->determined_ratio}, {"determined_share", determined}};
+  }
   report["novel_views"] = nlohmann::json::array();
   for (const auto& v : novel.images)
     report["novel_views"].push_back({{"file", "novel/" + v.file}, {"camera", v.camera}, {"light", v.light}, {"intensity", v.intensity}});
@@ -242,6 +248,19 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
                  o.kernel.auto_tolerance,
                  result.f0_source == "estimate" ? "the networks' estimate"
                                                 : ("the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4)).c_str());
+  if (result.uncertainty) {
+    std::string undetermined;
+    for (int k = 0; k < parameter_count; ++k)
+      if (!result.uncertainty->determined(k)) {
+        char text[64];
+        std::snprintf(text, sizeof text, "%s%s (%.0f%% of texels)", undetermined.empty() ? "" : ", ", parameter_name(k),
+                      100 * result.uncertainty->determined_share[std::size_t(k)]);
+        undetermined += text;
+      }
+    if (!undetermined.empty())
+      std::fprintf(stderr, "capture: these photographs determine on most texels every parameter but %s; uncertainty/ holds each "
+                   "parameter's standard deviation per texel\n", undetermined.c_str());
+  }
 
   // Every result file is staged under a temporary name and all are renamed into place together at
   // the end: a failure while producing any of them leaves the folder's earlier results as they were.
@@ -250,7 +269,13 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   create_output_folder(s.out);
   file_transaction files;
   const std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
-  if (s.view) files.stage(s.out / "material.html", viewer_html(maps, {s.out.filename().string()}));
+  if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files);
+  if (s.view) {
+    viewer_options view{s.out.filename().string()};
+    const std::optional<material_maps> ratio = result.uncertainty ? std::optional(result.uncertainty->ratio()) : std::nullopt;
+    if (ratio) view.uncertainty = &*ratio;
+    files.stage(s.out / "material.html", viewer_html(maps, view));
+  }
   const std::vector<image> rerenders = render(maps, in.cap);
   stage_images(rerenders, in.cap, s.out / "renders", files, in.files);
   write_png(make_capture_sheet(in.photos, rerenders, maps, in.truth ? &*in.truth : nullptr), s.out / "contact_sheet.png", files);
@@ -297,6 +322,8 @@ inline void add_capture_command(CLI::App& app) {
   c->add_option("--truth", s->truth, "true map set: adds per-parameter errors to report.json");
   c->add_option("--init", s->init, "start from this map set instead of the built-in first guess");
   c->add_flag("!--no-view", s->view, "do not write the viewer page material.html beside the maps");
+  c->add_flag_callback("--no-uncertainty", [s] { s->options.uncertainty.reset(); },
+                       "do not compute the per-texel standard deviations (uncertainty/, report.json's uncertainty)");
   c->callback([s, c] { run_capture_command(*s, c); });
 }
 

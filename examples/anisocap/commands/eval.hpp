@@ -139,7 +139,9 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
   const networks nets = options.stages.networks() ? load_program_networks(models) : networks{};
   output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
   try {
-    evaluate_materials(e, families, nets, options);
+    capture_options without_uncertainty = options;  // the tables do not use it
+    without_uncertainty.uncertainty.reset();
+    evaluate_materials(e, families, nets, without_uncertainty);
   } catch (...) {
     lock.release_empty();  // weights that fail to load (or hold NaN) leave no empty folder
     throw;

@@ -25,6 +25,7 @@
 #include "anisocap/pipeline/finetune.hpp"
 #include "anisocap/pipeline/fingerprint.hpp"
 #include "anisocap/pipeline/refine.hpp"
+#include "anisocap/pipeline/uncertainty.hpp"
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/render/analysis.hpp"
 
@@ -137,6 +138,9 @@ struct capture_options {
   std::vector<int> neighbour_restarts_alone{};
   /// capture_material's second runs of the network stages.
   second_run_options second_run{};
+  /// capture_material's per-texel posterior standard deviations of the maps it returns
+  /// (pipeline/uncertainty.hpp); unset: none computed.
+  std::optional<uncertainty_options> uncertainty = uncertainty_options{};
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
   /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
@@ -187,6 +191,7 @@ struct capture_options {
     estimate.validate();
     finetune.validate();
     second_run.validate();
+    if (uncertainty) uncertainty->validate();
     if (!(second_start_lobe_width >= 0 && second_start_lobe_width <= 1))
       throw std::invalid_argument("second_start_lobe_width must be in [0, 1]");
     for (const auto* radii : {&neighbour_restarts, &neighbour_restarts_alone})
@@ -230,6 +235,8 @@ struct capture_result {
   std::optional<material_maps> after_finetune;
   /// The kernel the fine-tune and refine losses used (options.kernel's, or the automatic choice).
   brdf_features features = all_features;
+  /// capture_material's per-texel posterior standard deviations of `maps` (capture_options::uncertainty).
+  std::optional<uncertainty_result> uncertainty;
   /// Where the F0 map comes from: "photographs" (the kernel fitted the Fresnel term), "estimate"
   /// (the photographs do not determine F0, e.g. a flash capture, so the networks' estimate, or the
   /// start maps', is kept) or "prior" (the same without networks: kernel_options::prior_f0).
@@ -259,6 +266,14 @@ struct capture_result {
     return std::numeric_limits<double>::quiet_NaN();
   }
 };
+
+/// Each image's floor in the image loss's units: the file's level times its exposure factor (which
+/// the loaded photographs already carry) and the capture's exposure scale (1 without normalisation).
+inline std::vector<float> loss_floors(const capture& cap, double exposure_scale) {
+  std::vector<float> floors;
+  for (const capture_image& im : cap.images) floors.push_back(float(double(im.floor) * im.exposure * exposure_scale));
+  return floors;
+}
 
 /// Stands for the networks of a capture that runs without them.
 struct no_networks {};
@@ -380,11 +395,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
     apply_exposure(cap, photos, result.exposure_scale);
   }
   const int W = photos[0].width(), H = photos[0].height();
-  // Each image's floor in the loss's units: the file's level times its exposure factor (which
-  // `photos` already carry) and the capture's exposure scale.
-  std::vector<float> floors;
-  for (const capture_image& im : cap.images) floors.push_back(float(double(im.floor) * im.exposure * result.exposure_scale));
-  const loss_targets targets = make_loss_targets(photos, masks, floors);
+  const loss_targets targets = make_loss_targets(photos, masks, loss_floors(cap, result.exposure_scale));
   auto image_loss = [&](const material_maps& m, brdf_features features) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
   };

@@ -9,7 +9,9 @@
 /// - the neighbourhood restarts after the refine (capture_options::neighbour_restarts);
 /// - the second runs of the network stages, kept where they fit the photographs better
 ///   (second_run_options: the residual start, then the networks' second prior);
-/// - the canonical form of the returned maps (brdf/canonical_maps.hpp).
+/// - the canonical form of the returned maps (brdf/canonical_maps.hpp);
+/// - how well the photographs determine each parameter of each texel (capture_options::uncertainty,
+///   pipeline/uncertainty.hpp).
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -146,6 +148,13 @@ inline capture_result capture_material(const capture& cap, const std::vector<ima
   result.networks_ran = network_stages;
   canonicalise(result.maps);
   if (result.after_finetune) canonicalise(*result.after_finetune);
+  if (o.uncertainty && !result.stopped) {  // against the photographs as the stages saw them
+    capture seen = cap;
+    std::vector<image> pixels = photos;
+    if (o.normalise_exposure) apply_exposure(seen, pixels, result.exposure_scale);
+    const loss_targets targets = make_loss_targets(pixels, masks, loss_floors(seen, result.exposure_scale));
+    result.uncertainty = texel_uncertainty(result.maps, seen, targets, *o.uncertainty);
+  }
   return result;
 }
 

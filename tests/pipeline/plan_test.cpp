@@ -1,0 +1,96 @@
+// pipeline/plan.hpp: after flash photographs, the most informative next photograph is one with the
+// light away from the camera, which starts to determine F0; the search is greedy (a photo is not
+// proposed twice) and every gain is the real drop of the posterior variance.
+#include <doctest/doctest.h>
+
+#include "../render/render_reference.hpp"
+#include "anisocap/pipeline/plan.hpp"
+#include "anisocap/render/configurations.hpp"
+
+using namespace anisocap;
+using namespace anisocap::testing;
+
+namespace {
+
+capture flash_capture(int count, int size, std::uint64_t seed) {
+  random_generator rng(seed);
+  capture cap;
+  for (int i = 0; i < count; ++i) {
+    capture_image im = independent_configuration(rng, size, size);
+    im.light = im.camera;
+    cap.images.push_back(im);
+  }
+  return cap;
+}
+
+}  // namespace
+
+TEST_CASE("plan_candidates: every distance, elevation and azimuth, flash and lamp, irradiance 1 at the centre") {
+  plan_options o;
+  const auto all = plan_candidates(o);
+  // 2 distances x (4 elevations x 8 azimuths + 1 overhead) x 2 kinds
+  CHECK(all.size() == 2 * (4 * 8 + 1) * 2);
+  for (const plan_candidate& c : all) {
+    const vec3f& l = c.config.light;
+    const double r2 = double(l[0]) * l[0] + double(l[1]) * l[1] + double(l[2]) * l[2];
+    CHECK(c.config.intensity[0] * (l[2] / std::sqrt(r2)) / (std::numbers::pi * r2) == doctest::Approx(1.0).epsilon(1e-5));
+    if (c.flash) CHECK(c.config.light == c.config.camera);
+    else CHECK(c.config.light[0] == doctest::Approx(-c.config.camera[0]).epsilon(1e-5).scale(1e-6));
+  }
+  o.flash = false;
+  CHECK(plan_candidates(o).size() == all.size() / 2);
+  o.lamp = false;
+  CHECK_THROWS_AS(o.validate(), std::invalid_argument);
+  o = {};
+  o.photos = 5;
+  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("--photos"), std::invalid_argument);
+}
+
+TEST_CASE("plan_photographs: after flash photographs, a lamp photograph (F0 then determined somewhere); greedy and honest gains") {
+  const int n = 16;
+  material_maps truth = random_maps(n, n, 4);
+  const capture cap = flash_capture(6, n, 2);
+  const loss_targets targets = make_loss_targets(render(truth, cap));
+  plan_options o;
+  o.photos = 2;
+  o.stride = 2;
+  const plan_result plan = plan_photographs(truth, cap, targets, 0.02, o);
+  REQUIRE(plan.photos.size() == 2);
+  const planned_photo& first = plan.photos[0];
+  CHECK_FALSE(first.candidate.flash);  // a flash cannot measure F0
+  CHECK(first.determined_before[fresnel_f0] == 0.0);
+  CHECK(first.determined_after[fresnel_f0] > 0.0);
+  CHECK(plan.photos[1].determined_after[fresnel_f0] >= first.determined_after[fresnel_f0]);
+  CHECK(first.reason.find(parameter_name(first.main_parameter)) != std::string::npos);
+  CHECK(first.gain > plan.photos[1].gain);  // the second photograph adds less to what the first told
+  CHECK(plan.photos[1].gain > 0);
+  CHECK_FALSE((plan.photos[1].candidate.config.camera == first.candidate.config.camera &&
+               plan.photos[1].candidate.flash == first.candidate.flash));
+
+  // The gain is the drop of the total normalised variance over the sampled texels, recomputed here
+  // with the proposed photograph's render added to the capture as an ordinary photograph.
+  uncertainty_options uo;
+  uo.noise = 0.02;
+  auto total = [&](const capture& c) {
+    const uncertainty_result u = texel_uncertainty(truth, c, make_loss_targets(render(truth, c)), uo);
+    double sum = 0;
+    for (int y = 1; y < n; y += 2)
+      for (int x = 1; x < n; x += 2)
+        for (int k = 0; k < parameter_count; ++k) {
+          const double r = u.sd.at(k, x, y) / uncertainty_prior_sd[std::size_t(k)];
+          sum += r * r;
+        }
+    return sum;
+  };
+  capture with_first = cap;
+  with_first.images.push_back(first.candidate.config);
+  const double before = total(cap), after = total(with_first);
+  CHECK((before - after) / before == doctest::Approx(first.gain).epsilon(1e-3));
+
+  // Flash photographs alone cannot do it.
+  o.lamp = false;
+  const plan_result flash_only = plan_photographs(truth, cap, targets, 0.02, o);
+  CHECK(flash_only.photos[0].candidate.flash);
+  CHECK(flash_only.photos[0].determined_after[fresnel_f0] == 0.0);
+  CHECK_THROWS_AS(plan_photographs(truth, cap, targets, 0.0, o), std::invalid_argument);
+}
