@@ -51,14 +51,7 @@ int main(int argc, char** argv) {
       const material_maps truth = generate_material(100 + index, size, size, po);
       random_generator rng(7 + index);
       ++index;
-      capture cap;
-      for (int i = 0; i < images; ++i) {
-        capture_image im = independent_configuration(rng, size, size);
-        im.light = im.camera;
-        im.light[0] += 0.08f;
-        im.light[1] += 0.03f;
-        cap.images.push_back(im);
-      }
+      const capture cap = flash_set(images, rng, size, size, {0.08f, 0.03f, 0.0f});
       const capture_result r = capture_material(cap, render(truth, cap), nets, capture_options{});
       const std::size_t n = truth.texel_count();
       auto with_f0 = [&](auto value) {

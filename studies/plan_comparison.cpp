@@ -57,13 +57,7 @@ int main(int argc, char** argv) {
       material_maps truth = generate_material(seed, size, size, po);
       canonicalise(truth);
       random_generator rng(seed);
-      capture flash;
-      for (int i = 0; i < start; ++i) {
-        capture_image im = independent_configuration(rng, size, size);
-        im.light = im.camera;
-        im.light[0] += 0.05f;
-        flash.images.push_back(im);
-      }
+      const capture flash = flash_set(start, rng, size, size, {0.05f, 0.0f, 0.0f});
       auto run = [&](const capture& cap) {
         std::vector<image> photos = render(truth, cap);
         add_sensor_noise(photos, noise, seed + cap.images.size());

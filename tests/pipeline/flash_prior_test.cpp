@@ -20,15 +20,7 @@ namespace {
 /// size away, the camera anywhere a configuration puts it.
 capture flash_capture(int count, int size, std::uint64_t seed) {
   random_generator rng(seed);
-  capture cap;
-  for (int i = 0; i < count; ++i) {
-    capture_image im = independent_configuration(rng, size, size);
-    im.light = im.camera;
-    im.light[0] += 0.08f;
-    im.light[1] += 0.03f;
-    cap.images.push_back(im);
-  }
-  return cap;
+  return flash_set(count, rng, size, size, {0.08f, 0.03f, 0.0f});
 }
 
 /// Camera and lamp 17 degrees above the sample's plane on opposite sides (where a fabric shows

@@ -14,13 +14,7 @@ namespace {
 
 capture flash_capture(int count, int size, std::uint64_t seed) {
   random_generator rng(seed);
-  capture cap;
-  for (int i = 0; i < count; ++i) {
-    capture_image im = independent_configuration(rng, size, size);
-    im.light = im.camera;
-    cap.images.push_back(im);
-  }
-  return cap;
+  return flash_set(count, rng, size, size);
 }
 
 }  // namespace

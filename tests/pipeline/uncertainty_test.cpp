@@ -43,14 +43,7 @@ std::array<double, parameter_count> finite_difference(const material_maps& maps,
 /// `count` flash photographs: the light beside the lens.
 capture flash_capture(int count, int size, std::uint64_t seed) {
   random_generator rng(seed);
-  capture cap;
-  for (int i = 0; i < count; ++i) {
-    capture_image im = independent_configuration(rng, size, size);
-    im.light = im.camera;
-    im.light[0] += 0.05f;
-    cap.images.push_back(im);
-  }
-  return cap;
+  return flash_set(count, rng, size, size, {0.05f, 0.0f, 0.0f});
 }
 
 }  // namespace

@@ -205,6 +205,22 @@ inline capture_image independent_configuration(random_generator& rng, int width,
                     along(light_point, light_direction, light_distance), light_point);
 }
 
+/// A phone's flash photograph: the camera of an independent configuration, the light at the camera
+/// moved by `offset` (scene units; zero: at the lens). The intensity is the independent
+/// configuration's.
+inline capture_image flash_configuration(random_generator& rng, int width, int height, const vec3f& offset = {}) {
+  capture_image im = independent_configuration(rng, width, height);
+  for (int i = 0; i < 3; ++i) im.light[std::size_t(i)] = im.camera[std::size_t(i)] + offset[std::size_t(i)];
+  return im;
+}
+
+/// `count` flash photographs (flash_configuration) drawn from `rng`, as a synthetic phone capture.
+inline capture flash_set(int count, random_generator& rng, int width, int height, const vec3f& offset = {}) {
+  capture c;
+  for (int i = 0; i < count; ++i) c.images.push_back(flash_configuration(rng, width, height, offset));
+  return c;
+}
+
 namespace configuration_detail {
 
 /// The generator of one kind of set: the seed is salted per set, so that a material and its capture
