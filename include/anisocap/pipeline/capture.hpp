@@ -432,7 +432,9 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   auto keep_prior_f0 = [&](material_maps& m) {
     if (!result.features.fresnel) std::copy(prior_f0.begin(), prior_f0.end(), m.plane(fresnel_f0));
   };
-  if (o.kernel.auto_tolerance > 0) {
+  if (o.kernel.auto_tolerance > 0 && estimated_f0) {
+    result.features = analyse_kernel(maps, cap, o.kernel.auto_tolerance).features;  // F0 as written already
+  } else if (o.kernel.auto_tolerance > 0) {
     material_maps analysed = maps;
     std::copy(prior_f0.begin(), prior_f0.end(), analysed.plane(fresnel_f0));
     result.features = analyse_kernel(analysed, cap, o.kernel.auto_tolerance).features;

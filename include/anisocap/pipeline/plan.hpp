@@ -153,16 +153,15 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
     texels[i].precision = texel_information(maps, cap, targets, texels[i].x, texels[i].y) * inv_noise2 + prior;
   std::vector<plan_candidate> candidates = plan_candidates(o);
   result.candidates = int(candidates.size());
-  // One image's information at a texel: texel_information of a capture of that one image, with no mask or floor.
+  // One image's information at a texel: texel_information of a capture of that one image, with no
+  // mask or floor (the targets' values do not enter it). The one-image captures are made once.
   loss_targets one;
   one.width = maps.width();
   one.height = maps.height();
   one.log_images.assign(1, image(1, 1, 3));
-  auto information = [&](const plan_candidate& c, const texel& t) {
-    capture single;
-    single.images.push_back(c.config);
-    return texel_information(maps, single, one, t.x, t.y);
-  };
+  std::vector<capture> singles(candidates.size());
+  for (std::size_t c = 0; c < candidates.size(); ++c) singles[c].images.push_back(candidates[c].config);
+  auto information = [&](std::size_t c, const texel& t) { return texel_information(maps, singles[c], one, t.x, t.y); };
   auto determined_share = [&](const std::vector<texel>& ts) {
     std::array<double, parameter_count> share{};
     for (const texel& t : ts) {
@@ -181,7 +180,7 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
     for (std::size_t c = 0; c < candidates.size(); ++c) {
       double total = 0;
       for (const texel& t : texels)
-        total += plan_detail::normalised_variance(t.precision + information(candidates[c], t) * inv_noise2, nullptr, uo.determined_ratio);
+        total += plan_detail::normalised_variance(t.precision + information(c, t) * inv_noise2, nullptr, uo.determined_ratio);
       after[c] = total;
     }
     const std::size_t best = std::size_t(std::min_element(after.begin(), after.end()) - after.begin());
@@ -189,7 +188,7 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
     p.candidate = candidates[best];
     p.gain = before > 0 ? (before - after[best]) / before : 0.0;
     p.determined_before = determined_share(texels);
-    for (texel& t : texels) t.precision += information(candidates[best], t) * inv_noise2;
+    for (texel& t : texels) t.precision += information(best, t) * inv_noise2;
     p.determined_after = determined_share(texels);
     int main = 0;
     for (int k = 1; k < parameter_count; ++k)
@@ -207,6 +206,7 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
     p.reason = text;
     result.photos.push_back(p);
     candidates.erase(candidates.begin() + std::ptrdiff_t(best));
+    singles.erase(singles.begin() + std::ptrdiff_t(best));
   }
   return result;
 }
