@@ -17,6 +17,7 @@ for arg in "$@"; do [[ "$arg" == "--web" ]] && web=1; done
 packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb-dev libtinyexr-dev
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
           libapriltag-dev   # AprilTag marker frames: anisocap markers, corner detection in rectify
+          libopenmpi-dev openmpi-bin   # MPI: one capture or training over several processes (mpirun), and its ctests
           python3-dev pybind11-dev python3-numpy python3-pytest)  # the Python package and its tests (examples/python/)
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if [[ " $* " == *" --clang "* ]]; then packages+=(clang libomp-dev); fi
