@@ -1,7 +1,7 @@
 #pragma once
 // The `anisocap` program's commands, one registration function each. Each is defined in the
 // translation unit of its group (capture_commands.cpp, training_commands.cpp, tool_commands.cpp,
-// calibration_commands.cpp), so that the groups compile in parallel.
+// calibration_commands.cpp, batch_commands.cpp), so that the groups compile in parallel.
 #include <CLI/CLI.hpp>
 
 namespace anisocap::commands {
@@ -18,5 +18,6 @@ void register_export(CLI::App& app);
 void register_rectify(CLI::App& app);
 void register_photograph(CLI::App& app);
 void register_markers(CLI::App& app);
+void register_batch(CLI::App& app);
 
 }  // namespace anisocap::commands

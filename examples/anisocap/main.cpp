@@ -1,6 +1,6 @@
 // The `anisocap` program: synthesize procedural captures, render map sets, capture materials from
 // photographs, evaluate, train the networks, a self-contained demo, the calibration of real
-// photographs (markers, photograph, rectify), the viewer page and exports. One file per command under
+// photographs (markers, photograph, rectify), the viewer page, exports and batches of captures. One file per command under
 // examples/anisocap/commands/, compiled in groups; `anisocap --help` and `anisocap <command> --help` list every option with its
 // default.
 #include <omp.h>
@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
   anisocap::commands::register_rectify(app);
   anisocap::commands::register_photograph(app);
   anisocap::commands::register_markers(app);
+  anisocap::commands::register_batch(app);
   anisocap::commands::add_threads_option(&app);  // before the command or after it
   for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; })) anisocap::commands::add_threads_option(command);
   try {
