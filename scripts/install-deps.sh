@@ -18,6 +18,7 @@ packages=(build-essential cmake pkg-config git libxsimd-dev libeigen3-dev libstb
           doctest-dev libbenchmark-dev nlohmann-json3-dev libcli11-dev
           libapriltag-dev   # AprilTag marker frames: anisocap markers, corner detection in rectify
           libopenmpi-dev openmpi-bin   # MPI: one capture or training over several processes (mpirun), and its ctests
+          parallel   # GNU parallel: batches of captures, one job per sample (docs/batch.md), and the ctest batch_parallel
           python3-dev pybind11-dev python3-numpy python3-pytest)  # the Python package and its tests (examples/python/)
 if [[ " $* " == *" --studies "* || " $* " == *" --bench "* ]]; then packages+=(python3-torch python3-matplotlib python3-numpy); fi
 if [[ " $* " == *" --clang "* ]]; then packages+=(clang libomp-dev); fi
