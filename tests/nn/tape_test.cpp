@@ -141,3 +141,23 @@ TEST_CASE("tape: a composed network's gradients match finite differences (shared
   auto x = test_nn::random_tensor<3>(g, 4, 3, 5);
   test_nn::check_layer(net, x, {&fc1.weight, &norm.weight, &norm.bias, &global.weight, &fc2.bias});
 }
+
+TEST_CASE("retained_tape: one tape across calls, cleared each time, its memory kept; a copy starts without one") {
+  ad::retained_tape kept;
+  CHECK(kept.capacity_bytes() == 0);
+  ad::tape& first = kept.fresh();
+  (void)first.make_tensor<4>(1, 32, 32);
+  first.record([] {});
+  const std::size_t capacity = kept.capacity_bytes();
+  CHECK(capacity > 0);
+  ad::tape& second = kept.fresh();
+  CHECK(&second == &first);
+  CHECK(second.size() == 0);                     // nothing recorded survives
+  CHECK(second.memory().high_water_bytes() > 0);  // the arena was used before
+  CHECK(kept.capacity_bytes() == capacity);
+  ad::retained_tape copy = kept;
+  CHECK(copy.capacity_bytes() == 0);
+  CHECK(&copy.fresh() != &first);
+  kept.release();
+  CHECK(kept.capacity_bytes() == 0);
+}

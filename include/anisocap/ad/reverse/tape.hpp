@@ -7,6 +7,7 @@
 /// `backward()` runs the closures in reverse order. Intermediate values and gradients live in the
 /// tape's arena, reset by `clear()`, so a fixed-size step allocates nothing after the first.
 #include <functional>  // kept for code that relied on it through this header
+#include <memory>
 #include <new>
 #include <type_traits>
 #include <utility>
@@ -73,6 +74,8 @@ class tape {
 
   /// Memory for a step's activations and gradients.
   anisocap::arena& memory() noexcept { return arena_; }
+  /// The arena, read-only (its sizes).
+  const anisocap::arena& memory() const noexcept { return arena_; }
 
   /// A new tensor in the tape's arena (uninitialised).
   template <int C, class T = float>
@@ -128,6 +131,34 @@ class tape {
   std::vector<step> steps_;
   anisocap::arena arena_;
   bool recording_ = true;
+};
+
+/// A tape an object keeps across calls (an inference tape, a per-window scratch), so that each
+/// call after the first reuses the arena's memory instead of asking the system for new pages and
+/// faulting them in. A copy starts with no tape of its own: copies never share one (two copies may
+/// run at once), and copying a network does not copy its scratch memory. The tape is made on first
+/// use; release() hands its memory back.
+class retained_tape {
+ public:
+  retained_tape() = default;
+  retained_tape(const retained_tape&) noexcept {}
+  retained_tape& operator=(const retained_tape&) noexcept { return *this; }
+  retained_tape(retained_tape&&) noexcept = default;
+  retained_tape& operator=(retained_tape&&) noexcept = default;
+
+  /// The kept tape, cleared (nothing recorded, arena reset, memory kept), recording on.
+  tape& fresh() {
+    if (!tape_) tape_ = std::make_unique<tape>();
+    tape_->clear();
+    return *tape_;
+  }
+  /// Bytes the kept tape holds from the system (0 before first use and after release()).
+  std::size_t capacity_bytes() const noexcept { return tape_ ? tape_->memory().capacity_bytes() : 0; }
+  /// Frees the kept tape and its memory.
+  void release() noexcept { tape_.reset(); }
+
+ private:
+  std::unique_ptr<tape> tape_;
 };
 
 }  // namespace anisocap::ad
