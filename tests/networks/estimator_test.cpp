@@ -62,6 +62,31 @@ TEST_CASE("estimator: any size and 1, 3 or 5 images give maps of the input's siz
   CHECK_THROWS_AS(net.estimate(mixed), std::invalid_argument);
 }
 
+TEST_CASE("estimator: estimate() keeps its tape between calls: same results, no new memory for a same-size call, copies do not share it") {
+  Net net(4);
+  const auto photos = random_photos(3, 70, 40, 21), other = random_photos(2, 33, 65, 22);
+  CHECK(net.scratch_bytes() == 0);
+  const material_maps first = net.estimate(photos);
+  CHECK(net.scratch_bytes() > 0);
+  const material_maps between = net.estimate(other);  // a different size in between
+  const material_maps again = net.estimate(photos);
+  CHECK(net.scratch_bytes() > 0);  // consolidated into one block of the largest call's size
+  const std::size_t grown = net.scratch_bytes();
+  (void)net.estimate(photos);
+  CHECK(net.scratch_bytes() == grown);  // steady state: the same call takes nothing new
+  for (int k = 0; k < parameter_count; ++k)
+    for (int y = 0; y < first.height(); ++y)
+      for (int x = 0; x < first.width(); ++x) REQUIRE(again.at(k, x, y) == first.at(k, x, y));
+  Net copy = net;
+  CHECK(copy.scratch_bytes() == 0);
+  const material_maps from_copy = copy.estimate(other);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int y = 0; y < other[0].height(); ++y)
+      for (int x = 0; x < other[0].width(); ++x) REQUIRE(from_copy.at(k, x, y) == between.at(k, x, y));
+  net.release_scratch();
+  CHECK(net.scratch_bytes() == 0);
+}
+
 TEST_CASE("estimator: the result does not depend on the order of the images (max-pool over images)") {
   Net net(4);
   auto photos = random_photos(4, 40, 33, 9);

@@ -285,7 +285,9 @@ class estimation_network {
       if (p.width() != W || p.height() != H)
         throw std::invalid_argument("estimation_network::estimate: the input images differ in size");
     const int Hp = padded_size(H), Wp = padded_size(W);
-    ad::tape t;
+    // The tape is kept across calls: every window of a sliding-window estimate after the first
+    // reuses its memory instead of faulting in fresh pages (release_scratch() frees it).
+    ad::tape& t = scratch_.fresh();
     ad::tape::no_grad_guard guard(t);
     auto x = t.make_variable<inputs, T>(int(photos.size()), Hp, Wp, false);
     for (std::size_t i = 0; i < photos.size(); ++i) padded_photo(photos[i], x.value, int(i));
@@ -293,6 +295,13 @@ class estimation_network {
     auto c = network_detail::crop(t, y, H, W);
     return network_space::network_to_maps(c.value, 0);
   }
+
+  /// Frees the memory estimate() keeps between calls (its inference tape: the activations of the
+  /// largest window it ran). A copy of the network does not share it; one network must not run
+  /// estimate() on two threads at once.
+  void release_scratch() noexcept { scratch_.release(); }
+  /// Bytes estimate() keeps between calls.
+  std::size_t scratch_bytes() const noexcept { return scratch_.capacity_bytes(); }
 
   /// The size forward() runs an n-texel side at: n rounded up to a multiple of 64.
   static int padded_size(int n) { return (n + size_multiple - 1) / size_multiple * size_multiple; }
@@ -306,6 +315,8 @@ class estimation_network {
   }
 
  private:
+  ad::retained_tape scratch_;  ///< estimate()'s inference tape, kept across calls
+
   /// photo_to_network, mirroring repeatedly when the padded size is more than twice the image's.
   static void padded_photo(const image& photo, tensor<inputs, T>& out, int b) {
     if (out.width() <= 2 * photo.width() && out.height() <= 2 * photo.height()) {

@@ -545,10 +545,13 @@ struct validation_result {
   parameter_errors errors;  ///< mean over the validation materials
 };
 
-/// The estimator's network-space maps for one sample (no gradients).
+/// The estimator's network-space maps for one sample (no gradients). The inference tape is kept
+/// per thread across calls (training and validation samples share one size), so that every call
+/// after the first reuses its memory instead of faulting in fresh pages.
 template <class Net>
 tensor<parameter_count> estimator_output(Net& net, const sample& s) {
-  ad::tape t;
+  static thread_local ad::retained_tape scratch;
+  ad::tape& t = scratch.fresh();
   ad::tape::no_grad_guard guard(t);
   const int H = s.truth.height(), W = s.truth.width();
   auto x = t.make_variable<Net::inputs>(int(s.photos.size()), H, W, false);
@@ -561,9 +564,11 @@ tensor<parameter_count> estimator_output(Net& net, const sample& s) {
 
 /// The auto-encoder's reconstruction of one sample (running batch-norm statistics, no gradients):
 /// D(E(m)) of the true maps, or of `input` (network space, the sample's size) when given.
+/// Its inference tape is kept per thread across calls, as estimator_output's.
 template <class Net>
 tensor<parameter_count> autoencoder_output(Net& net, const sample& s, const tensor<parameter_count>* input = nullptr) {
-  ad::tape t;
+  static thread_local ad::retained_tape scratch;
+  ad::tape& t = scratch.fresh();
   ad::tape::no_grad_guard guard(t);
   net.set_training(false);
   auto x = t.leaf(input ? *input : s.truth_net);
