@@ -59,10 +59,11 @@ inline void run_batch_command(const batch_settings& s, const CLI::App* parsed) {
     o.program_arguments = {"--threads", std::to_string(omp_get_max_threads())};
   o.stale_seconds = s.stale_seconds;
   o.log = [](const std::string& message) { std::fprintf(stderr, "batch: %s\n", message.c_str()); };
+  const std::vector<batch_record> records = check_batch_samples(m, selected);  // bad input: refused before any capture
   batch_stop_on_signals();
   std::fprintf(stderr, "batch: %zu of %zu sample%s from %s\n", selected.size(), m.samples.size(), m.samples.size() == 1 ? "" : "s",
                s.manifest.c_str());
-  const batch_summary summary = run_batch(m, selected, o, [](const batch_outcome& r, std::size_t k, std::size_t n) {
+  const batch_summary summary = run_batch(m, selected, records, o, [](const batch_outcome& r, std::size_t k, std::size_t n) {
     if (r.result == batch_result::captured)
       std::fprintf(stderr, "batch: [%zu/%zu] %s: captured in %.1f s%s (log %s)\n", k + 1, n, r.name.c_str(), r.seconds,
                    r.state == batch_state::interrupted ? ", resumed" : "", r.log.c_str());

@@ -131,7 +131,9 @@ inline bool valid_name(std::string_view name) {
 
 /// `p` resolved against `base` and normalised (the comparison of output folders).
 inline std::filesystem::path resolved(const std::filesystem::path& base, const std::filesystem::path& p) {
-  return (p.is_absolute() ? p : base / p).lexically_normal();
+  std::filesystem::path r = (p.is_absolute() ? p : base / p).lexically_normal();
+  if (r.filename().empty() && r.has_relative_path()) r = r.parent_path();  // "out/" is "out"
+  return r;
 }
 
 /// This host's name ("localhost" when it has none).
@@ -168,7 +170,8 @@ inline std::string read_text(const std::filesystem::path& p) {
   return s.str();
 }
 
-/// The last line of `log` that is not blank (what a failed capture said last), at most 300 characters.
+/// What a failed capture said last in `log`: its last line with "error:", else its last line that
+/// is not blank nor CLI11's "Run with --help" hint; at most 300 characters.
 inline std::string last_line(const std::filesystem::path& log) {
   std::ifstream in(log, std::ios::binary);
   if (!in) return {};
@@ -177,12 +180,15 @@ inline std::string last_line(const std::filesystem::path& log) {
   const std::streamoff from = std::max<std::streamoff>(0, size - 4096);
   in.seekg(from);
   std::string tail((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  std::string last;
+  std::string last, error;
   std::istringstream lines(tail);
   for (std::string line; std::getline(lines, line);) {
     if (const auto cr = line.find_last_of('\r'); cr != std::string::npos) line = line.substr(cr + 1);  // progress lines
-    if (line.find_first_not_of(" \t") != std::string::npos) last = line;
+    if (line.find_first_not_of(" \t") == std::string::npos || line.rfind("Run with --help", 0) == 0) continue;
+    last = line;
+    if (line.find("error:") != std::string::npos) error = line;
   }
+  if (!error.empty()) last = error;
   return last.size() > 300 ? last.substr(0, 300) + "..." : last;
 }
 
@@ -208,7 +214,7 @@ inline batch_manifest parse_batch_manifest(std::string_view text, const std::fil
   namespace fs = std::filesystem;
   batch_manifest m;
   m.file = file;
-  const fs::path base = file.parent_path();
+  const fs::path base = fs::absolute(file).parent_path();
   std::vector<fs::path> outs;
   int line_number = 0;
   std::size_t begin = 0;
@@ -795,6 +801,7 @@ inline batch_outcome run_batch_unit(const batch_manifest& m, std::size_t i, cons
   });
   out.seconds = std::chrono::duration<double>(clock::now() - start).count();
   out.exit_status = status;
+  const std::string last = batch_detail::last_line(f.log());  // what the capture said last, before the trailer
   char took[64];
   std::snprintf(took, sizeof took, "%.1f s", out.seconds);
   batch_detail::append(f.log(), "== batch: sample " + s.name + ": exit status " + std::to_string(status) + " after " + took);
@@ -807,7 +814,6 @@ inline batch_outcome run_batch_unit(const batch_manifest& m, std::size_t i, cons
   const int sig = batch_stop_requested();
   out.result = sig != 0 ? batch_result::stopped : batch_result::failed;
   batch_detail::write_marker(f, s.name, record, sig != 0 ? "stopped" : "failed", {{"seconds", out.seconds}, {"exit_status", status}});
-  const std::string last = batch_detail::last_line(f.log());
   out.message = (sig != 0 ? "stopped by signal " + std::to_string(sig) : status == 0 ? std::string("the capture wrote no report.json")
                                                                                       : "the capture failed (exit status " + std::to_string(status) + ")") +
                 (fs::exists(f.checkpoint(), ec) ? "; its check-point is kept and the next run resumes it" : "") + "; see " + f.log().string() +
@@ -815,14 +821,20 @@ inline batch_outcome run_batch_unit(const batch_manifest& m, std::size_t i, cons
   return out;
 }
 
-/// Runs the units `selected` of `m` one after another (run_batch_unit), after checking every one's
-/// input (check_batch_sample: bad input throws batch_input_error before any unit runs). Stops
-/// after the current unit when batch_stop_requested.
-inline batch_summary run_batch(const batch_manifest& m, const std::vector<std::size_t>& selected, const batch_options& o,
-                               const std::function<void(const batch_outcome&, std::size_t, std::size_t)>& done = {}) {
-  const auto start = std::chrono::steady_clock::now();
+/// The records of the samples `selected` (check_batch_sample on each): bad input throws
+/// batch_input_error before any unit runs.
+inline std::vector<batch_record> check_batch_samples(const batch_manifest& m, const std::vector<std::size_t>& selected) {
   std::vector<batch_record> records;
   for (std::size_t i : selected) records.push_back(check_batch_sample(m, i));
+  return records;
+}
+
+/// Runs the units `selected` of `m` one after another (run_batch_unit) with their `records`
+/// (check_batch_samples). Calls `done` after each unit with its outcome, its position and the
+/// count. Stops after the current unit when batch_stop_requested.
+inline batch_summary run_batch(const batch_manifest& m, const std::vector<std::size_t>& selected, const std::vector<batch_record>& records,
+                               const batch_options& o, const std::function<void(const batch_outcome&, std::size_t, std::size_t)>& done = {}) {
+  const auto start = std::chrono::steady_clock::now();
   batch_summary summary;
   for (std::size_t k = 0; k < selected.size(); ++k) {
     if (batch_stop_requested()) break;
@@ -832,6 +844,12 @@ inline batch_summary run_batch(const batch_manifest& m, const std::vector<std::s
   }
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
+}
+
+/// run_batch after checking every selected sample's input (check_batch_samples).
+inline batch_summary run_batch(const batch_manifest& m, const std::vector<std::size_t>& selected, const batch_options& o,
+                               const std::function<void(const batch_outcome&, std::size_t, std::size_t)>& done = {}) {
+  return run_batch(m, selected, check_batch_samples(m, selected), o, done);
 }
 
 }  // namespace anisocap
