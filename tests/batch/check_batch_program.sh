@@ -2,7 +2,7 @@
 # `anisocap batch` as a user runs it: bad input refused with one message naming the file and line
 # and nothing written; --list, --status and the selection of one sample; the Slurm job-array
 # script run as one array task (SLURM_ARRAY_TASK_ID set, no Slurm needed) capturing exactly its
-# sample, then skipping it; a failing sample's message and exit status.
+# sample, then skipping it; a failing sample's message and exit status; a batch stopped by SIGTERM.
 # Usage: check_batch_program.sh ANISOCAP SBATCH_SCRIPT
 set -euo pipefail
 program=$1
@@ -65,4 +65,19 @@ grep -q "a: captured again: options changed" fail.txt || { cat fail.txt; fail "a
 grep -q "b: FAILED: the capture failed (exit status" fail.txt || { cat fail.txt; fail "b fails"; }
 grep -q "see $work/out/b/batch.log: --lr: must be positive, got -1" fail.txt || { cat fail.txt; fail "b's failure quotes its log"; }
 grep -q "1 captured .* 1 failed" fail.txt || { cat fail.txt; fail "the summary counts the failure"; }
+
+# SIGTERM (Slurm's time limit, scancel): the batch stops its capture, keeps the check-point, releases
+# the lock and exits with 128 + 15; the next run resumes the sample.
+printf 'a photos/a out/a --stages refine --steps 100000 --refine-stop 0 --freeze 0 --no-uncertainty --no-view\n' >long.txt
+"$program" batch long.txt >term.txt 2>&1 &
+batch=$!
+for _ in $(seq 600); do grep -q "refine step" out/a/batch.log 2>/dev/null && break; sleep 0.05; done
+kill -TERM "$batch"
+status=0
+wait "$batch" || status=$?
+((status == 143)) || { cat term.txt; fail "SIGTERM: exit status 143, got $status"; }
+grep -q "a: stopped: stopped by signal 15; its check-point is kept" term.txt || { cat term.txt; fail "SIGTERM: the stop is reported"; }
+[[ ! -e out/a/batch.lock && -d out/a/.checkpoint ]] || fail "SIGTERM: the lock is released and the check-point kept"
+grep -q '"state": "stopped"' out/a/batch.json || fail "SIGTERM: the marker says stopped"
+"$program" batch long.txt --status | grep -Eq '^a +interrupted ' || fail "SIGTERM: the sample is interrupted"
 echo "check_batch_program: ok"

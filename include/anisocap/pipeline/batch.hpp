@@ -562,7 +562,7 @@ inline batch_state inspect_batch_unit(const batch_unit_files& f, const batch_rec
 }
 
 /// Runs `argv` (argv[0]: the program's path) as a child process with its standard output and
-/// error appended to `log`, and waits for it, calling `tick` about every 0.2 s meanwhile. The child
+/// error appended to `log`, and waits for it, calling `tick` about every 0.05 s meanwhile. The child
 /// is killed when this process dies (PR_SET_PDEATHSIG), so that a killed batch leaves no capture
 /// running; when this process is asked to stop (batch_stop_on_signals), the child gets SIGTERM.
 /// Returns the child's exit status, or 128 + the signal that ended it; -1 when it cannot start.
@@ -608,7 +608,7 @@ inline int run_logged_process(const std::vector<std::string>& argv, const std::f
       forwarded = true;
     }
     if (tick) tick();
-    timespec pause{0, 200'000'000};
+    timespec pause{0, 50'000'000};
     ::nanosleep(&pause, nullptr);
   }
 }
