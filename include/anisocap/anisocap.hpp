@@ -65,6 +65,7 @@
 #include "anisocap/training/prefetch.hpp"
 #include "anisocap/training/training.hpp"
 
+#include "anisocap/pipeline/batch.hpp"
 #include "anisocap/pipeline/capture.hpp"
 #include "anisocap/pipeline/capture_material.hpp"
 #include "anisocap/pipeline/encode.hpp"
