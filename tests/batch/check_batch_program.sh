@@ -68,16 +68,16 @@ grep -q "1 captured .* 1 failed" fail.txt || { cat fail.txt; fail "the summary c
 
 # SIGTERM (Slurm's time limit, scancel): the batch stops its capture, keeps the check-point, releases
 # the lock and exits with 128 + 15; the next run resumes the sample.
-printf 'a photos/a out/a --stages refine --steps 100000 --refine-stop 0 --freeze 0 --no-uncertainty --no-view\n' >long.txt
+printf 'long photos/a out/long --stages refine --steps 100000 --refine-stop 0 --freeze 0 --no-uncertainty --no-view\n' >long.txt
 "$program" batch long.txt >term.txt 2>&1 &
 batch=$!
-for _ in $(seq 600); do grep -q "refine step" out/a/batch.log 2>/dev/null && break; sleep 0.05; done
+for _ in $(seq 600); do grep -q "refine step" out/long/batch.log 2>/dev/null && break; sleep 0.05; done
 kill -TERM "$batch"
 status=0
 wait "$batch" || status=$?
 ((status == 143)) || { cat term.txt; fail "SIGTERM: exit status 143, got $status"; }
-grep -q "a: stopped: stopped by signal 15; its check-point is kept" term.txt || { cat term.txt; fail "SIGTERM: the stop is reported"; }
-[[ ! -e out/a/batch.lock && -d out/a/.checkpoint ]] || fail "SIGTERM: the lock is released and the check-point kept"
-grep -q '"state": "stopped"' out/a/batch.json || fail "SIGTERM: the marker says stopped"
-"$program" batch long.txt --status | grep -Eq '^a +interrupted ' || fail "SIGTERM: the sample is interrupted"
+grep -q "long: stopped: stopped by signal 15; its check-point is kept" term.txt || { cat term.txt; fail "SIGTERM: the stop is reported"; }
+[[ ! -e out/long/batch.lock && -d out/long/.checkpoint ]] || fail "SIGTERM: the lock is released and the check-point kept"
+grep -q '"state": "stopped"' out/long/batch.json || fail "SIGTERM: the marker says stopped"
+"$program" batch long.txt --status | grep -Eq '^long +interrupted ' || fail "SIGTERM: the sample is interrupted"
 echo "check_batch_program: ok"

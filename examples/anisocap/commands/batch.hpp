@@ -18,12 +18,12 @@ namespace anisocap::commands {
 
 /// What the batch command reads besides the manifest's samples.
 struct batch_settings {
-  std::filesystem::path manifest;
-  batch_selection selection;
+  std::filesystem::path manifest;  ///< the manifest file
+  batch_selection selection;       ///< --sample, --index, --count
   bool list = false;    ///< print the selected samples' names, one a line, and run nothing
   bool status = false;  ///< print each selected sample's state, and run nothing
-  double stale_seconds = 600;
-  std::filesystem::path summary;  ///< the summary as JSON, when given
+  double stale_seconds = 600;     ///< --stale-after (batch_options::stale_seconds)
+  std::filesystem::path summary;  ///< --summary: the summary as JSON, when given
 };
 
 /// This program's own path (each unit runs it as `anisocap capture`).

@@ -63,7 +63,7 @@ struct batch_sample {
 /// A parsed batch manifest: its samples in file order.
 struct batch_manifest {
   std::filesystem::path file;  ///< the manifest file (relative paths in it are resolved against its folder)
-  std::vector<batch_sample> samples;
+  std::vector<batch_sample> samples;  ///< in file order
 
   /// The index of the sample named `name`, or -1.
   int find(std::string_view name) const {
@@ -122,6 +122,7 @@ inline std::vector<std::string> split_fields(std::string_view line, const std::s
   return fields;
 }
 
+/// Whether `name` is a sample name: letters, digits, '.', '_' and '-', not first '.' or '-', at most 200 characters.
 inline bool valid_name(std::string_view name) {
   if (name.empty() || name.size() > 200 || name[0] == '.' || name[0] == '-') return false;
   for (char c : name)
@@ -163,6 +164,7 @@ inline long long process_start(long pid) {
   }
 }
 
+/// The bytes of file `p` ("" when it cannot be read).
 inline std::string read_text(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
   std::stringstream s;
@@ -198,6 +200,7 @@ inline std::atomic<int>& stop_signal() {
   return signal;
 }
 
+/// The handler batch_stop_on_signals installs: records the signal.
 inline void on_stop_signal(int s) { stop_signal().store(s); }
 
 }  // namespace batch_detail
@@ -378,7 +381,7 @@ inline batch_record check_batch_sample(const batch_manifest& m, std::size_t i) {
 
 /// The files of a unit inside its output folder.
 struct batch_unit_files {
-  std::filesystem::path out;
+  std::filesystem::path out;  ///< the sample's output folder
   std::filesystem::path marker() const { return out / "batch.json"; }   ///< the unit's state, written atomically; "done" last
   std::filesystem::path log() const { return out / "batch.log"; }       ///< every attempt's capture output, appended
   std::filesystem::path lock() const { return out / "batch.lock"; }     ///< held while a process runs the unit
@@ -409,9 +412,9 @@ inline const char* batch_state_name(batch_state s) {
 
 /// The holder a lock file names: "host=H pid=P start=S" (S: the process's start time, process_start).
 struct batch_lock_holder {
-  std::string host;
-  long pid = 0;
-  long long start = -1;
+  std::string host;      ///< the holder's host name
+  long pid = 0;          ///< the holder's process id on that host
+  long long start = -1;  ///< the holder's start time (process_start; -1: unknown)
   double age_seconds = 0;  ///< since the holder last refreshed the lock (its modification time)
 
   /// "host H pid P".
@@ -649,18 +652,18 @@ inline const char* batch_result_name(batch_result r) {
 
 /// One unit's outcome.
 struct batch_outcome {
-  std::string name;
-  batch_result result = batch_result::skipped;
+  std::string name;                            ///< the sample's name
+  batch_result result = batch_result::skipped;  ///< how it ended
   batch_state state = batch_state::fresh;  ///< what it was before it ran
   double seconds = 0;                      ///< the capture's wall time (0 when it did not run)
   int exit_status = 0;                     ///< the capture's exit status (failed, stopped)
   std::string message;                     ///< one sentence: why skipped, busy or failed
-  std::filesystem::path log;
+  std::filesystem::path log;               ///< the unit's log (batch_unit_files::log)
 };
 
 /// A batch's outcomes, in the order the units ran.
 struct batch_summary {
-  std::vector<batch_outcome> outcomes;
+  std::vector<batch_outcome> outcomes;  ///< one per unit that was reached
   double seconds = 0;  ///< the whole batch's wall time
   /// The number of units with result `r`.
   int count(batch_result r) const {
@@ -714,6 +717,7 @@ inline std::vector<std::string> batch_capture_arguments(const batch_sample& s, c
 
 namespace batch_detail {
 
+/// Writes the unit's batch.json atomically: `state`, the record, this host and pid, and `extra`'s fields.
 inline void write_marker(const batch_unit_files& f, const std::string& name, const batch_record& record, const std::string& state,
                          const nlohmann::json& extra = nlohmann::json::object()) {
   nlohmann::json j = extra;
@@ -725,6 +729,7 @@ inline void write_marker(const batch_unit_files& f, const std::string& name, con
   write_file_atomically(f.marker(), j.dump(2) + "\n");
 }
 
+/// Appends one line to the unit's log.
 inline void append(const std::filesystem::path& log, const std::string& line) {
   std::ofstream out(log, std::ios::app | std::ios::binary);
   out << line << "\n";
