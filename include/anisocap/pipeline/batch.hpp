@@ -536,13 +536,14 @@ class batch_lock {
 inline batch_state inspect_batch_outputs(const batch_unit_files& f, const batch_record& record, std::string* reason = nullptr) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (!fs::exists(f.marker(), ec)) return fs::exists(f.checkpoint(), ec) ? batch_state::changed : batch_state::fresh;
+  // No marker: nothing the batch made. A check-point there (a capture run by hand) cannot be
+  // matched to this record, so the capture starts over, which clears it.
+  if (!fs::exists(f.marker(), ec)) return batch_state::fresh;
   nlohmann::json marker;
   try {
     marker = nlohmann::json::parse(batch_detail::read_text(f.marker()));
   } catch (const std::exception&) {
-    if (reason) *reason = f.marker().string() + " does not read";
-    return batch_state::changed;
+    return batch_state::fresh;  // it is written atomically: only someone else's file reads so
   }
   const std::string differs = record.differences(marker.value("record", nlohmann::json::object()));
   if (!differs.empty()) {
