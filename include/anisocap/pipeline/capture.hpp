@@ -149,6 +149,15 @@ struct capture_options {
   /// Check-point folder: each stage check-points into a subfolder; with `resume` completed stages
   /// are read back and the fine-tune continues from its last saved step.
   checkpoint_options checkpoint{};
+  /// The processes the capture runs on (core/distributed.hpp; null: this one alone). Every rank
+  /// calls capture_material with the same inputs and options and gets the same result. The
+  /// estimate's windows and the fine-tune's steps are shared between them (the estimate gives the
+  /// same bits on any rank count; for the fine-tune set finetune_options::shard_cells, e.g. to
+  /// finetune_options::distributed_shard_cells, so that any rank count, one included, gives the
+  /// same bits); the refine runs whole on every rank. Only rank 0 writes check-points. Resuming
+  /// needs the check-point folder on a file system every rank reads. Not owned: it must outlive
+  /// the call.
+  const communicator* ranks = nullptr;
   /// Progress of every stage (estimate: windows; fine-tune and refine every `progress_every` of theirs).
   std::function<void(const std::string& stage, const optimisation_progress&)> progress;
   /// The choices capture_material makes (a second run tried or not, and why; which fit was kept),
@@ -324,6 +333,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("finetune.min_improvement", ft.min_improvement).add("finetune.patience", ft.patience).add("finetune.residual", ft.residual ? 1.0 : 0.0);
   f.add("finetune.guard.factor", ft.guard.factor).add("finetune.guard.every", ft.guard.every);
   f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
+  if (ft.shard_cells > 0) f.add("finetune.shard_cells", ft.shard_cells);  // absent: the whole window (check-points made before shards)
   return f;
 }
 
@@ -403,22 +413,26 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
     return o.progress ? std::function<void(const optimisation_progress&)>([&o, stage](const optimisation_progress& p) { o.progress(stage, p); })
                       : nullptr;
   };
+  const communicator& comm = o.ranks ? *o.ranks : serial_communicator();
   const bool checkpoints = !o.checkpoint.folder.empty();
-  if (checkpoints)
+  if (checkpoints && comm.root())
     capture_detail::prepare_checkpoint_folder(o.checkpoint.folder, o.checkpoint.resume,
                                               capture_fingerprint(given_cap, given_photos, estimator, autoencoder, o, start));
   const fs::path estimate_folder = o.checkpoint.folder / "estimate";
+  // Whether the estimate is read back: rank 0 decides before it may write one.
+  int resume_estimate = checkpoints && o.checkpoint.resume && comm.root() && fs::exists(estimate_folder / "diffuse.exr") ? 1 : 0;
+  comm.broadcast(std::span<int>(&resume_estimate, 1));
 
   // 1. Estimate (8.1), or the first guess.
   const auto t0 = clock::now();
   stage_report first{o.stages.estimate ? "estimate" : "first_guess", o.stages.estimate};
   material_maps maps;
-  if (checkpoints && o.checkpoint.resume && fs::exists(estimate_folder / "diffuse.exr")) {
+  if (resume_estimate) {
     maps = read_maps(estimate_folder);
     first.resumed = true;
   } else if (o.stages.estimate) {
-    if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, reporter("estimate"));
-    if (checkpoints) write_maps(maps, estimate_folder, false);
+    if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, reporter("estimate"), comm);
+    if (checkpoints && comm.root()) write_maps(maps, estimate_folder, false);
   } else {
     maps = start ? *start : initial_guess(cap, photos, {}, masks);
     first.ran = !start;
@@ -465,7 +479,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
         checkpoint_options co = o.checkpoint;
         if (checkpoints) co.folder /= "finetune";
         finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co,
-                                      residual ? &*residual : nullptr);
+                                      residual ? &*residual : nullptr, comm);
         maps = std::move(fr.maps);
         keep_prior_f0(maps);
         result.after_finetune = maps;

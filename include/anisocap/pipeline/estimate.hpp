@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/distributed.hpp"
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/progress.hpp"
@@ -72,24 +73,44 @@ inline float window_weight(int i, int n, float floor = 0.05f) {
 /// weights; the normal's (x, y) too, renormalised into the unit disc; the rotation alpha, which is
 /// pi-periodic, is averaged as the doubled angle (cos 2 alpha, sin 2 alpha) weighted by the lobe
 /// anisotropy |sx - sy| / max(sx, sy), so windows that cannot see it do not decide it.
+/// With `comm` of N ranks the windows are dealt out in rounds of N (window i to rank i mod N), each
+/// round's estimates gathered on every rank and blended in window order: every rank returns the
+/// single process's maps, bit for bit.
 inline material_maps estimate_by_windows(const std::vector<image>& photos, int window, int stride,
                                          const std::function<material_maps(const std::vector<image>&)>& estimate_window,
-                                         const std::function<void(int, int)>& progress = {}) {
+                                         const std::function<void(int, int)>& progress = {},
+                                         const communicator& comm = serial_communicator()) {
   if (photos.empty()) throw std::invalid_argument("estimate_by_windows: no photographs");
   const int W = photos[0].width(), H = photos[0].height();
   const auto xs = window_starts(W, window, stride), ys = window_starts(H, window, stride);
   std::vector<double> sum(std::size_t(parameter_count) * W * H, 0.0), weight(std::size_t(W) * H, 0.0);
   std::vector<double> rot_c(std::size_t(W) * H, 0.0), rot_s(std::size_t(W) * H, 0.0);
   const int total = int(xs.size() * ys.size());
+  const int ranks = comm.size();
   int done = 0;
-  for (int y0 : ys)
-    for (int x0 : xs) {
+  material_maps m(window, window);
+  const std::size_t floats = m.plane_stride() * parameter_count;
+  std::vector<float> round;
+  for (int base = 0; base < total; base += ranks) {
+    // This round's windows: rank r estimates window base + r, then all are gathered.
+    const int mine = base + comm.rank();
+    std::vector<float> own;
+    if (mine < total) {
+      const int y0 = ys[std::size_t(mine) / xs.size()], x0 = xs[std::size_t(mine) % xs.size()];
       std::vector<image> crops;
       crops.reserve(photos.size());
       for (const auto& p : photos) crops.push_back(crop_mirrored(p, x0, y0, window, window));
-      const material_maps m = estimate_window(crops);
-      if (m.width() != window || m.height() != window)
+      const material_maps e = estimate_window(crops);
+      if (e.width() != window || e.height() != window)
         throw std::runtime_error("estimate_by_windows: the window estimate has the wrong size");
+      own.assign(e.data(), e.data() + floats);
+    }
+    std::vector<std::size_t> counts;
+    for (int r = 0; r < ranks; ++r) counts.push_back(base + r < total ? floats : 0);
+    comm.all_gather<float>(own, round, counts);
+    for (int index = base; index < std::min(base + ranks, total); ++index) {
+      const int y0 = ys[std::size_t(index) / xs.size()], x0 = xs[std::size_t(index) % xs.size()];
+      std::copy_n(round.data() + std::size_t(index - base) * floats, floats, m.data());
       for (int y = 0; y < std::min(window, H - y0); ++y)
         for (int x = 0; x < std::min(window, W - x0); ++x) {
           const double wgt = double(window_weight(x, window)) * window_weight(y, window);
@@ -105,6 +126,7 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
         }
       if (progress) progress(++done, total);
     }
+  }
   material_maps out(W, H);
   for (std::size_t i = 0; i < std::size_t(W) * H; ++i) {
     for (int k = 0; k < parameter_count; ++k)
@@ -137,16 +159,19 @@ struct estimate_options {
 
 /// The estimate of the map set from the photographs (docs/method.md section 8.1): `estimator`
 /// (anything with `material_maps estimate(const std::vector<image>&)`) over sliding windows,
-/// blended. `progress`, when set, hears after every window (step = windows done).
+/// blended. `progress`, when set, hears after every window (step = windows done). `comm`: the ranks
+/// that share the windows (estimate_by_windows); every rank returns the same maps.
 template <class Estimator>
 material_maps estimate(const std::vector<image>& photos, Estimator& estimator, const estimate_options& options = {},
-                       const std::function<void(const optimisation_progress&)>& progress = {}) {
+                       const std::function<void(const optimisation_progress&)>& progress = {},
+                       const communicator& comm = serial_communicator()) {
   const auto start = std::chrono::steady_clock::now();
   return estimate_by_windows(photos, options.window, options.stride,
                              [&](const std::vector<image>& crops) { return estimator.estimate(crops); },
                              [&](int done, int total) {
                                if (progress) progress(optimisation_progress::at(done, total, 0.0, seconds_since(start)));
-                             });
+                             },
+                             comm);
 }
 
 /// A first guess from the photographs alone, where no estimation network runs: the diffuse albedo

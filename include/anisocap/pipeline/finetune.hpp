@@ -15,6 +15,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "anisocap/core/distributed.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/adam.hpp"
@@ -72,6 +73,19 @@ struct finetune_options {
   int patience = 200;
   finetune_guard_options guard{};
   finetune_crop_options crop{};
+  /// Shards: when > 0, each step's window (the whole tile, or the crop) is cut into blocks of this
+  /// many latent cells per side, row by row; each block is decoded with its one-cell margin (as a
+  /// crop is, so its maps equal the whole decode's), its loss and gradient computed on their own,
+  /// and the blocks' gradients are added in ordered_sum's fixed tree (core/distributed.hpp). The
+  /// blocks are spread over the ranks of the communicator finetune is given, so a step's work is
+  /// shared, and the sum's bits depend on this number but never on the rank count: N ranks give
+  /// the single process's decoder. 0: one decode of the whole window per step (one process only;
+  /// more ranks take `distributed_shard_cells`). Each block costs its margin again: about
+  /// ((s + 2) / s)^2 of the whole decode for blocks of s cells.
+  int shard_cells = 0;
+  /// The shards finetune takes when it runs on more than one rank and `shard_cells` is 0: 16 cells
+  /// (512 texels) a side, a margin of about 27% more decoding.
+  static constexpr int distributed_shard_cells = 16;
   /// Residual start (docs/method.md section 8.3): fine-tune D(z) + r instead of D(z), where r, fixed,
   /// takes the decoder's first maps to the estimate (decoder_residual). The stage then starts at the
   /// estimate itself rather than at its reconstruction through the auto-encoder, and the decoder's
@@ -107,8 +121,8 @@ struct finetune_options {
   void validate() const {
     if (steps < 0) throw std::invalid_argument("fine-tune steps must not be negative");
     if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the fine-tune learning rate must be positive and finite");
-    if (warmup < 0 || half_life < 0 || crop.cells < 0)
-      throw std::invalid_argument("fine-tune warm-up, half-life and crop must not be negative");
+    if (warmup < 0 || half_life < 0 || crop.cells < 0 || shard_cells < 0)
+      throw std::invalid_argument("fine-tune warm-up, half-life, crop and shards must not be negative");
     if (!(min_improvement >= 0 && min_improvement < 1)) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
     if (!(guard.factor >= 0) || !std::isfinite(guard.factor) || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
       throw std::invalid_argument("the fine-tune guard must be 0 (off) or above 1, with its snapshots at least 1 step apart");
@@ -156,17 +170,13 @@ struct scratch {
   material_maps gradient;
 };
 
-/// One fine-tune pass on a crop: decodes the window's latent cells plus a one-cell margin inside
-/// the grid (with 4x4 stride-2 transposed convolutions an output texel depends on the latent cells
-/// within one cell of its own, so the window's maps equal the whole decode's), evaluates the image
-/// loss on the window's texels inside the W x H material, puts its gradient, weighted by the
-/// window's share of a whole k_y x k_x crop, on the decoder's parameters (accumulating) and returns
-/// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
-/// gradients are (W H / 32^2) times the whole tile's.
+/// crop_step with the gradient weighted by the window's texel count over `area` (texels) instead
+/// of over a whole crop's: summed over windows that tile a region of `area` texels, the gradient is
+/// that of the region's mean loss.
 template <brdf_features F, class P>
-double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
-                 const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
-                 const render_options& render, scratch& scratch, const tensor<parameter_count, float>* residual = nullptr) {
+double window_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
+                   const latent_window& win, double area, int width, int height, const capture& cap, const loss_targets& targets,
+                   const render_options& render, scratch& scratch, const tensor<parameter_count, float>* residual = nullptr) {
   constexpr int M = auto_encoder<P>::size_multiple;
   const int cells_y = z.height(), cells_x = z.width();
   const int mr = win.r0 > 0 ? 1 : 0, mc = win.c0 > 0 ? 1 : 0;
@@ -182,11 +192,42 @@ double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_en
   if (scratch.gradient.width() != w || scratch.gradient.height() != h) scratch.gradient = material_maps(w, h);
   const double loss = loss_and_gradient<F>(m, cap, scratch.targets, &scratch.gradient, tile_placement{width, height, x0, y0}, render);
   auto g_view = y.grad.tile(mr * M, mc * M, h, w);
-  network_space::add_network_gradient(u_view, 0, scratch.gradient, double(h) * w / (double(k_y) * k_x * M * M), g_view);
+  network_space::add_network_gradient(u_view, 0, scratch.gradient, double(h) * w / area, g_view);
   t.backward();
   return loss;
 }
 
+
+/// One fine-tune pass on a crop: decodes the window's latent cells plus a one-cell margin inside
+/// the grid (with 4x4 stride-2 transposed convolutions an output texel depends on the latent cells
+/// within one cell of its own, so the window's maps equal the whole decode's), evaluates the image
+/// loss on the window's texels inside the W x H material, puts its gradient, weighted by the
+/// window's share of a whole k_y x k_x crop, on the decoder's parameters (accumulating) and returns
+/// the window's loss (the mean over its texels). Summed over every start of clipped_window, the
+/// gradients are (W H / 32^2) times the whole tile's.
+template <brdf_features F, class P>
+double crop_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z,
+                 const latent_window& win, int k_y, int k_x, int width, int height, const capture& cap, const loss_targets& targets,
+                 const render_options& render, scratch& scratch, const tensor<parameter_count, float>* residual = nullptr) {
+  constexpr int M = auto_encoder<P>::size_multiple;
+  return window_step<F>(t, autoencoder, z, win, double(k_y) * k_x * M * M, width, height, cap, targets, render, scratch, residual);
+}
+
+/// The blocks of `shard` x `shard` latent cells that cover `win`, row by row (the last of each
+/// row and column smaller where the window is not a multiple): finetune_options::shard_cells.
+inline std::vector<latent_window> shards_of(const latent_window& win, int shard) {
+  if (shard < 1) throw std::invalid_argument("shards_of: the shard size must be at least 1 cell");
+  std::vector<latent_window> shards;
+  for (int r = win.r0; r < win.r1; r += shard)
+    for (int c = win.c0; c < win.c1; c += shard) shards.push_back({r, std::min(r + shard, win.r1), c, std::min(c + shard, win.c1)});
+  return shards;
+}
+
+/// The number of texels of `win` inside the width x height material.
+inline double texels_in(const latent_window& win, int cell, int width, int height) {
+  const int h = std::min(win.r1 * cell, height) - win.r0 * cell, w = std::min(win.c1 * cell, width) - win.c0 * cell;
+  return h > 0 && w > 0 ? double(h) * w : 0.0;
+}
 }  // namespace finetune_crops
 
 /// The divergence guard's state (finetune_guard_options): the lowest loss so far, a snapshot of
@@ -334,12 +375,15 @@ int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoen
 /// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
 /// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
 /// `residual` (network space, width x height; null for none) is the fixed shift of the residual
-/// start (finetune_options::residual): the stage then fits D(z) + residual.
+/// start (finetune_options::residual): the stage then fits D(z) + residual. `comm`: the ranks that
+/// share the work of each step (finetune_options::shard_cells); every rank calls finetune with the
+/// same arguments, ends with the same decoder and result, and only rank 0 writes check-points.
 template <class P>
 finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder<P>::latent_channels, float>& z, int width,
                          int height, const capture& cap, const loss_targets& targets, brdf_features features,
                          const render_options& render, double start_loss, const finetune_options& o,
-                         const checkpoint_options& checkpoint = {}, const tensor<parameter_count, float>* residual = nullptr) {
+                         const checkpoint_options& checkpoint = {}, const tensor<parameter_count, float>* residual = nullptr,
+                         const communicator& comm = serial_communicator()) {
   namespace fs = std::filesystem;
   const auto start = std::chrono::steady_clock::now();
   o.validate();
@@ -373,9 +417,56 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
   const int crop_y = o.crop.cells > 0 && o.crop.cells < cells_y ? o.crop.cells : cells_y;
   const int crop_x = o.crop.cells > 0 && o.crop.cells < cells_x ? o.crop.cells : cells_x;
   const bool cropping = crop_y < cells_y || crop_x < cells_x;
+  finetune_crops::scratch scratch;
+  // Shards: the step's window cut into fixed blocks, spread over the ranks, their gradients added in
+  // a fixed tree (ordered_sum), so that any rank count gives the same bits.
+  const int shard_cells = o.shard_cells > 0 ? o.shard_cells : comm.distributed() ? finetune_options::distributed_shard_cells : 0;
+  const bool sharding = shard_cells > 0;
+  std::vector<nn::parameter*> trained;
+  autoencoder.for_each_decoder_parameter([&](nn::parameter& p) {
+    if (p.trainable()) trained.push_back(&p);
+  });
+  std::size_t gradient_size = 0;
+  for (const nn::parameter* p : trained) gradient_size += p->size();
+  std::vector<float> shard_gradients, gradient_sum(sharding ? gradient_size : 0);
+  std::vector<double> shard_losses;
+  double sum_of_losses = 0;
+  // One step on the shards of `win` (crop weights over k_y x k_x cells, or the whole tile's mean):
+  // leaves the summed gradient in gradient_sum and returns the window's loss.
+  auto sharded_step = [&](const finetune_crops::latent_window& win, bool whole, int k_y, int k_x) {
+    constexpr int M = auto_encoder<P>::size_multiple;
+    const std::vector<finetune_crops::latent_window> shards = finetune_crops::shards_of(win, shard_cells);
+    const int parts = int(shards.size());
+    const auto [first_shard, last_shard] = part_range(parts, comm.size(), comm.rank());
+    const double window_area = finetune_crops::texels_in(win, M, W, H);
+    const double area = whole ? window_area : double(k_y) * k_x * M * M;
+    shard_gradients.resize(std::size_t(last_shard - first_shard) * gradient_size);
+    shard_losses.resize(std::size_t(last_shard - first_shard));
+    for (int k = first_shard; k < last_shard; ++k) {
+      t.clear();
+      adam.zero_grad();
+      const auto& shard = shards[std::size_t(k)];
+      const double shard_loss = with_features(features, [&]<brdf_features F>() {
+        return finetune_crops::window_step<F>(t, autoencoder, z, shard, area, W, H, cap, targets, render, scratch, residual);
+      });
+      shard_losses[std::size_t(k - first_shard)] = shard_loss * (finetune_crops::texels_in(shard, M, W, H) / window_area);
+      float* out = shard_gradients.data() + std::size_t(k - first_shard) * gradient_size;
+      for (const nn::parameter* p : trained) out = std::copy(p->grad.begin(), p->grad.end(), out);
+    }
+    adam.zero_grad();
+    ordered_sum<float>(comm, parts, gradient_size, shard_gradients, gradient_sum);
+    ordered_sum<double>(comm, parts, 1, shard_losses, std::span<double>(&sum_of_losses, 1));
+    return sum_of_losses;
+  };
+  auto apply_gradient_sum = [&]() {
+    const float* in = gradient_sum.data();
+    for (nn::parameter* p : trained) {
+      std::copy(in, in + p->size(), p->grad.begin());
+      in += p->size();
+    }
+  };
   nn::early_stopping stopper(o.min_improvement, o.patience, cropping);  // crop losses are noisy: window means
   stopper.restore(loop.stopping);
-  finetune_crops::scratch scratch;
   // The guard checks the whole tile's loss every step; with crops it checks the mean loss of every
   // `guard.every` steps instead (a whole-tile decode would cost as much as the crops).
   const bool guarding = o.guard.factor > 0;
@@ -389,7 +480,29 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     t.clear();
     double loss = 0;
     bool restarted = false;
-    if (!cropping) {
+    if (sharding) {
+      const finetune_crops::latent_window win = cropping ? finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step)
+                                                         : finetune_crops::latent_window{0, cells_y, 0, cells_x};
+      loss = sharded_step(win, !cropping, crop_y, crop_x);
+      if (o.observer) {  // weights not yet updated
+        std::optional<material_maps> whole;
+        o.observer(step, loss, [&]() {
+          if (!whole) whole = decode(autoencoder, z, W, H, residual);
+          return *whole;
+        });
+      }
+      if (guarding && !cropping) {
+        restarted = guard.restarts_after(adam, loss, step % o.guard.every == 0);
+      } else if (guarding) {
+        window_sum += loss;
+        if (++window_steps == o.guard.every) {
+          restarted = guard.restarts_after(adam, window_sum / window_steps, true);
+          window_sum = 0;
+          window_steps = 0;
+        }
+      }
+      if (!restarted) apply_gradient_sum();
+    } else if (!cropping) {
       auto y = autoencoder.decode(t, t.leaf(z));
       const auto u_view = residual ? network_space::shifted(y.value.tile(0, 0, H, W), *residual) : y.value.tile(0, 0, H, W);
       const material_maps m = network_space::network_to_maps(u_view, 0);
@@ -427,7 +540,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       o.progress(optimisation_progress::at(step + 1, o.steps, loss, seconds_since(start), first));
     const bool stops = stopper.stop_after(step, loss);
     const bool killed = o.stop_after >= 0 && step + 1 >= o.stop_after && !stops && step + 1 < o.steps;
-    if (checkpoints && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
+    if (checkpoints && comm.root() && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
       loop.stopping = stopper.current();
       finetune_detail::save_checkpoint(checkpoint.folder, autoencoder, adam, step + 1, guard, loop);
       last_checkpoint = std::chrono::steady_clock::now();
