@@ -9,6 +9,7 @@
 #include "anisocap/export/viewer.hpp"
 #include "anisocap/pipeline/progress_line.hpp"
 #include "common.hpp"
+#include "ranks.hpp"
 
 namespace anisocap::commands {
 
@@ -167,6 +168,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
   report["clipped_excluded"] = s.photos.exclude_clipped;
   report["photos"] = in.photo_report;
   report["threads"] = omp_get_max_threads();
+  if (o.ranks && o.ranks->distributed()) report["ranks"] = o.ranks->size();
   report["stages"] = nlohmann::json::array();
   for (const auto& st : result.stages)
     report["stages"].push_back({{"name", st.name}, {"ran", st.ran}, {"resumed", st.resumed}, {"steps", st.steps},
@@ -217,7 +219,18 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const auto start = std::chrono::steady_clock::now();
   capture_options& o = s.options;
   o.validate();  // impossible options are refused before any work
+  const communicator& ranks = program_ranks();
+  o.ranks = &ranks;
+  if (mpi_job() && o.finetune.shard_cells == 0) o.finetune.shard_cells = finetune_options::distributed_shard_cells;
   const capture_command_inputs in = read_capture_command_inputs(s);
+  if (!ranks.root()) {  // the same capture, sharing the fine-tune's steps; rank 0 writes every output
+    std::string stages_text;
+    const networks nets = choose_networks(s, o, parsed, stages_text);
+    o.checkpoint = {s.out / ".checkpoint", s.resume};
+    o.uncertainty.reset();  // rank 0's alone is written
+    capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
+    return {};
+  }
   // Outputs stay inside OUT and never replace an input; checked before any work.
   std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
   outputs.insert(outputs.end(), renders.begin(), renders.end());
@@ -238,6 +251,9 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   o.log = print_capture_choice;
   std::fprintf(stderr, "capture: %zu images of %dx%d from %s, stages %s, %d threads\n", in.photos.size(), in.photos[0].width(),
                in.photos[0].height(), s.capture_file.c_str(), stages_text.c_str(), omp_get_max_threads());
+  if (ranks.distributed())
+    std::fprintf(stderr, "capture: %d processes (MPI ranks), the fine-tune's steps in shards of %d latent cells\n", ranks.size(),
+                 o.finetune.shard_cells);
   const capture_result result = capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
   progress.finish();
   if (o.kernel.auto_tolerance > 0)
@@ -324,7 +340,7 @@ inline void add_capture_command(CLI::App& app) {
   c->add_flag("!--no-view", s->view, "do not write the viewer page material.html beside the maps");
   c->add_flag_callback("--no-uncertainty", [s] { s->options.uncertainty.reset(); },
                        "do not compute the per-texel standard deviations (uncertainty/, report.json's uncertainty)");
-  c->callback([s, c] { run_capture_command(*s, c); });
+  c->callback([s, c] { run_on_ranks([&] { run_capture_command(*s, c); }); });
 }
 
 }  // namespace anisocap::commands

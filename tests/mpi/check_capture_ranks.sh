@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# One capture on 1, 2 and 4 MPI ranks (mpirun --oversubscribe on one machine) gives the same maps,
+# bit for bit, as the program run once without mpirun with the same shards (--finetune-shards);
+# a failing run ends every rank with one message, a non-zero exit and no output.
+# Usage: check_capture_ranks.sh PROGRAM MPIEXEC
+set -euo pipefail
+program=$(realpath "$1")
+mpiexec=$2
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+cd "$work"
+# The same threads per rank in every run: the convolutions split their weight-gradient sums by
+# thread, so the thread count (unlike the rank count) changes the bits (docs/scaling.md).
+export OMP_NUM_THREADS=1
+mpirun() { "$mpiexec" --allow-run-as-root --oversubscribe "$@"; }
+
+"$program" synthesize -o syn --width 1024 --height 1024 --images 5 --seed 3 > /dev/null 2>&1
+# The estimate's 16 windows without overlap, three fine-tune steps in shards of 8 cells (16 shards
+# of the 32 x 32 cells), two refine steps, no second runs or uncertainty: the windows dealt out and
+# the fine-tune's sum over ranks are what is tested.
+args=(capture syn/capture.json --stages all --estimate-stride 256 --finetune-steps 3 --finetune-shards 8 --steps 2 --neighbour-restarts none
+      --no-also-residual --no-also-models --no-uncertainty --no-view)
+"$program" "${args[@]}" -o alone 2> alone.log || { cat alone.log; exit 1; }
+for n in 1 2 4; do
+  mpirun -np "$n" "$program" "${args[@]}" -o "ranks$n" 2> "ranks$n.log" || { echo "FAIL: $n ranks"; cat "ranks$n.log"; exit 1; }
+  for map in alone/*.exr; do
+    if ! cmp -s "$map" "ranks$n/$(basename "$map")"; then
+      echo "FAIL: $(basename "$map") on $n ranks differs from the run without mpirun"; cat "ranks$n.log"; exit 1
+    fi
+  done
+  grep -q '"ranks"' "ranks$n/report.json" || [[ $n == 1 ]] || { echo "FAIL: report.json of $n ranks without ranks"; exit 1; }
+  echo "$n ranks: $(ls alone/*.exr | wc -l) maps equal bit for bit"
+done
+# Rank 0 alone writes: one report, one progress line source.
+[[ $(grep -c "capture: done" ranks4.log) == 1 ]] || { echo "FAIL: the summary printed other than once"; cat ranks4.log; exit 1; }
+
+# A failure (here on every rank: a missing capture) ends the job once, non-zero, without output.
+if mpirun -np 2 "$program" capture nowhere/capture.json -o failed > failed.log 2>&1; then
+  echo "FAIL: a failing run exited 0"; exit 1
+fi
+[[ $(grep -c "anisocap: error:" failed.log) == 1 ]] || { echo "FAIL: the error printed other than once"; cat failed.log; exit 1; }
+[[ ! -e failed ]] || { echo "FAIL: a failed run left output"; exit 1; }
+echo "a failing run: one message, exit non-zero, no output"
