@@ -84,8 +84,19 @@ TEST_CASE("texel_uncertainty: the prior where the photographs say nothing, surer
   const loss_targets flash_targets = make_loss_targets(render(truth, flash));
   uncertainty_options o;
   o.noise = 0.02;
+  o.calibrated = false;  // the Laplace approximation's own deviations
   const uncertainty_result u = texel_uncertainty(truth, flash, flash_targets, o);
   CHECK(u.noise == 0.02);
+  {  // calibrated: each deviation through the table, the same texels determined
+    uncertainty_options c = o;
+    c.calibrated = true;
+    const uncertainty_result w = texel_uncertainty(truth, flash, flash_targets, c);
+    for (int k = 0; k < parameter_count; ++k) {
+      CHECK(w.determined_share[std::size_t(k)] == u.determined_share[std::size_t(k)]);
+      for (std::size_t i = 0; i < truth.texel_count(); ++i)
+        REQUIRE(w.sd.plane(k)[i] == doctest::Approx(uncertainty_calibration.apply(k, u.sd.plane(k)[i], truth.plane(k)[i])).epsilon(1e-5));
+    }
+  }
   // A flash sees F / F0 = 1: F0 keeps the prior's spread on every texel, the diffuse albedo is measured.
   for (std::size_t i = 0; i < truth.texel_count(); ++i) {
     REQUIRE(u.sd.plane(fresnel_f0)[i] == doctest::Approx(uncertainty_prior_sd[fresnel_f0]).epsilon(0.02));

@@ -66,8 +66,8 @@ struct uncertainty_options {
   /// The least noise assumed: renders of the maps themselves fit to float rounding, which would
   /// claim every parameter exactly; 0.005 is half a percent of a pixel's value.
   double min_noise = 0.005;
-  /// A parameter is determined at a texel where its posterior standard deviation is at most this
-  /// share of its prior's.
+  /// A parameter is determined at a texel where its posterior standard deviation (the Laplace
+  /// approximation's, before the calibration) is at most this share of its prior's.
   double determined_ratio = 0.5;
   /// Applies uncertainty_calibration to the Laplace standard deviations (what is written and
   /// summarised); off: the Laplace approximation's own.
@@ -100,11 +100,15 @@ struct uncertainty_calibration_table {
   }
 };
 
-/// The fitted calibration (see uncertainty_calibration_table).
+/// The fitted calibration (see uncertainty_calibration_table), in parameter order a_d (r, g, b),
+/// a'_s (r, g, b), sigma_x, sigma_y, F0, n_x, n_y, alpha. Fitted by
+/// studies/fit_uncertainty_calibration.py on 16 captures (8 families, lamp and flash, 8 photographs
+/// with sensor noise). The Laplace deviations are mostly too wide (scale below 1: most texels fit
+/// better than the residuals' RMS suggests); sigma_y's error grows with its value (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
-    {1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1},
-    {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
-    {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}};
+    {0.27, 0.221, 0.543, 1.09, 1.09, 0.988, 0.809, 0.2, 0.6, 0.663, 0.663, 0.809},
+    {0.002, 0.002, 0.001, 0, 0, 0, 0, 0, 0, 0.001, 0, 0},
+    {0, 0, 0, 0, 0, 0, 0, 0.3, 0, 0, 0, 0}};
 
 /// Per-texel posterior standard deviations and their summary.
 struct uncertainty_result {
@@ -222,10 +226,10 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
         const Eigen::Matrix<double, parameter_count, parameter_count> covariance =
             precision.ldlt().solve(Eigen::Matrix<double, parameter_count, parameter_count>::Identity());
         for (int i = 0; i < parameter_count; ++i) {
-          double sd = std::sqrt(std::max(0.0, covariance(i, i)));
-          if (options.calibrated) sd = uncertainty_calibration.apply(i, sd, maps.at(i, x, y));
-          result.sd.at(i, x, y) = float(sd);
-          if (sd <= options.determined_ratio * uncertainty_prior_sd[std::size_t(i)]) mine[std::size_t(i)] += 1;
+          const double laplace = std::sqrt(std::max(0.0, covariance(i, i)));
+          result.sd.at(i, x, y) = float(options.calibrated ? uncertainty_calibration.apply(i, laplace, maps.at(i, x, y)) : laplace);
+          // What the photographs determine is the data's information, before the calibration.
+          if (laplace <= options.determined_ratio * uncertainty_prior_sd[std::size_t(i)]) mine[std::size_t(i)] += 1;
         }
       }
 #pragma omp critical
