@@ -114,6 +114,11 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   INFO(r.output);
   REQUIRE(r.status == 0);
   CHECK_FALSE(fs::exists(t.path / "fast/material.html"));
+  // A kernel without the Fresnel term chosen by hand: F0 is the prior, and the message says why.
+  r = run("capture syn/capture.json -o nofresnel --stages refine --steps 5 --kernel no-fresnel --no-view", t.path);
+  REQUIRE_MESSAGE(r.status == 0, r.output);
+  CHECK_MESSAGE(r.output.find("no Fresnel term (--kernel)") != std::string::npos, r.output);
+  CHECK(r.output.find("within 0 of 1") == std::string::npos);
   // view and export from the program; a missing map set is one clear error and no output.
   r = run("view out -o out/page.html", t.path);
   CHECK(r.status == 0);
@@ -123,6 +128,17 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
     CHECK_MESSAGE(r.status == 0, r.output);
   }
   CHECK(fs::exists(t.path / "exported_mitsuba/scene.xml"));
+  for (const char* choice : {"on", "off"}) {  // the glTF anisotropy choice forced either way
+    r = run(std::string("export out --format gltf --gltf-anisotropy ") + choice + " -o forced_" + choice + ".gltf", t.path);
+    REQUIRE_MESSAGE(r.status == 0, r.output);
+    std::ifstream in(t.path / (std::string("forced_") + choice + ".gltf"));
+    std::stringstream text;
+    text << in.rdbuf();
+    CHECK((text.str().find("KHR_materials_anisotropy") != std::string::npos) == (std::string(choice) == "on"));
+  }
+  r = run("export out --format gltf --gltf-anisotropy sometimes -o bad.gltf", t.path);
+  CHECK(r.status != 0);
+  CHECK_FALSE(fs::exists(t.path / "bad.gltf"));
   r = run("export nowhere --format gltf -o bad.gltf", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("nowhere") != std::string::npos);

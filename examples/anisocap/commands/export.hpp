@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -34,6 +35,17 @@ inline void add_export_command(CLI::App& app) {
   cmd->add_option("-o,--out", s->out, "output: the .gltf file, or the folder for the other formats")->required();
   cmd->add_option("--width", s->options.width, "glTF: physical width of the sample in metres (default: longest side 1)")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--gltf-anisotropy", s->options.conversion.gltf_anisotropy_use,
+                  "glTF: KHR_materials_anisotropy where it fits the maps better than isotropic GGX (auto), always (on) or "
+                  "never (off)")
+      ->transform(CLI::CheckedTransformer(std::map<std::string, exports::gltf_anisotropy>{
+                                              {"auto", exports::gltf_anisotropy::automatic},
+                                              {"on", exports::gltf_anisotropy::on},
+                                              {"off", exports::gltf_anisotropy::off}},
+                                          CLI::ignore_case)
+                     .description(""))
+      ->type_name("auto|on|off")
+      ->default_str("auto");
   cmd->add_flag("--tileable", s->tileable,
                 "export a seamless tile: the maps cross-faded over an overlap at each edge (export/tileable.hpp), "
                 "smaller by the overlap along each axis");
