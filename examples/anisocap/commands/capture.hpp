@@ -258,12 +258,17 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   progress.finish();
   if (o.kernel.auto_tolerance > 0)
     std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{result.features, 0, 0, 0}.describe().c_str());
-  if (result.f0_source != "photographs")
-    std::fprintf(stderr, "capture: F0 is not determined by these photographs (each sees the Fresnel factor F / F0 within %g of 1): "
-                 "fresnel.exr holds %s; a photograph with the light away from the camera at a low angle measures it\n",
-                 o.kernel.auto_tolerance,
-                 result.f0_source == "estimate" ? "the networks' estimate"
-                                                : ("the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4)).c_str());
+  if (result.f0_source != "photographs") {
+    const std::string held = result.f0_source == "estimate" ? "the networks' estimate"
+                                                            : "the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4);
+    if (o.kernel.auto_tolerance > 0)
+      std::fprintf(stderr, "capture: F0 is not determined by these photographs (each sees the Fresnel factor F / F0 within %g of 1): "
+                   "fresnel.exr holds %s; a photograph with the light away from the camera at a low angle measures it\n",
+                   o.kernel.auto_tolerance, held.c_str());
+    else  // the kernel was chosen by hand, without the Fresnel term
+      std::fprintf(stderr, "capture: the kernel has no Fresnel term (--kernel), so F0 was not fitted: fresnel.exr holds %s\n",
+                   held.c_str());
+  }
   if (result.uncertainty) {
     std::string undetermined;
     for (int k = 0; k < parameter_count; ++k)
