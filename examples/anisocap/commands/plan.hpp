@@ -57,17 +57,15 @@ inline void run_plan_command(const plan_settings& s) {
   po.exclude_clipped = report.value("clipped_excluded", true);
   capture_photographs input = read_capture_photographs(report["capture"].get<std::string>(), po);
   const material_maps maps = read_maps(s.result);
-  const std::vector<image> photos0 = input.pixels();
-  if (photos0[0].width() != maps.width() || photos0[0].height() != maps.height())
+  const std::vector<image> photos = input.pixels();
+  if (photos[0].width() != maps.width() || photos[0].height() != maps.height())
     throw std::invalid_argument(s.result.string() + ": the maps' size differs from the photographs' in " + report["capture"].get<std::string>());
   if (report.contains("photos") && report["photos"].size() == input.description.images.size())
     for (std::size_t i = 0; i < input.description.images.size(); ++i)  // the floors the capture used (--floor)
       input.description.images[i].floor = report["photos"][i].value("floor", input.description.images[i].floor);
-  const double scale = report["exposure_scale"].get<double>();
-  capture cap = input.description;
-  std::vector<image> photos = photos0;
-  apply_exposure(cap, photos, scale);
-  const loss_targets targets = make_loss_targets(photos, input.masks(), loss_floors(cap, scale));
+  const fitted_photographs fitted = fitted_targets(input.description, photos, input.masks(), report["exposure_scale"].get<double>());
+  const capture& cap = fitted.configurations;
+  const loss_targets& targets = fitted.targets;
   const uncertainty_options uo;
   const double noise = report.contains("uncertainty") ? report["uncertainty"].value("noise", 0.0)
                                                       : std::max(uo.min_noise, residual_rms(maps, cap, targets));

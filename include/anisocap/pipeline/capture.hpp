@@ -284,6 +284,22 @@ inline std::vector<float> loss_floors(const capture& cap, double exposure_scale)
   return floors;
 }
 
+/// The configurations and loss targets a capture fits (capture_result::exposure_scale).
+struct fitted_photographs {
+  capture configurations;  ///< the configurations, their intensities times the exposure scale
+  loss_targets targets;    ///< the photographs times the exposure scale, with their masks and floors
+};
+
+/// What the stages fitted: `cap` and `photos` times `exposure_scale` (exposure.hpp; 1 without
+/// normalisation), `masks` and the images' floors (loss_floors). For whatever checks the maps
+/// against the photographs afterwards (the uncertainty, the plan) in the units the stages used.
+inline fitted_photographs fitted_targets(capture cap, std::vector<image> photos, const std::vector<image>& masks, double exposure_scale) {
+  if (exposure_scale != 1.0) apply_exposure(cap, photos, exposure_scale);
+  fitted_photographs out{std::move(cap), {}};
+  out.targets = make_loss_targets(photos, masks, loss_floors(out.configurations, exposure_scale));
+  return out;
+}
+
 /// Stands for the networks of a capture that runs without them.
 struct no_networks {};
 

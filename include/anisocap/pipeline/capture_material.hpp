@@ -149,11 +149,8 @@ inline capture_result capture_material(const capture& cap, const std::vector<ima
   canonicalise(result.maps);
   if (result.after_finetune) canonicalise(*result.after_finetune);
   if (o.uncertainty && !result.stopped) {  // against the photographs as the stages saw them
-    capture seen = cap;
-    std::vector<image> pixels = photos;
-    if (o.normalise_exposure) apply_exposure(seen, pixels, result.exposure_scale);
-    const loss_targets targets = make_loss_targets(pixels, masks, loss_floors(seen, result.exposure_scale));
-    result.uncertainty = texel_uncertainty(result.maps, seen, targets, *o.uncertainty);
+    const fitted_photographs seen = fitted_targets(cap, photos, masks, result.exposure_scale);
+    result.uncertainty = texel_uncertainty(result.maps, seen.configurations, seen.targets, *o.uncertainty);
   }
   return result;
 }
