@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Fits pipeline/uncertainty.hpp's calibration (uncertainty_calibration_table) to the per-texel
 records of anisocap_study_uncertainty_calibration --raw 1 --dump FILE, and reports the coverage of
-the fitted table on other records (another seed set) with --test FILE.
+the fitted table on other records (other seeds, photographs or families) with --test FILE....
 
 For each parameter it searches scale, floor and relative (sd' = sqrt((scale sd)^2 + (floor +
 relative |value|)^2), value the captured one, truth + error) over a grid, minimising
@@ -13,11 +13,12 @@ With --cross-validate it also fits once per family on the other families' record
 the coverage on the held-out family (pooled over families): how the table does on a material
 family it was not fitted on.
 
-    fit_uncertainty_calibration.py FIT.csv [--test TEST.csv] [--cross-validate] [--plot reliability.png]
+    fit_uncertainty_calibration.py FIT.csv [--test TEST.csv ...] [--cross-validate] [--plot reliability.png]
 """
 import argparse
 import csv
 import itertools
+import os
 import sys
 from collections import defaultdict
 
@@ -78,7 +79,7 @@ def fit(error, sd, value, groups, n_groups):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("fit")
-    ap.add_argument("--test")
+    ap.add_argument("--test", nargs="*", default=[])
     ap.add_argument("--plot")
     ap.add_argument("--cross-validate", action="store_true")
     a = ap.parse_args()
@@ -93,7 +94,7 @@ def main():
     print("scale    {" + ", ".join(f"{table[k][0]:.3g}" for k in PARAMETERS) + "}")
     print("floor    {" + ", ".join(f"{table[k][1]:.3g}" for k in PARAMETERS) + "}")
     print("relative {" + ", ".join(f"{table[k][2]:.3g}" for k in PARAMETERS) + "}")
-    sets = [("fit", a.fit)] + ([("test", a.test)] if a.test else [])
+    sets = [("fit", a.fit)] + [(f"test {i + 1}" if len(a.test) > 1 else "test", t) for i, t in enumerate(a.test)]
     print("\n| parameter | " + " | ".join(f"{n}: raw 1 sd | raw 2 sd | calibrated 1 sd | calibrated 2 sd | worst group 1 sd | worst group 2 sd" for n, _ in sets) + " |")
     print("|---" * (1 + 6 * len(sets)) + "|")
     loaded = [(n, read(p)) for n, p in sets]
@@ -148,7 +149,7 @@ def main():
             ax.plot(expected, observed, lw=1, label=k)
         ax.set_xlabel("expected share within t sd (Gaussian)")
         ax.set_ylabel("observed share within t sd")
-        ax.set_title(f"Per-texel uncertainty, {sets[-1][0]} captures")
+        ax.set_title(f"Per-texel uncertainty after calibration: {os.path.basename(sets[-1][1])}", fontsize=10)
         ax.legend(fontsize=7, ncol=2)
         fig.tight_layout()
         fig.savefig(a.plot, dpi=110)

@@ -102,13 +102,14 @@ struct uncertainty_calibration_table {
 
 /// The fitted calibration (see uncertainty_calibration_table), in parameter order a_d (r, g, b),
 /// a'_s (r, g, b), sigma_x, sigma_y, F0, n_x, n_y, alpha. Fitted by
-/// studies/fit_uncertainty_calibration.py on 16 captures (8 families, lamp and flash, 8 photographs
-/// with sensor noise). The Laplace deviations are mostly too wide (scale below 1: most texels fit
-/// better than the residuals' RMS suggests); sigma_y's error grows with its value (relative 0.3).
+/// studies/fit_uncertainty_calibration.py on 24 captures: 8 families under a lamp and a flash with 8
+/// linear photographs with sensor noise, and 4 of them with 12 JPEG photographs. Where the table
+/// shrinks a deviation (scale below 1) most texels fit better than the residuals' RMS says;
+/// sigma_y's error grows with its value (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
-    {0.27, 0.221, 0.543, 1.09, 1.09, 0.988, 0.809, 0.2, 0.6, 0.663, 0.663, 0.809},
-    {0.002, 0.002, 0.001, 0, 0, 0, 0, 0, 0, 0.001, 0, 0},
-    {0, 0, 0, 0, 0, 0, 0, 0.3, 0, 0, 0, 0}};
+    {0.894, 0.491, 1.09, 1.21, 1.21, 1.09, 0.809, 0.221, 0.6, 0.809, 0.733, 0.894},
+    {0.001, 0.002, 0, 0, 0, 0, 0, 0, 0, 0.01, 0.002, 0.001},
+    {0, 0, 0, 0, 0, 0.02, 0, 0.3, 0, 0, 0.1, 0}};
 
 /// Per-texel posterior standard deviations and their summary.
 struct uncertainty_result {
