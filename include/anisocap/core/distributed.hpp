@@ -172,7 +172,10 @@ template <class T>
 void ordered_sum(const communicator& comm, int parts, std::size_t n, std::span<const T> local, std::span<T> out) {
   using distributed_detail::node;
   const int ranks = comm.size(), me = comm.rank();
-  const auto [first, last] = part_range(parts, ranks, me);
+  // Named variables, not a structured binding: lambdas below capture them (Clang 14 cannot
+  // capture structured bindings).
+  const auto range = part_range(parts, ranks, me);
+  const int first = range.first, last = range.second;
   if (local.size() != std::size_t(last - first) * n) throw std::invalid_argument("ordered_sum: the local parts are not n elements each");
   if (out.size() != n) throw std::invalid_argument("ordered_sum: the sum is not n elements");
   if (parts == 0) {
