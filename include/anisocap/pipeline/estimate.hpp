@@ -90,11 +90,11 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
   int done = 0;
   material_maps m(window, window);
   const std::size_t floats = m.plane_stride() * parameter_count;
-  std::vector<float> round;
+  std::vector<float> own, round;  // kept across rounds: their memory is reused, not asked for again
   for (int base = 0; base < total; base += ranks) {
     // This round's windows: rank r estimates window base + r, then all are gathered.
     const int mine = base + comm.rank();
-    std::vector<float> own;
+    own.clear();
     if (mine < total) {
       const int y0 = ys[std::size_t(mine) / xs.size()], x0 = xs[std::size_t(mine) % xs.size()];
       std::vector<image> crops;

@@ -476,6 +476,28 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     guard.take(adam, start_loss);
     guard.best_loss = std::min(guard.best_loss, guard.snapshot_loss);
   }
+  // The observer, for steps that have no whole-tile maps at hand (crops, shards): decodes them only
+  // if it asks (weights not yet updated; the step's tape is no longer needed).
+  auto observe_decoding = [&](int at, double loss) {
+    if (!o.observer) return;
+    std::optional<material_maps> whole;
+    o.observer(at, loss, [&]() {
+      if (!whole) whole = decode(autoencoder, z, W, H, residual);
+      return *whole;
+    });
+  };
+  // The guard after a step's loss: the whole tile's every step, or with crops the mean of every
+  // `guard.every` steps. True when it restarted from its snapshot.
+  auto guard_restarts = [&](int at, double loss) {
+    if (!guarding) return false;
+    if (!cropping) return guard.restarts_after(adam, loss, at % o.guard.every == 0);
+    window_sum += loss;
+    if (++window_steps < o.guard.every) return false;
+    const bool restarts = guard.restarts_after(adam, window_sum / window_steps, true);
+    window_sum = 0;
+    window_steps = 0;
+    return restarts;
+  };
   for (; step < o.steps; ++step) {
     t.clear();
     double loss = 0;
@@ -484,23 +506,8 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       const finetune_crops::latent_window win = cropping ? finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step)
                                                          : finetune_crops::latent_window{0, cells_y, 0, cells_x};
       loss = sharded_step(win, !cropping, crop_y, crop_x);
-      if (o.observer) {  // weights not yet updated
-        std::optional<material_maps> whole;
-        o.observer(step, loss, [&]() {
-          if (!whole) whole = decode(autoencoder, z, W, H, residual);
-          return *whole;
-        });
-      }
-      if (guarding && !cropping) {
-        restarted = guard.restarts_after(adam, loss, step % o.guard.every == 0);
-      } else if (guarding) {
-        window_sum += loss;
-        if (++window_steps == o.guard.every) {
-          restarted = guard.restarts_after(adam, window_sum / window_steps, true);
-          window_sum = 0;
-          window_steps = 0;
-        }
-      }
+      observe_decoding(step, loss);
+      restarted = guard_restarts(step, loss);
       if (!restarted) apply_gradient_sum();
     } else if (!cropping) {
       auto y = autoencoder.decode(t, t.leaf(z));
@@ -508,7 +515,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       const material_maps m = network_space::network_to_maps(u_view, 0);
       loss = with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, &grad, {}, render); });
       if (o.observer) o.observer(step, loss, [&]() { return m; });
-      if (guarding) restarted = guard.restarts_after(adam, loss, step % o.guard.every == 0);
+      restarted = guard_restarts(step, loss);
       if (!restarted) {
         auto g_view = y.grad.tile(0, 0, H, W);
         network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
@@ -519,21 +526,8 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       loss = with_features(features, [&]<brdf_features F>() {
         return finetune_crops::crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, render, scratch, residual);
       });
-      if (o.observer) {  // weights not yet updated; the tape is no longer needed
-        std::optional<material_maps> whole;
-        o.observer(step, loss, [&]() {
-          if (!whole) whole = decode(autoencoder, z, W, H, residual);
-          return *whole;
-        });
-      }
-      if (guarding) {
-        window_sum += loss;
-        if (++window_steps == o.guard.every) {
-          restarted = guard.restarts_after(adam, window_sum / window_steps, true);
-          window_sum = 0;
-          window_steps = 0;
-        }
-      }
+      observe_decoding(step, loss);
+      restarted = guard_restarts(step, loss);
     }
     if (!restarted) adam.step();
     if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0)
