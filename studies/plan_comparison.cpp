@@ -9,11 +9,16 @@
 // error of three grazing views (camera and lamp 17 degrees above the plane, opposite: where F0
 // shows). Prints one line per material and a markdown table of the means.
 //
-//   anisocap_study_plan_comparison [--size 96] [--start 6] [--add 2] [--families ...] [--models DIR]
+// With --seeds N, N materials per family (seeds 900 + family index + 100 s). The table ends with
+// how often each strategy's error was the lowest of the three additions.
+//
+//   anisocap_study_plan_comparison [--size 96] [--start 6] [--add 2] [--seeds 1] [--families ...] [--models DIR]
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <numbers>
+#include <stdexcept>
 #include <string>
 
 #include "anisocap/brdf/canonical_maps.hpp"
@@ -27,13 +32,14 @@
 using namespace anisocap;
 
 int main(int argc, char** argv) {
-  int size = 96, start = 6, add = 2;
+  int size = 96, start = 6, add = 2, seeds = 1;
   std::string families = "plain,basket,twill,herringbone,satin,velvet,brushed,spun", models = ANISOCAP_SWEEP_MODELS;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string a = argv[i], v = argv[i + 1];
     if (a == "--size") size = std::atoi(v.c_str());
     else if (a == "--start") start = std::atoi(v.c_str());
     else if (a == "--add") add = std::atoi(v.c_str());
+    else if (a == "--seeds") seeds = std::atoi(v.c_str());
     else if (a == "--families") families = v;
     else if (a == "--models") models = v;
     else { std::fprintf(stderr, "plan_comparison: unknown option %s\n", a.c_str()); return 2; }
@@ -48,10 +54,14 @@ int main(int argc, char** argv) {
       grazing.images.push_back(mirror_configuration_at(
           {0, 0, 0}, {std::cos(elevation) * std::cos(azimuth), std::cos(elevation) * std::sin(azimuth), std::sin(elevation)}, 2.0, 2.0));
     const char* strategies[] = {"start", "plan", "rule", "random"};
+    if (seeds < 1) throw std::invalid_argument("--seeds must be at least 1");
     double map_sum[4] = {}, grazing_sum[4] = {}, f0_sum[4] = {};
+    int map_wins[4] = {}, grazing_wins[4] = {}, f0_wins[4] = {};
     int materials = 0, index = 0;
-    for (const material_kind kind : material_kinds_from_names(families)) {
-      const std::uint64_t seed = 900 + std::uint64_t(index++);
+    for (const material_kind kind : material_kinds_from_names(families))
+    for (int s_index = 0; s_index < seeds; ++s_index) {
+      const std::uint64_t seed = 900 + std::uint64_t(index) + 100 * std::uint64_t(s_index);
+      if (s_index + 1 == seeds) ++index;
       procedural_options po;
       po.kind = kind;
       material_maps truth = generate_material(seed, size, size, po);
@@ -84,7 +94,8 @@ int main(int argc, char** argv) {
         random.images.push_back(independent_configuration(extra, size, size));
       }
       const capture_result results[4] = {first, run(planned), run(rule), run(random)};
-      std::printf("%-12s", material_kind_name(kind));
+      std::printf("%-12s %4llu", material_kind_name(kind), static_cast<unsigned long long>(seed));
+      double maps_errors[4], grazing_errors[4], f0_errors[4];
       for (int s = 0; s < 4; ++s) {
         const parameter_errors e = compare_maps(results[s].maps, truth);
         const double maps_error = (e.diffuse + e.specular + e.normal + e.lobes + e.fresnel) / 5;
@@ -92,8 +103,11 @@ int main(int argc, char** argv) {
         map_sum[s] += maps_error;
         grazing_sum[s] += g;
         f0_sum[s] += e.fresnel;
+        maps_errors[s] = maps_error, grazing_errors[s] = g, f0_errors[s] = e.fresnel;
         std::printf("  %s: maps %.4f F0 %.4f grazing %.3f", strategies[s], maps_error, e.fresnel, g);
       }
+      auto best_addition = [](const double* e) { return 1 + int(std::min_element(e + 1, e + 4) - (e + 1)); };
+      ++map_wins[best_addition(maps_errors)], ++grazing_wins[best_addition(grazing_errors)], ++f0_wins[best_addition(f0_errors)];
       std::printf("\n");
       std::fflush(stdout);
       ++materials;
@@ -102,6 +116,8 @@ int main(int argc, char** argv) {
     for (int s = 0; s < 4; ++s)
       std::printf("| %s%s | %.4f | %.4f | %.3f |\n", s == 0 ? "flash start" : strategies[s], s == 0 ? "" : " (+K)", map_sum[s] / materials,
                   f0_sum[s] / materials, grazing_sum[s] / materials);
+    std::printf("| lowest of the three additions (of %d) | %d / %d / %d | %d / %d / %d | %d / %d / %d |\n", materials, map_wins[1], map_wins[2],
+                map_wins[3], f0_wins[1], f0_wins[2], f0_wins[3], grazing_wins[1], grazing_wins[2], grazing_wins[3]);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "plan_comparison: %s\n", e.what());
     return 1;
