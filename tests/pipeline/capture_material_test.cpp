@@ -59,6 +59,15 @@ TEST_CASE("capture_options: the named schedules and the validation of every fiel
   CHECK(fast.second_run.second_prior);
   CHECK(capture_options::schedule("thorough").finetune.steps == 2000);
   CHECK(capture_options::schedule("thorough").refine.steps == 1000);
+  // auto: the fast schedule's steps at least, the thorough schedule's at most, early stopping between.
+  const capture_options automatic = capture_options::schedule("auto");
+  CHECK(automatic.finetune.min_steps == capture_options::fast().finetune.steps);
+  CHECK(automatic.finetune.steps == capture_options::thorough().finetune.steps);
+  CHECK(automatic.finetune.min_improvement > 0);
+  CHECK(automatic.refine.min_steps == capture_options::fast().refine.steps);
+  CHECK(automatic.refine.steps == capture_options::thorough().refine.steps);
+  CHECK(automatic.refine.min_relative_improvement > 0);
+  CHECK(automatic.finetune.learning_rate == capture_options::fast().finetune.learning_rate);
   const capture_options paper = capture_options::schedule("paper");
   CHECK(paper.finetune.steps == 5000);
   CHECK(paper.neighbour_restarts.empty());

@@ -283,6 +283,28 @@ TEST_CASE("fine-tune divergence guard: a learning rate far too large is halved b
   }
 }
 
+TEST_CASE("fine-tune early stopping: at a patience check where the loss fell too little, from min_steps on") {
+  const scene s(32, 32);
+  estimation_network<estimator_tiny> estimator(1);
+  capture_options o = measured_capture_options();
+  o.stages.estimate = false;
+  o.stages.refine = false;
+  o.finetune.steps = 60;
+  o.finetune.learning_rate = 1e-6f;  // the loss barely moves: every check asks to stop
+  o.finetune.min_improvement = 0.5;
+  o.finetune.patience = 10;
+  auto steps_taken = [&](int min_steps) {
+    o.finetune.min_steps = min_steps;
+    auto_encoder<autoencoder_tiny> a(2);
+    return capture_once(s.cap, s.photos, estimator, a, o).stages[2].steps;
+  };
+  CHECK(steps_taken(0) == 20);   // the first check only records the loss; the second stops
+  CHECK(steps_taken(25) == 30);  // the first check at or past 25 steps
+  CHECK(steps_taken(60) == 60);  // never before the end
+  o.finetune.min_steps = -1;
+  CHECK_THROWS_AS(o.finetune.validate(), std::invalid_argument);
+}
+
 TEST_CASE("pipeline stages parse from text and reject nonsense") {
   const pipeline_stages s = pipeline_stages::parse("estimate,refine");
   CHECK(s.estimate);

@@ -55,6 +55,27 @@ TEST_CASE("refine lowers the image loss, keeps every parameter valid and moves t
   }
 }
 
+TEST_CASE("refine early stopping: at a patience check where the loss fell too little, from min_steps on") {
+  const material_maps truth = random_maps(16, 16, 5);
+  const capture cap = random_capture(6, 6);
+  const loss_targets targets = make_loss_targets(render(truth, cap));
+  refine_options options;
+  options.steps = 200;
+  options.learning_rate = 1e-7f;  // the loss barely moves: every check asks to stop
+  options.min_relative_improvement = 0.5;
+  options.patience = 50;
+  auto steps_taken = [&](int min_steps) {
+    options.min_steps = min_steps;
+    material_maps maps = random_maps(16, 16, 6);  // far from the truth: a loss well above 0
+    return refine(maps, cap, targets, options).steps;
+  };
+  CHECK(steps_taken(0) == 100);    // the first check only records the loss; the second stops
+  CHECK(steps_taken(120) == 150);  // the first check at or past 120 steps
+  CHECK(steps_taken(200) == 200);
+  options.min_steps = -1;
+  CHECK_THROWS_AS(options.validate(), std::invalid_argument);
+}
+
 TEST_CASE("isotropic refine keeps sy equal to sx and alpha at zero") {
   const int w = 8, h = 8;
   const capture cap = random_capture(6, 5);

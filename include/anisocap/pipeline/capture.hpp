@@ -177,6 +177,26 @@ struct capture_options {
     o.refine.steps = 1000;
     return o;
   }
+  /// The automatic schedule: the thorough schedule's step counts as caps, the fast one's as floors,
+  /// and early stopping between them. The fine-tune runs 800 steps, then on while 200 steps lower
+  /// the loss by at least `automatic_finetune_improvement`, up to 2000; the refine runs 500, then
+  /// on while 50 steps lower it by at least `automatic_refine_improvement`, up to 1000. A sample
+  /// whose fit has settled by the fast schedule's end (most fabrics) costs what the fast schedule
+  /// costs; one still descending (metals: narrow, fast-turning highlights) gets the thorough
+  /// schedule's steps, without the user having to know which it is (docs/results.md).
+  static capture_options automatic() {
+    capture_options o = thorough();
+    o.finetune.min_steps = fast().finetune.steps;
+    o.finetune.min_improvement = automatic_finetune_improvement;
+    o.finetune.patience = 200;
+    o.refine.min_steps = fast().refine.steps;
+    o.refine.min_relative_improvement = automatic_refine_improvement;
+    o.refine.patience = 50;
+    return o;
+  }
+  /// The automatic schedule's thresholds: the fraction by which the loss must fall over the
+  /// fine-tune's 200 steps and the refine's 50 for the stage to go on.
+  static constexpr double automatic_finetune_improvement = 0.02, automatic_refine_improvement = 0.002;
   /// The paper's schedule (section 5): fine-tune 5000 steps at 7.5e-4 without warm-up, refine 500
   /// steps at 1e-4, no neighbourhood restarts.
   static capture_options paper() {
@@ -186,12 +206,13 @@ struct capture_options {
     o.neighbour_restarts.clear();
     return o;
   }
-  /// The schedule of a name: fast, thorough or paper. Throws std::invalid_argument for another.
+  /// The schedule of a name: fast, thorough, auto (automatic) or paper. Throws std::invalid_argument for another.
   static capture_options schedule(std::string_view name) {
     if (name == "fast") return fast();
     if (name == "thorough") return thorough();
+    if (name == "auto") return automatic();
     if (name == "paper") return paper();
-    throw std::invalid_argument("unknown schedule '" + std::string(name) + "' (fast, thorough, paper)");
+    throw std::invalid_argument("unknown schedule '" + std::string(name) + "' (fast, thorough, auto, paper)");
   }
   /// Throws std::invalid_argument naming the field for impossible values.
   void validate() const {
@@ -286,17 +307,18 @@ inline std::vector<float> loss_floors(const capture& cap, double exposure_scale)
 
 /// The configurations and loss targets a capture fits (capture_result::exposure_scale).
 struct fitted_photographs {
-  capture configurations;  ///< the configurations, their intensities times the exposure scale
-  loss_targets targets;    ///< the photographs times the exposure scale, with their masks and floors
+  capture configurations;           ///< the configurations, their intensities times the exposure scale
+  std::vector<image> photographs;   ///< the photographs times the exposure scale (what the estimate sees)
+  loss_targets targets;             ///< the loss targets of `photographs`, with their masks and floors
 };
 
 /// What the stages fitted: `cap` and `photos` times `exposure_scale` (exposure.hpp; 1 without
-/// normalisation), `masks` and the images' floors (loss_floors). For whatever checks the maps
-/// against the photographs afterwards (the uncertainty, the plan) in the units the stages used.
+/// normalisation), `masks` and the images' floors (loss_floors): what the stages fit, and what
+/// checks the maps against the photographs afterwards (the uncertainty, the plan) in their units.
 inline fitted_photographs fitted_targets(capture cap, std::vector<image> photos, const std::vector<image>& masks, double exposure_scale) {
   if (exposure_scale != 1.0) apply_exposure(cap, photos, exposure_scale);
-  fitted_photographs out{std::move(cap), {}};
-  out.targets = make_loss_targets(photos, masks, loss_floors(out.configurations, exposure_scale));
+  fitted_photographs out{std::move(cap), std::move(photos), {}};
+  out.targets = make_loss_targets(out.photographs, masks, loss_floors(out.configurations, exposure_scale));
   return out;
 }
 
@@ -350,6 +372,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("finetune.guard.factor", ft.guard.factor).add("finetune.guard.every", ft.guard.every);
   f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
   if (ft.shard_cells > 0) f.add("finetune.shard_cells", ft.shard_cells);  // absent: the whole window (check-points made before shards)
+  if (ft.min_steps > 0) f.add("finetune.min_steps", ft.min_steps);        // absent: early stopping from the first step
   return f;
 }
 
@@ -414,14 +437,12 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
     if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
   if (o.stages.finetune) o.finetune.validate();
   capture_result result;
-  capture cap = given_cap;
-  std::vector<image> photos = given_photos;
-  if (o.normalise_exposure) {
-    result.exposure_scale = exposure_scale(cap);
-    apply_exposure(cap, photos, result.exposure_scale);
-  }
+  if (o.normalise_exposure) result.exposure_scale = exposure_scale(given_cap);
+  const fitted_photographs fitted = fitted_targets(given_cap, given_photos, masks, result.exposure_scale);
+  const capture& cap = fitted.configurations;
+  const std::vector<image>& photos = fitted.photographs;
+  const loss_targets& targets = fitted.targets;
   const int W = photos[0].width(), H = photos[0].height();
-  const loss_targets targets = make_loss_targets(photos, masks, loss_floors(cap, result.exposure_scale));
   auto image_loss = [&](const material_maps& m, brdf_features features) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
   };

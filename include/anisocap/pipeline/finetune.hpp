@@ -71,6 +71,8 @@ struct finetune_options {
   /// window of `patience` steps (one crop's loss is noisy).
   double min_improvement = 0.0;
   int patience = 200;
+  /// Early stopping applies from this many steps on: the steps a run takes at least.
+  int min_steps = 0;
   finetune_guard_options guard{};
   finetune_crop_options crop{};
   /// Shards: when > 0, each step's window (the whole tile, or the crop) is cut into blocks of this
@@ -121,8 +123,8 @@ struct finetune_options {
   void validate() const {
     if (steps < 0) throw std::invalid_argument("fine-tune steps must not be negative");
     if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the fine-tune learning rate must be positive and finite");
-    if (warmup < 0 || half_life < 0 || crop.cells < 0 || shard_cells < 0)
-      throw std::invalid_argument("fine-tune warm-up, half-life, crop and shards must not be negative");
+    if (warmup < 0 || half_life < 0 || crop.cells < 0 || shard_cells < 0 || min_steps < 0)
+      throw std::invalid_argument("fine-tune warm-up, half-life, crop, shards and minimum steps must not be negative");
     if (!(min_improvement >= 0 && min_improvement < 1)) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
     if (!(guard.factor >= 0) || !std::isfinite(guard.factor) || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
       throw std::invalid_argument("the fine-tune guard must be 0 (off) or above 1, with its snapshots at least 1 step apart");
@@ -532,7 +534,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
     if (!restarted) adam.step();
     if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0)
       o.progress(optimisation_progress::at(step + 1, o.steps, loss, seconds_since(start), first));
-    const bool stops = stopper.stop_after(step, loss);
+    const bool stops = stopper.stop_after(step, loss) && step + 1 >= o.min_steps;
     const bool killed = o.stop_after >= 0 && step + 1 >= o.stop_after && !stops && step + 1 < o.steps;
     if (checkpoints && comm.root() && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
       loop.stopping = stopper.current();

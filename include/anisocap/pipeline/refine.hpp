@@ -42,6 +42,7 @@ struct refine_options {
   /// Stop early when the loss improved by less than this fraction over the last `patience` steps (0: never).
   double min_relative_improvement = 0.0;
   int patience = 50;
+  int min_steps = 0;  ///< early stopping applies from this many steps on
   /// Refine only texels whose loss still moves: every `freeze_every` steps, each group of
   /// `texel_group_size` texels whose loss fell by less than this fraction since the previous check
   /// is frozen for the rest of the run (neither evaluated nor updated; its loss term is exact, the
@@ -67,7 +68,7 @@ struct refine_options {
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (steps < 0) throw std::invalid_argument("refine steps must not be negative");
+    if (steps < 0 || min_steps < 0) throw std::invalid_argument("refine steps and minimum steps must not be negative");
     if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the refine learning rate (--lr) must be positive and finite");
     if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine early stopping (--refine-stop) must be in [0, 1)");
     if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("the refine freeze tolerance (--freeze) must be in [0, 1)");
@@ -209,7 +210,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     result.steps = step + 1;
     if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0)
       options.progress(optimisation_progress::at(step + 1, options.steps, loss, seconds_since(start)));
-    if (stopper.stop_after(step, loss)) break;
+    if (stopper.stop_after(step, loss) && step + 1 >= options.min_steps) break;
   }
   detail::maps_from_unconstrained(u, maps, jac);
   restrict_to_features(maps, F);
