@@ -396,10 +396,10 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
          o.neighbour_restarts = s.neighbour_restarts;
        },
        "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "
-       "error; docs/results.md \"Run time against error\"); thorough: fine-tune 2000 at 8e-3, refine 1000 at 3e-3 (~2.2x longer, "
-       "every parameter's error and the novel-view loss lower, by 20% on the family comparison, metals most); auto: the fast "
-       "schedule's steps, then on while the loss still falls (2% per 200 fine-tune steps, 0.2% per 50 refine steps) up to the "
-       "thorough schedule's (the time goes to samples whose fit is still descending, such as metals); paper: fine-tune 5000 "
+       "error; docs/results.md \"Run time against error\"); thorough: fine-tune 2000 at 8e-3, refine 1000 at 3e-3 (~2.1x longer, "
+       "the novel-view loss 17% lower on the family comparison, foil 33%); auto: the fast schedule's steps, then on while the "
+       "loss still falls (2% per 200 fine-tune steps, 0.2% per 50 refine steps) up to the thorough schedule's (the thorough "
+       "schedule's error in 0.89x its time on the family comparison); paper: fine-tune 5000 "
        "at 7.5e-4, refine 500 at 1e-4, no neighbour restarts (~5x longer). Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "thorough", "auto", "paper"}))
       ->default_str("fast");
