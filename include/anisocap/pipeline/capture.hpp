@@ -178,7 +178,7 @@ struct capture_options {
   }
   /// The automatic schedule: the thorough schedule's step counts as caps, the fast one's as floors,
   /// and early stopping between them. The fine-tune runs 800 steps, then on while 200 steps lower
-  /// the loss by at least `automatic_finetune_improvement`, up to 2000; the refine runs 500, then
+  /// the loss by at least `automatic_finetune_improvement`, up to 2000; the refine takes 500 steps, then
   /// on while 50 steps lower it by at least `automatic_refine_improvement`, up to 1000. A sample
   /// whose fit has settled by the fast schedule's end stops there; one still descending gets up to
   /// the thorough schedule's steps, without the user having to know which it is. On the
