@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "anisocap/brdf/ward.hpp"
 #include "anisocap/export/target_models.hpp"
 
 namespace {
@@ -62,10 +63,10 @@ std::vector<quadrature_point> quadrature(double sx, double sy, int slopes, int z
   return out;
 }
 
+// The Ward lobe alone: ward_evaluate with no diffuse, a'_s = 1 and F0 = 1 (Schlick's ratio is then 1).
 double ward_lobe(const vec3& l, const vec3& v, double sx, double sy) {
-  const vec3 h{l[0] + v[0], l[1] + v[1], l[2] + v[2]};
-  const double hh = h[0] * h[0] + h[1] * h[1] + h[2] * h[2], hz2 = h[2] * h[2];
-  return hh / (std::numbers::pi * sx * sy * hz2 * hz2) * std::exp(-(h[0] * h[0] / (sx * sx) + h[1] * h[1] / (sy * sy)) / hz2);
+  const anisocap::ward_parameters<double> p{{0, 0, 0}, {1, 1, 1}, sx, sy, 1.0, 0, 0, 0};
+  return anisocap::ward_evaluate(p, l, v)[0];
 }
 
 struct lobe_case {

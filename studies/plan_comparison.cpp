@@ -20,6 +20,7 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/data/procedural.hpp"
@@ -57,11 +58,12 @@ int main(int argc, char** argv) {
     if (seeds < 1) throw std::invalid_argument("--seeds must be at least 1");
     double map_sum[4] = {}, grazing_sum[4] = {}, f0_sum[4] = {};
     int map_wins[4] = {}, grazing_wins[4] = {}, f0_wins[4] = {};
-    int materials = 0, index = 0;
-    for (const material_kind kind : material_kinds_from_names(families))
-    for (int s_index = 0; s_index < seeds; ++s_index) {
-      const std::uint64_t seed = 900 + std::uint64_t(index) + 100 * std::uint64_t(s_index);
-      if (s_index + 1 == seeds) ++index;
+    int materials = 0;
+    const std::vector<material_kind> kinds = material_kinds_from_names(families);
+    for (std::size_t material = 0; material < kinds.size() * std::size_t(seeds); ++material) {
+      const std::size_t family = material / std::size_t(seeds), s_index = material % std::size_t(seeds);
+      const material_kind kind = kinds[family];
+      const std::uint64_t seed = 900 + std::uint64_t(family) + 100 * std::uint64_t(s_index);
       procedural_options po;
       po.kind = kind;
       material_maps truth = generate_material(seed, size, size, po);
