@@ -3,6 +3,10 @@
 // photographs (markers, photograph, rectify), the viewer page, exports and batches of captures. One file per command under
 // examples/anisocap/commands/, compiled in groups; `anisocap --help` and `anisocap <command> --help` list every option with its
 // default.
+//
+// In a dispatching build (-DANISOCAP_KERNEL_ISAS) this file and the commands are compiled once per
+// instruction set into modules, and `anisocap_module_main` below is what the launcher
+// (launcher/main.cpp) calls in the module it chose; otherwise it is the program's `main`.
 #include <omp.h>
 
 #include <CLI/CLI.hpp>
@@ -13,11 +17,16 @@
 #include "commands.hpp"
 #include "commands/options.hpp"
 
-int main(int argc, char** argv) {
+#include "anisocap/core/simd.hpp"
+
+namespace {
+
+int run_program(int argc, char** argv) {
   CLI::App app{"anisocap: capture anisotropic SVBRDFs (Ward + Fresnel) from a few photographs"};
   app.option_defaults()->always_capture_default();
   app.require_subcommand(1);
-  app.set_version_flag("--version", std::string("anisocap ") + ANISOCAP_VERSION);
+  app.set_version_flag("--version", std::string("anisocap ") + ANISOCAP_VERSION + " (kernels: " + ANISOCAP_KERNEL_ISA + ", " +
+                                        anisocap::simd::arch_name() + ")");
   anisocap::commands::register_synthesize(app);
   anisocap::commands::register_render(app);
   anisocap::commands::register_capture(app);
@@ -32,7 +41,11 @@ int main(int argc, char** argv) {
   anisocap::commands::register_markers(app);
   anisocap::commands::register_batch(app);
   anisocap::commands::add_threads_option(&app);  // before the command or after it
-  for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; })) anisocap::commands::add_threads_option(command);
+  anisocap::commands::add_kernel_isa_option(&app, ANISOCAP_KERNEL_ISA);
+  for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; })) {
+    anisocap::commands::add_threads_option(command);
+    anisocap::commands::add_kernel_isa_option(command, ANISOCAP_KERNEL_ISA);
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -44,3 +57,11 @@ int main(int argc, char** argv) {
   }
   return 0;
 }
+
+}  // namespace
+
+#if defined(ANISOCAP_KERNEL_MODULE)
+extern "C" __attribute__((visibility("default"))) int anisocap_module_main(int argc, char** argv) { return run_program(argc, argv); }
+#else
+int main(int argc, char** argv) { return run_program(argc, argv); }
+#endif

@@ -17,7 +17,14 @@ for path in ./usr/bin/anisocap ./usr/share/anisocap/models/compact/estimator.saf
             ./usr/lib/cmake/anisocap/anisocapConfig.cmake ./usr/share/pkgconfig/anisocap.pc; do
   grep -q " $path\$" <<<"$contents" || { echo "the package lacks $path"; exit 1; }
 done
+# A dispatching build (ANISOCAP_KERNEL_ISAS) ships its modules, and the packaged launcher finds them.
+if [[ -d "$binary_dir/anisocap-kernels" ]]; then
+  for module in "$binary_dir"/anisocap-kernels/anisocap-*.so; do
+    grep -qE " ./usr/lib/([^/]+/)?anisocap/$(basename "$module")\$" <<<"$contents" || { echo "the package lacks $(basename "$module")"; exit 1; }
+  done
+fi
 dpkg -x "$deb" "$work/root"
+"$work/root/usr/bin/anisocap" --version
 unset ANISOCAP_MODELS
 (cd "$work" && OMP_NUM_THREADS=2 "$work/root/usr/bin/anisocap" demo --size 64 -o "$work/demo" >"$work/demo.log" 2>&1) ||
   { cat "$work/demo.log"; exit 1; }

@@ -1,6 +1,6 @@
 #pragma once
-// Options of the program as a whole: --threads (before or after the command) and the closest
-// command to a mistyped one.
+// Options of the program as a whole: --threads and --kernel-isa (before or after the command) and
+// the closest command to a mistyped one.
 #include <omp.h>
 
 #include <CLI/CLI.hpp>
@@ -41,6 +41,25 @@ inline void add_threads_option(CLI::App* app) {
           },
           "INT >= 0"))
       ->default_str("0");
+}
+
+/// Adds `--kernel-isa` to `app`. The launcher of a dispatching build reads it to choose the module
+/// (launcher/main.cpp); here it is checked against `compiled`, the instruction set this code was built
+/// for, so that a build without modules says so instead of ignoring the request.
+inline void add_kernel_isa_option(CLI::App* app, const std::string& compiled) {
+  app->add_option_function<std::string>(
+         "--kernel-isa", [](const std::string&) {},
+         "instruction set of the kernels: in a build with modules per instruction set (ANISOCAP_KERNEL_ISAS), one of "
+         "x86-64-v4 (AVX-512), x86-64-v3 (AVX2), x86-64-v2, x86-64; the default is the best one this CPU runs (also "
+         "the environment's ANISOCAP_KERNEL_ISA). This program runs " + compiled)
+      ->type_name("ISA")
+      ->check(CLI::Validator(
+          [compiled](std::string& isa) -> std::string {
+            if (isa == compiled) return {};
+            return "--kernel-isa " + isa + ": this program has only the " + compiled +
+                   " kernels (a build with -DANISOCAP_KERNEL_ISAS=\"x86-64-v3;x86-64-v4\" has one module per instruction set)";
+          },
+          ""));
 }
 
 /// Edit distance between two names (Levenshtein).
