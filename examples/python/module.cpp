@@ -394,12 +394,7 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
     check_size(*start, photos[0].width(), photos[0].height(), "the photographs");
   }
   capture_options o;
-  {
-    const capture_options s = capture_options::schedule(schedule);
-    o.finetune = s.finetune;
-    o.refine = s.refine;
-    o.neighbour_restarts = s.neighbour_restarts;
-  }
+  o.apply_schedule(schedule);
   if (estimate_window) o.estimate.window = *estimate_window;
   if (estimate_stride) o.estimate.stride = *estimate_stride;
   if (finetune_steps) o.finetune.steps = *finetune_steps;

@@ -72,6 +72,18 @@ TEST_CASE("capture_options: the named schedules and the validation of every fiel
   CHECK(paper.finetune.steps == 5000);
   CHECK(paper.neighbour_restarts.empty());
   CHECK_THROWS_WITH_AS(capture_options::schedule("slow"), doctest::Contains("unknown schedule 'slow'"), std::invalid_argument);
+  // apply_schedule takes what a schedule sets and keeps the rest.
+  capture_options applied;
+  applied.estimate.window = 128;
+  applied.refine_alone.steps = 77;
+  applied.apply_schedule("paper");
+  CHECK(applied.finetune.steps == 5000);
+  CHECK(applied.refine.steps == paper.refine.steps);
+  CHECK(applied.refine.learning_rate == paper.refine.learning_rate);
+  CHECK(applied.neighbour_restarts.empty());
+  CHECK(applied.estimate.window == 128);
+  CHECK(applied.refine_alone.steps == 77);
+  CHECK_THROWS_AS(applied.apply_schedule("slow"), std::invalid_argument);
   capture_options o;
   CHECK_NOTHROW(o.validate());
   o.neighbour_restarts_alone = {0};

@@ -389,12 +389,7 @@ inline void print_capture_choice(const std::string& message) { std::fprintf(stde
 inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option_function<std::string>(
        "--schedule",
-       [&o](const std::string& name) {
-         const capture_options s = capture_options::schedule(name);
-         o.finetune = s.finetune;
-         o.refine = s.refine;
-         o.neighbour_restarts = s.neighbour_restarts;
-       },
+       [&o](const std::string& name) { o.apply_schedule(name); },
        "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "
        "error; docs/results.md \"Run time against error\"); thorough: fine-tune 2000 at 8e-3, refine 1000 at 3e-3 (~2.1x longer, "
        "the novel-view loss 17% lower on the family comparison, foil 33%); auto: the fast schedule's steps, then on while the "

@@ -214,6 +214,16 @@ struct capture_options {
     if (name == "paper") return paper();
     throw std::invalid_argument("unknown schedule '" + std::string(name) + "' (fast, thorough, auto, paper)");
   }
+  /// Takes the named schedule's fine-tune, refine and neighbourhood restarts (what a schedule sets)
+  /// and keeps every other field, so that options set before or after it combine with it. Throws as
+  /// schedule() for an unknown name.
+  capture_options& apply_schedule(std::string_view name) {
+    const capture_options s = schedule(name);
+    finetune = s.finetune;
+    refine = s.refine;
+    neighbour_restarts = s.neighbour_restarts;
+    return *this;
+  }
   /// Throws std::invalid_argument naming the field for impossible values.
   void validate() const {
     refine.validate();
