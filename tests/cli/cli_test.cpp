@@ -19,6 +19,7 @@
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/export/tileable.hpp"
 #include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/networks/presets.hpp"
 #include "anisocap/nn/safetensors.hpp"
@@ -218,6 +219,38 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK(r.status != 0);
   CHECK(r.output.find("slow") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "bad"));
+}
+
+TEST_CASE("capture --tileable: the maps and a seamless tile of them, its seam in report.json; a sample too small is refused first") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 48 --height 40 --images 5 --seed 3", t.path).status == 0);
+  auto r = run("capture syn/capture.json -o tiled --stages refine --steps 5 --tileable --tile-overlap 0.25 --no-view", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("tileable: 48x40 maps made into a") != std::string::npos);
+  using namespace anisocap;
+  const material_maps maps = read_maps(t.path / "tiled");
+  const material_maps tile = read_maps(t.path / "tiled" / "tileable");
+  CHECK(maps.width() == 48);
+  CHECK(maps.height() == 40);
+  // The overlap is searched between 0.5 and 1.5 times 0.25 of each side.
+  CHECK(tile.width() >= 48 - 18);
+  CHECK(tile.width() <= 48 - 6);
+  CHECK(tile.height() >= 40 - 15);
+  CHECK(tile.height() <= 40 - 5);
+  CHECK(fs::exists(t.path / "tiled" / "tileable" / "rotation.png"));
+  std::ifstream in(t.path / "tiled" / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  REQUIRE(report.contains("tileable"));
+  CHECK(report["tileable"]["width"] == tile.width());
+  CHECK(report["tileable"]["seam_ratio_after"].get<double>() < report["tileable"]["seam_ratio_before"].get<double>());
+  CHECK(report["tileable"]["seam_ratio_after"].get<double>() == doctest::Approx(measure_seam(tile).mean_seam_ratio()).epsilon(1e-3));
+  // Without --tileable no tile and no report entry.
+  REQUIRE(run("capture syn/capture.json -o plain --stages refine --steps 5 --no-view", t.path).status == 0);
+  CHECK_FALSE(fs::exists(t.path / "plain" / "tileable"));
+  // 48 x 40 texels leave fewer than 2 to blend at a 2% overlap: refused before any work or output.
+  check_refused("capture syn/capture.json -o small --stages refine --steps 5 --tileable --tile-overlap 0.02", t.path,
+                "--tileable: map set of 48x40 is too small", "small");
 }
 
 TEST_CASE("capture --neighbour-restarts: one refine per radius after the refine, the loss never above the single start's") {
@@ -675,6 +708,10 @@ TEST_CASE("--version, a suggestion on a mistyped command, defaults in the traini
   auto r = run("--version", t.path);
   CHECK(r.status == 0);
   CHECK(r.output.find("anisocap 0.") != std::string::npos);
+  CHECK(r.output.find("(kernels: ") != std::string::npos);  // the instruction set the kernels run
+  // An instruction set the program cannot run is refused, before or after the command, with no output.
+  check_refused("--kernel-isa avx9000 synthesize -o isa --width 8 --height 8 --images 1", t.path, "avx9000", "isa");
+  check_refused("synthesize --kernel-isa avx9000 -o isa --width 8 --height 8 --images 1", t.path, "avx9000", "isa");
   r = run("captur syn/capture.json", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("did you mean 'capture'") != std::string::npos);

@@ -154,3 +154,24 @@ TEST_CASE("a tile needs an overlap in (0, 0.5] and enough texels to blend") {
   CHECK_THROWS_AS(make_tileable(maps, {0.6}), std::invalid_argument);
   CHECK_THROWS_AS(make_tileable(ramp_material(4, 4), {0.25}), std::invalid_argument);
 }
+
+TEST_CASE("compare_tile: the seam before and after, the statistics' change; validate_tileable refuses what make_tileable refuses") {
+  const material_maps maps = ramp_material(64, 48);
+  const material_maps tile = make_tileable(maps, {0.25, false});
+  const tileable_change c = compare_tile(maps, tile);
+  CHECK(c.width_before == 64);
+  CHECK(c.height_after == 36);
+  CHECK(c.seam_before == doctest::Approx(measure_seam(maps).mean_seam_ratio()));
+  CHECK(c.seam_after == doctest::Approx(measure_seam(tile).mean_seam_ratio()));
+  CHECK(c.seam_after < c.seam_before);
+  CHECK(c.largest_mean_shift > 0);
+  CHECK(c.variance_ratio_low <= c.variance_ratio_high);
+  const tileable_change same = compare_tile(maps, maps);
+  CHECK(same.largest_mean_shift == 0);
+  CHECK(same.variance_ratio_low == doctest::Approx(1));
+  CHECK(same.variance_ratio_high == doctest::Approx(1));
+  CHECK_NOTHROW(validate_tileable(64, 48, {0.25, false}));
+  CHECK_THROWS_AS(validate_tileable(64, 48, {0.6, false}), std::invalid_argument);
+  CHECK_THROWS_AS(validate_tileable(64, 4, {0.25, false}), std::invalid_argument);
+  CHECK_THROWS_AS(make_tileable(ramp_material(64, 4), {0.25, false}), std::invalid_argument);
+}

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One capture on 1, 2 and 4 MPI ranks (mpirun --oversubscribe on one machine) gives the same maps,
 # bit for bit, as the program run once without mpirun with the same shards (--finetune-shards);
-# a failing run ends every rank with one message, a non-zero exit and no output.
+# a failing run ends every rank with one message, a non-zero exit and no output; a 2-rank run
+# killed in its fine-tune resumes to the same maps.
 # Usage: check_capture_ranks.sh PROGRAM MPIEXEC
 set -euo pipefail
 program=$(realpath "$1")
@@ -41,3 +42,31 @@ fi
 [[ $(grep -c "anisocap: error:" failed.log) == 1 ]] || { echo "FAIL: the error printed other than once"; cat failed.log; exit 1; }
 [[ ! -e failed ]] || { echo "FAIL: a failed run left output"; exit 1; }
 echo "a failing run: one message, exit non-zero, no output"
+
+# A 2-rank capture killed during its fine-tune (check-points after every step) continues with
+# --resume to the maps of the run that was never killed, bit for bit, every rank reading the
+# check-point rank 0 wrote.
+"$program" synthesize -o syn512 --width 512 --height 512 --images 5 --seed 4 > /dev/null 2>&1
+args=(capture syn512/capture.json --stages all --estimate-stride 256 --finetune-steps 12 --finetune-shards 8 --steps 2
+      --neighbour-restarts none --no-also-residual --no-also-models --no-uncertainty --no-view)
+mpirun -np 2 "$program" "${args[@]}" -o whole 2> whole.log || { cat whole.log; exit 1; }
+"$mpiexec" --allow-run-as-root --oversubscribe -np 2 "$program" "${args[@]}" --checkpoint-every 0 -o killed 2> killed.log &
+job=$!  # mpirun itself, which passes SIGTERM on to the ranks
+state=killed/.checkpoint/finetune/state.safetensors
+for ((i = 0; i < 1200; ++i)); do
+  [[ -e $state ]] && break
+  kill -0 "$job" 2>/dev/null || break
+  sleep 0.1
+done
+[[ -e $state ]] || { echo "FAIL: no fine-tune check-point appeared"; cat killed.log; exit 1; }
+kill -TERM "$job" 2>/dev/null || true
+wait "$job" 2>/dev/null || true
+[[ ! -e killed/report.json ]] || { echo "FAIL: the run finished before it was killed: nothing to resume"; exit 1; }
+mpirun -np 2 "$program" "${args[@]}" --resume -o killed 2> resumed.log || { echo "FAIL: --resume on 2 ranks"; cat resumed.log; exit 1; }
+python3 -c 'import json, sys
+stages = {s["name"]: s for s in json.load(open(sys.argv[1]))["stages"]}
+sys.exit(0 if stages["finetune"]["resumed"] and stages["estimate"]["resumed"] else "FAIL: report.json says no stage resumed")' killed/report.json
+for map in whole/*.exr; do
+  cmp -s "$map" "killed/$(basename "$map")" || { echo "FAIL: $(basename "$map") after a resume on 2 ranks differs"; cat resumed.log; exit 1; }
+done
+echo "a 2-rank capture killed in its fine-tune resumes to the same maps, bit for bit"

@@ -10,6 +10,7 @@
 #include "anisocap/pipeline/progress_line.hpp"
 #include "common.hpp"
 #include "ranks.hpp"
+#include "tileable.hpp"
 
 namespace anisocap::commands {
 
@@ -20,11 +21,14 @@ struct capture_settings {
   std::optional<fs::path> truth, init;
   std::string stages = "auto";  ///< auto: all stages when the weights are there, else refine alone
   bool resume = false;
+  double checkpoint_seconds = checkpoint_options{}.seconds;  ///< --checkpoint-every
   bool view = true;  ///< write material.html (the viewer page, export/viewer.hpp) beside the maps
   model_choice models;
   capture_options options;
   photo_options photos;  ///< clipped-pixel detection (--saturation, --fit-clipped)
   std::optional<float> floor;  ///< --floor: replaces every image's floor (capture_image::floor)
+  bool tileable = false;       ///< --tileable: also write a seamless tile of the maps to OUT/tileable/
+  tileable_options tile;       ///< --tile-overlap
 };
 
 /// The end of a capture in a few lines: what was made, where, how well it fits the photographs,
@@ -226,13 +230,24 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   if (!ranks.root()) {  // the same capture, sharing the fine-tune's steps; rank 0 writes every output
     std::string stages_text;
     const networks nets = choose_networks(s, o, parsed, stages_text);
-    o.checkpoint = {s.out / ".checkpoint", s.resume};
+    o.checkpoint = {s.out / ".checkpoint", s.resume, s.checkpoint_seconds};
     o.uncertainty.reset();  // rank 0's alone is written
     capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
     return {};
   }
+  if (s.tileable) {
+    try {
+      validate_tileable(in.photos[0].width(), in.photos[0].height(), s.tile);
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument("--tileable: " + std::string(e.what()));
+    }
+  }
   // Outputs stay inside OUT and never replace an input; checked before any work.
   std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
+  if (s.tileable) {
+    const std::vector<fs::path> tile_files = map_files(s.out / "tileable");
+    outputs.insert(outputs.end(), tile_files.begin(), tile_files.end());
+  }
   outputs.insert(outputs.end(), renders.begin(), renders.end());
   for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
   refuse_overwriting_inputs(outputs, in.files);
@@ -242,7 +257,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
 
   std::string stages_text;
   const networks nets = choose_networks(s, o, parsed, stages_text);
-  o.checkpoint = {s.out / ".checkpoint", s.resume};
+  o.checkpoint = {s.out / ".checkpoint", s.resume, s.checkpoint_seconds};
   o.finetune.progress_every = 25;
   o.refine.progress_every = std::max(1, o.refine.steps / 50);
   o.refine_alone.progress_every = std::max(1, o.refine_alone.steps / 50);
@@ -289,7 +304,14 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   const material_maps& maps = result.maps;  // canonical (capture_material)
   create_output_folder(s.out);
   file_transaction files;
-  const std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
+  std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
+  std::optional<tileable_change> tile_change;
+  if (s.tileable) {
+    const material_maps tile = make_tileable(maps, s.tile);
+    tile_change = compare_tile(maps, tile);
+    const std::vector<fs::path> stale_tile = stage_maps(tile, s.out / "tileable", files);
+    stale_maps.insert(stale_maps.end(), stale_tile.begin(), stale_tile.end());
+  }
   if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files);
   if (s.view) {
     viewer_options view{s.out.filename().string()};
@@ -307,6 +329,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   nlohmann::json report = capture_report(s, o, in, result, nets, novel);
   report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["peak_memory_bytes"] = peak_resident_bytes();
+  if (tile_change) report["tileable"] = tileable_json(*tile_change, s.tile.overlap);
   files.stage(s.out / "report.json", report.dump(2) + "\n");
   files.commit();
   remove_stale_files(stale_maps);
@@ -314,6 +337,10 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume
   print_capture_summary(result, s.out, seconds_since(start), s.view);
+  if (tile_change) {
+    print_tileable_change(*tile_change);
+    std::fprintf(stderr, "  seamless tile       %s/\n", (s.out / "tileable").c_str());
+  }
   return report;
 }
 
@@ -323,6 +350,10 @@ inline void add_capture_options(CLI::App* c, capture_settings& s) {
   c->add_option("--stages", s.stages, "stages to run: auto (all when the weights are there, else refine), all, or a list of estimate,encode,finetune,refine");
   add_model_options(c, s.models);
   c->add_flag("--resume", s.resume, "continue a killed run from OUT/.checkpoint");
+  c->add_option("--checkpoint-every", s.checkpoint_seconds,
+                "seconds between the fine-tune's check-points in OUT/.checkpoint (0: after every step; the estimate is "
+                "check-pointed when it is done)")
+      ->check(CLI::NonNegativeNumber);
   add_optimiser_options(c, s.options);
   c->add_option("--floor", s.floor,
                 "every image's floor, replacing capture.json's: the linear level (in the files' values) below which they are not "
@@ -343,6 +374,7 @@ inline void add_capture_command(CLI::App& app) {
   c->add_option("--truth", s->truth, "true map set: adds per-parameter errors to report.json");
   c->add_option("--init", s->init, "start from this map set instead of the built-in first guess");
   c->add_flag("!--no-view", s->view, "do not write the viewer page material.html beside the maps");
+  add_tileable_options(c, s->tileable, s->tile, "also write a seamless tile of the maps to OUT/tileable/");
   c->add_flag_callback("--no-uncertainty", [s] { s->options.uncertainty.reset(); },
                        "do not compute the per-texel standard deviations (uncertainty/, report.json's uncertainty)");
   c->callback([s, c] { run_on_ranks([&] { run_capture_command(*s, c); }); });

@@ -14,6 +14,7 @@
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/export/export.hpp"
 #include "anisocap/export/tileable.hpp"
+#include "tileable.hpp"
 
 namespace anisocap::commands {
 
@@ -46,34 +47,17 @@ inline void add_export_command(CLI::App& app) {
                      .description(""))
       ->type_name("auto|on|off")
       ->default_str("auto");
-  cmd->add_flag("--tileable", s->tileable,
-                "export a seamless tile: the maps cross-faded over an overlap at each edge (export/tileable.hpp), "
-                "smaller by the overlap along each axis");
-  cmd->add_option("--tile-overlap", s->tile.overlap, "with --tileable: the overlap, as a fraction of each side")
-      ->check(CLI::Range(0.01, 0.5));
+  add_tileable_options(cmd, s->tileable, s->tile, "export a seamless tile");
   cmd->callback([s] {
     material_maps maps = read_maps(s->maps);
     if (s->tileable) {
-      const int w = maps.width(), h = maps.height();
-      const seam_statistics before = measure_seam(maps);
+      const material_maps original = maps;
       try {
         maps = make_tileable(maps, s->tile);
       } catch (const std::invalid_argument& e) {
         throw std::invalid_argument(s->maps.string() + ": --tileable: " + e.what());
       }
-      const seam_statistics after = measure_seam(maps);
-      double mean_shift = 0, variance_ratio_low = 1e300, variance_ratio_high = 0;
-      for (int k = 0; k < parameter_count; ++k) {
-        if (k == rotation || before.variance[k] < 1e-12) continue;  // the rotation's statistics are angles
-        mean_shift = std::max(mean_shift, std::abs(after.mean[k] - before.mean[k]) / std::sqrt(before.variance[k]));
-        variance_ratio_low = std::min(variance_ratio_low, after.variance[k] / before.variance[k]);
-        variance_ratio_high = std::max(variance_ratio_high, after.variance[k] / before.variance[k]);
-      }
-      std::fprintf(stderr,
-                   "tileable: %dx%d maps made into a %dx%d tile; wrap-edge step / interior step %.2f -> %.2f (mean over the maps), "
-                   "largest mean shift %.3f standard deviations, variance ratios %.3f-%.3f\n",
-                   w, h, maps.width(), maps.height(), before.mean_seam_ratio(), after.mean_seam_ratio(), mean_shift,
-                   variance_ratio_low > variance_ratio_high ? 1.0 : variance_ratio_low, variance_ratio_high > 0 ? variance_ratio_high : 1.0);
+      print_tileable_change(compare_tile(original, maps));
     }
     exports::export_material(maps, *exports::export_format_from_name(s->format), s->out, s->options);
     std::fprintf(stderr, "exported %s (%dx%d) as %s to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->format.c_str(), s->out.c_str());

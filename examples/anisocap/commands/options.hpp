@@ -56,7 +56,7 @@ inline void add_kernel_isa_option(CLI::App* app, const std::string& compiled) {
       ->check(CLI::Validator(
           [compiled](std::string& isa) -> std::string {
             if (isa == compiled) return {};
-            return "--kernel-isa " + isa + ": this program has only the " + compiled +
+            return isa + ": this program has only the " + compiled +
                    " kernels (a build with -DANISOCAP_KERNEL_ISAS=\"x86-64-v3;x86-64-v4\" has one module per instruction set)";
           },
           ""));

@@ -171,18 +171,24 @@ inline std::vector<double> transpose(const std::vector<double>& in, int w, int h
 
 }  // namespace detail
 
+/// Throws what make_tileable throws for a w x h map set and these options, without the maps: a
+/// capture checks its --tileable before any work.
+inline void validate_tileable(int w, int h, const tileable_options& options) {
+  if (!(options.overlap > 0 && options.overlap <= 0.5))
+    throw std::invalid_argument("tileable overlap must be in (0, 0.5], got " + std::to_string(options.overlap));
+  if (std::lround(options.overlap * w) < 2 || std::lround(options.overlap * h) < 2)
+    throw std::invalid_argument("map set of " + std::to_string(w) + "x" + std::to_string(h) + " is too small for a tileable overlap of " +
+                                std::to_string(options.overlap) + " (fewer than 2 texels to blend)");
+}
+
 /// A seamless tile of `maps` (file comment): (W - bx) x (H - by) texels, bx = round(overlap W),
 /// by = round(overlap H), or the best-matching overlaps near them (tileable_options::match_overlap),
 /// in canonical form (brdf/canonical_maps.hpp). Throws std::invalid_argument when the overlap is not in (0, 0.5] or
 /// leaves fewer than 2 texels to blend along an axis.
 inline material_maps make_tileable(material_maps maps, const tileable_options& options = {}) {
-  if (!(options.overlap > 0 && options.overlap <= 0.5))
-    throw std::invalid_argument("tileable overlap must be in (0, 0.5], got " + std::to_string(options.overlap));
   const int w = maps.width(), h = maps.height();
+  validate_tileable(w, h, options);
   int bx = int(std::lround(options.overlap * w)), by = int(std::lround(options.overlap * h));
-  if (bx < 2 || by < 2)
-    throw std::invalid_argument("map set of " + std::to_string(w) + "x" + std::to_string(h) + " is too small for a tileable overlap of " +
-                                std::to_string(options.overlap) + " (fewer than 2 texels to blend)");
   canonicalise(maps);  // widths blend with widths along the same (wide or narrow) axis
   const int channels = detail::tile_channels + (maps.has_height() ? 1 : 0);
   std::vector<double> values(maps.texel_count() * channels);
@@ -255,6 +261,32 @@ inline seam_statistics measure_seam(const material_maps& maps) {
     s.mean[k] = m, s.variance[k] = m2 / double(maps.texel_count());
   }
   return s;
+}
+
+/// What make_tileable changed, in the numbers a user checks: the seam (mean_seam_ratio) before and
+/// after, and how far each map's statistics moved (the rotation, an angle, and planes without
+/// variation left out).
+struct tileable_change {
+  int width_before = 0, height_before = 0, width_after = 0, height_after = 0;
+  double seam_before = 1, seam_after = 1;  ///< seam_statistics::mean_seam_ratio
+  double largest_mean_shift = 0;           ///< |mean after - mean before| / standard deviation before, largest over the planes
+  double variance_ratio_low = 1, variance_ratio_high = 1;  ///< variance after / before, smallest and largest over the planes
+};
+
+/// Compares a map set with its tile (make_tileable's result).
+inline tileable_change compare_tile(const material_maps& before, const material_maps& after) {
+  const seam_statistics a = measure_seam(before), b = measure_seam(after);
+  tileable_change c{before.width(), before.height(), after.width(), after.height(), a.mean_seam_ratio(), b.mean_seam_ratio()};
+  bool any = false;
+  for (int k = 0; k < parameter_count; ++k) {
+    if (k == rotation || a.variance[k] < 1e-12) continue;
+    const double ratio = b.variance[k] / a.variance[k];
+    c.largest_mean_shift = std::max(c.largest_mean_shift, std::abs(b.mean[k] - a.mean[k]) / std::sqrt(a.variance[k]));
+    c.variance_ratio_low = any ? std::min(c.variance_ratio_low, ratio) : ratio;
+    c.variance_ratio_high = any ? std::max(c.variance_ratio_high, ratio) : ratio;
+    any = true;
+  }
+  return c;
 }
 
 }  // namespace anisocap
