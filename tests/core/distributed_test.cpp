@@ -4,6 +4,7 @@
 // under mpirun.
 #include <doctest/doctest.h>
 
+#include <atomic>
 #include <barrier>
 #include <cmath>
 #include <cstring>
@@ -57,6 +58,12 @@ class loopback_communicator : public communicator {
       std::memcpy(out, w_.sends[std::size_t(s)] + offset, receive_counts[std::size_t(s)]);
       out += receive_counts[std::size_t(s)];
     }
+    w_.sync.arrive_and_wait();
+  }
+  void broadcast_bytes(void* data, std::size_t bytes, int root) const override {
+    if (me_ == root) w_.sends[std::size_t(me_)] = static_cast<const unsigned char*>(data);
+    w_.sync.arrive_and_wait();
+    if (me_ != root) std::memcpy(data, w_.sends[std::size_t(root)], bytes);
     w_.sync.arrive_and_wait();
   }
   void barrier() const override { w_.sync.arrive_and_wait(); }
@@ -159,4 +166,27 @@ TEST_CASE("part_range spreads parts evenly and in order; the serial communicator
   one.all_gather<double>(v, gathered, {3});
   CHECK(gathered == v);
   CHECK_THROWS_AS(part_range(3, 0, 0), std::invalid_argument);
+}
+
+TEST_CASE("root_decides: rank 0 alone asks, every rank gets its answer") {
+  for (const bool answer : {true, false}) {
+    loopback_world world(3);
+    std::atomic<int> asked{0};
+    std::vector<int> results(3, -1);
+    std::vector<std::thread> threads;
+    for (int r = 0; r < 3; ++r)
+      threads.emplace_back([&, r] {
+        const loopback_communicator comm(world, r);
+        // Each rank would answer differently: only rank 0's answer may count.
+        results[std::size_t(r)] = comm.root_decides([&] {
+          ++asked;
+          return r == 0 ? answer : !answer;
+        });
+      });
+    for (auto& t : threads) t.join();
+    CHECK(asked == 1);
+    CHECK(results == std::vector<int>(3, answer ? 1 : 0));
+  }
+  CHECK(serial_communicator().root_decides([] { return true; }));
+  CHECK_FALSE(serial_communicator().root_decides([] { return false; }));
 }

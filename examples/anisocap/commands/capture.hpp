@@ -235,16 +235,14 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
     capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
     return {};
   }
+  // Outputs stay inside OUT and never replace an input; checked before any work, as is --tileable.
+  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
   if (s.tileable) {
     try {
       validate_tileable(in.photos[0].width(), in.photos[0].height(), s.tile);
     } catch (const std::invalid_argument& e) {
       throw std::invalid_argument("--tileable: " + std::string(e.what()));
     }
-  }
-  // Outputs stay inside OUT and never replace an input; checked before any work.
-  std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
-  if (s.tileable) {
     const std::vector<fs::path> tile_files = map_files(s.out / "tileable");
     outputs.insert(outputs.end(), tile_files.begin(), tile_files.end());
   }

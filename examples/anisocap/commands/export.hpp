@@ -51,13 +51,14 @@ inline void add_export_command(CLI::App& app) {
   cmd->callback([s] {
     material_maps maps = read_maps(s->maps);
     if (s->tileable) {
-      const material_maps original = maps;
+      material_maps tile;
       try {
-        maps = make_tileable(maps, s->tile);
+        tile = make_tileable(maps, s->tile);
       } catch (const std::invalid_argument& e) {
         throw std::invalid_argument(s->maps.string() + ": --tileable: " + e.what());
       }
-      print_tileable_change(compare_tile(original, maps));
+      print_tileable_change(compare_tile(maps, tile));
+      maps = std::move(tile);
     }
     exports::export_material(maps, *exports::export_format_from_name(s->format), s->out, s->options);
     std::fprintf(stderr, "exported %s (%dx%d) as %s to %s\n", s->maps.c_str(), maps.width(), maps.height(), s->format.c_str(), s->out.c_str());

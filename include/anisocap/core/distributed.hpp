@@ -81,6 +81,14 @@ class communicator {
   void broadcast(std::span<T> data, int root = 0) const {
     broadcast_bytes(data.data(), data.size_bytes(), root);
   }
+  /// Rank 0's answer of `decide()` on every rank; the other ranks do not call it. For decisions
+  /// that read what rank 0 alone writes (a check-point), so that every rank takes the same path.
+  template <class F>
+  bool root_decides(F&& decide) const {
+    int answer = root() && decide() ? 1 : 0;
+    broadcast(std::span<int>(&answer, 1));
+    return answer != 0;
+  }
   /// Every rank's `send` concatenated in rank order into `receive` (resized); `counts[r]` is the
   /// element count of rank r.
   template <class T>

@@ -467,8 +467,8 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
                                               capture_fingerprint(given_cap, given_photos, estimator, autoencoder, o, start));
   const fs::path estimate_folder = o.checkpoint.folder / "estimate";
   // Whether the estimate is read back: rank 0 decides before it may write one.
-  int resume_estimate = checkpoints && o.checkpoint.resume && comm.root() && fs::exists(estimate_folder / "diffuse.exr") ? 1 : 0;
-  comm.broadcast(std::span<int>(&resume_estimate, 1));
+  const bool resume_estimate =
+      comm.root_decides([&] { return checkpoints && o.checkpoint.resume && fs::exists(estimate_folder / "diffuse.exr"); });
 
   // 1. Estimate (8.1), or the first guess.
   const auto t0 = clock::now();

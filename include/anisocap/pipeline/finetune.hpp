@@ -405,11 +405,8 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
   finetune_result result;
   int first = 0;
   const bool checkpoints = !checkpoint.folder.empty();
-  // Whether to continue from a check-point: rank 0 decides (it writes them) and tells the others,
-  // so that every rank resumes, or none.
-  int resume = checkpoints && checkpoint.resume && comm.root() && fs::exists(checkpoint.folder / "state.safetensors") ? 1 : 0;
-  comm.broadcast(std::span<int>(&resume, 1));
-  if (resume) {
+  // Whether to continue from a check-point: rank 0, which writes them, decides for every rank.
+  if (comm.root_decides([&] { return checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "state.safetensors"); })) {
     first = finetune_detail::load_checkpoint(checkpoint.folder, autoencoder, adam, guard, loop);
     adam.schedule = schedule.scaled(guard.lr_scale);
     result.resumed = true;
