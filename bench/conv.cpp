@@ -2,7 +2,9 @@
 // representative set of the estimator's (docs/method.md section 7), forward / backward-input / backward-weight,
 // on 1 and 2 threads, as GFLOP/s and as a fraction of the FP32 FMA peak measured in the same run;
 // beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
-// step of the auto-encoder's decoder on one 256 x 256 tile.
+// step of the auto-encoder's decoder on one 256 x 256 tile. Where the build has AVX-512 BF16, the
+// forward and input-gradient passes and the decoder step again in bf16 (anisocap_bf16/...; the
+// peak fraction stays relative to the FP32 FMA peak, of which bf16 can reach 2).
 //
 //   anisocap_bench_conv --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 //
@@ -26,6 +28,7 @@
 
 #include "anisocap/core/simd.hpp"
 #include "anisocap/nn/conv_transpose.hpp"
+#include "anisocap/nn/precision.hpp"
 
 using namespace anisocap;
 
@@ -85,8 +88,9 @@ const char* pass_name[] = {"fwd", "bwd_in", "bwd_w"};
 // ---- anisocap kernels -------------------------------------------------------------------------
 
 template <int Cin, int Cout, int K, int S, int P>
-void conv_case(benchmark::State& state, int n, int threads, pass_kind pass) {
+void conv_case(benchmark::State& state, int n, int threads, pass_kind pass, nn::precision precision) {
   omp_set_num_threads(threads);
+  nn::precision_scope scope(precision);
   const int m = nn::conv2d_output_size<K, S, P>(n);
   auto in = random_tensor<Cin>(1, n, n, 1);
   auto gout = random_tensor<Cout>(1, m, m, 2);
@@ -105,8 +109,9 @@ void conv_case(benchmark::State& state, int n, int threads, pass_kind pass) {
 }
 
 template <int Cin, int Cout>
-void conv_transpose_case(benchmark::State& state, int n, int threads, pass_kind pass) {
+void conv_transpose_case(benchmark::State& state, int n, int threads, pass_kind pass, nn::precision precision) {
   omp_set_num_threads(threads);
+  nn::precision_scope scope(precision);
   auto in = random_tensor<Cin>(1, n, n, 1);
   auto gout = random_tensor<Cout>(1, 2 * n, 2 * n, 2);
   tensor<Cout> out(1, 2 * n, 2 * n);
@@ -256,8 +261,9 @@ struct decoder {
   }
 };
 
-void decoder_step(benchmark::State& state, int threads) {
+void decoder_step(benchmark::State& state, int threads, nn::precision precision) {
   omp_set_num_threads(threads);
+  nn::precision_scope scope(precision);
   decoder net;
   ad::tape t;
   tensor<1024> latent = random_tensor<1024>(1, 8, 8, 11);
@@ -291,8 +297,12 @@ void add_conv(const std::string& kind, int n) {
     for (int threads = 1; threads <= 2; ++threads) {
       const std::string suffix = "/" + std::string(pass_name[pass]) + "/threads:" + std::to_string(threads);
       benchmark::RegisterBenchmark(("anisocap/" + shape + suffix).c_str(), [=](benchmark::State& s) {
-        conv_case<Cin, Cout, K, S, P>(s, n, threads, pass_kind(pass));
+        conv_case<Cin, Cout, K, S, P>(s, n, threads, pass_kind(pass), nn::precision::fp32);
       })->UseRealTime()->Unit(benchmark::kMillisecond);
+      if (nn::bf16_available() && pass != backward_weight)
+        benchmark::RegisterBenchmark(("anisocap_bf16/" + shape + suffix).c_str(), [=](benchmark::State& s) {
+          conv_case<Cin, Cout, K, S, P>(s, n, threads, pass_kind(pass), nn::precision::bf16);
+        })->UseRealTime()->Unit(benchmark::kMillisecond);
       benchmark::RegisterBenchmark(("eigen_im2col/" + shape + suffix).c_str(), [=](benchmark::State& s) {
         eigen_case(s, Cin, Cout, K, S, P, n, false, threads, pass_kind(pass));
       })->UseRealTime()->Unit(benchmark::kMillisecond);
@@ -306,8 +316,12 @@ void add_conv_transpose(int n) {
     for (int threads = 1; threads <= 2; ++threads) {
       const std::string suffix = "/" + std::string(pass_name[pass]) + "/threads:" + std::to_string(threads);
       benchmark::RegisterBenchmark(("anisocap/" + shape + suffix).c_str(), [=](benchmark::State& s) {
-        conv_transpose_case<Cin, Cout>(s, n, threads, pass_kind(pass));
+        conv_transpose_case<Cin, Cout>(s, n, threads, pass_kind(pass), nn::precision::fp32);
       })->UseRealTime()->Unit(benchmark::kMillisecond);
+      if (nn::bf16_available() && pass != backward_weight)
+        benchmark::RegisterBenchmark(("anisocap_bf16/" + shape + suffix).c_str(), [=](benchmark::State& s) {
+          conv_transpose_case<Cin, Cout>(s, n, threads, pass_kind(pass), nn::precision::bf16);
+        })->UseRealTime()->Unit(benchmark::kMillisecond);
       benchmark::RegisterBenchmark(("eigen_im2col/" + shape + suffix).c_str(), [=](benchmark::State& s) {
         eigen_case(s, Cin, Cout, 4, 2, 1, n, true, threads, pass_kind(pass));
       })->UseRealTime()->Unit(benchmark::kMillisecond);
@@ -351,10 +365,14 @@ int main(int argc, char** argv) {
   add_conv<256, 256, 3, 1, 1>("conv3x3", 64);
   add_conv<512, 512, 3, 1, 1>("conv3x3", 32);
   for (int threads = 1; threads <= 2; ++threads)
-    benchmark::RegisterBenchmark(("anisocap/decoder_step@256/threads:" + std::to_string(threads)).c_str(),
-                                 [=](benchmark::State& s) { decoder_step(s, threads); })
-        ->UseRealTime()
-        ->Unit(benchmark::kMillisecond);
+    for (nn::precision precision : {nn::precision::fp32, nn::precision::bf16}) {
+      if (precision == nn::precision::bf16 && !nn::bf16_available()) continue;
+      const std::string name = precision == nn::precision::bf16 ? "anisocap_bf16" : "anisocap";
+      benchmark::RegisterBenchmark((name + "/decoder_step@256/threads:" + std::to_string(threads)).c_str(),
+                                   [=](benchmark::State& s) { decoder_step(s, threads, precision); })
+          ->UseRealTime()
+          ->Unit(benchmark::kMillisecond);
+    }
 
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;

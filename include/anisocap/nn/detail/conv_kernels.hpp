@@ -16,12 +16,15 @@
 /// inner loops never test bounds.
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <omp.h>
 
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/simd.hpp"
 #include "anisocap/core/tensor.hpp"
+#include "anisocap/nn/precision.hpp"
 
 namespace anisocap::nn::detail::conv {
 
@@ -89,13 +92,11 @@ struct forward_pass {
   std::ptrdiff_t w_tap[16] = {};  ///< offset of each tap's weights (weight_layout::tap_stride times its index)
 };
 
-/// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
-/// `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
-template <int NX, int NV, int ACOL, class T>
-inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
-                         const T* bias, int init) {
+/// A register tile's accumulators at the start: `init` 0 = zero, 1 = the bias vector, 2 = out's
+/// current values (the last register of each pixel holds last_lanes channels).
+template <int NX, int NV, class T>
+ANISOCAP_ALWAYS_INLINE void tile_start(batch<T> (&acc)[NX][NV], const T* out, std::ptrdiff_t o_col, int last_lanes, const T* bias, int init) {
   constexpr int W = lanes<T>;
-  batch<T> acc[NX][NV];
   #pragma GCC unroll 32
   for (int p = 0; p < NX; ++p)
     #pragma GCC unroll 32
@@ -109,6 +110,29 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
         acc[p][v] = batch<T>(T(0));
       }
     }
+}
+/// Stores a register tile's accumulators into out.
+template <int NX, int NV, class T>
+ANISOCAP_ALWAYS_INLINE void tile_finish(const batch<T> (&acc)[NX][NV], T* out, std::ptrdiff_t o_col, int last_lanes) {
+  constexpr int W = lanes<T>;
+  #pragma GCC unroll 32
+  for (int p = 0; p < NX; ++p)
+    #pragma GCC unroll 32
+    for (int v = 0; v < NV; ++v) {
+      T* dst = out + p * o_col + v * W;
+      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[p][v], last_lanes);
+      else acc[p][v].store_unaligned(dst);
+    }
+}
+
+/// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
+/// `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
+template <int NX, int NV, int ACOL, class T>
+inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
+                         const T* bias, int init) {
+  constexpr int W = lanes<T>;
+  batch<T> acc[NX][NV];
+  tile_start<NX, NV>(acc, out, o_col, last_lanes, bias, init);
   for (int t = 0; t < taps; ++t) {
     const T* a = a_tap[t];
     const T* w = w_tap[t];
@@ -124,14 +148,7 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
       }
     }
   }
-  #pragma GCC unroll 32
-  for (int p = 0; p < NX; ++p)
-    #pragma GCC unroll 32
-    for (int v = 0; v < NV; ++v) {
-      T* dst = out + p * o_col + v * W;
-      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[p][v], last_lanes);
-      else acc[p][v].store_unaligned(dst);
-    }
+  tile_finish<NX, NV>(acc, out, o_col, last_lanes);
 }
 
 /// How the weights of a forward-type pass are laid out: tap t's [ci][co] slice of output-channel
@@ -178,12 +195,222 @@ struct row_plan {
   }
 };
 
+// ---- bf16 forward-type pass ------------------------------------------------------------------
+#if ANISOCAP_BF16_DOT
+
+/// The bf16 register tile: as forward_tile, with inputs and weights in bf16 and two input channels
+/// per instruction. a_tap points into the bf16 copy of A (same offsets as the FP32 data); tap t's
+/// weights are `pairs` rows of [block][2] bf16 (channels 2q and 2q+1 of each output column side by
+/// side), block = NV x 16.
+template <int NX, int NV, int ACOL>
+inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint16_t* const* w_tap, int taps, int pairs,
+                              float* out, std::ptrdiff_t o_col, int last_lanes, const float* bias, int init) {
+  constexpr int W = lanes<float>;
+  batch<float> acc[NX][NV];
+  tile_start<NX, NV>(acc, out, o_col, last_lanes, bias, init);
+  for (int t = 0; t < taps; ++t) {
+    const std::uint16_t* a = a_tap[t];
+    const std::uint16_t* w = w_tap[t];
+    for (int q = 0; q < pairs; ++q, w += 2 * NV * W) {
+      simd::bf16_pairs wv[NV];
+      #pragma GCC unroll 32
+      for (int v = 0; v < NV; ++v) wv[v] = simd::load_bf16_pairs(w + 2 * v * W);
+      #pragma GCC unroll 32
+      for (int p = 0; p < NX; ++p) {
+        const simd::bf16_pairs x = simd::broadcast_bf16_pair(a + p * ACOL + 2 * q);
+        #pragma GCC unroll 32
+        for (int v = 0; v < NV; ++v) acc[p][v] = simd::dot_bf16_pairs(acc[p][v], x, wv[v]);
+      }
+    }
+  }
+  tile_finish<NX, NV>(acc, out, o_col, last_lanes);
+}
+
+/// Writes rows r0..r1 of one tap of a forward-type pass's weights (layout wl, output-channel block
+/// cb of `block` columns, n_cols of them real) as bf16 pairs [(r1 - r0 + 1) / 2][block][2]; a
+/// missing odd row and the columns beyond n_cols are zero. A transposed source is first
+/// transposed into FP32 rows in cache (as the FP32 path packs it), then interleaved.
+inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap, int cb, int block, int n_cols, int r0, int r1,
+                            std::uint16_t* dst) {
+  const int rows = r1 - r0;
+  const int co0 = cb * block;
+  const float* base;
+  std::ptrdiff_t ld;
+  int n;
+  if (wl.pack && wl.transposed) {
+    float* t = scratch<float>(7, std::size_t(rows + 1) * block);
+    for (int j = 0; j < block; ++j) {
+      if (j < n_cols) {
+        const float* src = wl.w + w_tap + std::ptrdiff_t(co0 + j) * wl.ld + r0;
+        for (int r = 0; r < rows; ++r) t[std::ptrdiff_t(r) * block + j] = src[r];
+      } else {
+        for (int r = 0; r < rows; ++r) t[std::ptrdiff_t(r) * block + j] = 0.0f;
+      }
+    }
+    base = t;
+    ld = block;
+    n = block;
+  } else {
+    base = wl.pack ? wl.w + w_tap + co0 + std::ptrdiff_t(r0) * wl.ld : wl.w + w_tap + cb * wl.block_stride + std::ptrdiff_t(r0) * wl.ld;
+    ld = wl.ld;
+    n = wl.pack ? n_cols : block;
+  }
+  for (int r = 0; r < rows; r += 2) {
+    std::uint16_t* d = dst + std::ptrdiff_t(r) * block;
+    const float* a = base + std::ptrdiff_t(r) * ld;
+    if (r + 1 < rows) {
+      simd::interleave_to_bf16(a, a + ld, n, d);
+    } else {
+      for (int j = 0; j < n; ++j) d[2 * j] = simd::to_bf16(a[j]), d[2 * j + 1] = 0;
+    }
+    if (n < block) std::memset(static_cast<void*>(d + 2 * n), 0, sizeof(std::uint16_t) * 2 * (block - n));
+  }
+}
+
+/// run_forward in bf16 (see nn/precision.hpp): the span of A the passes read is converted to bf16
+/// once (same offsets), the weights are converted to bf16 pairs either once for the call (when
+/// many work items share each block) or by each work item for its block, as the FP32 path packs
+/// them; the tiles accumulate in FP32.
+template <int NV, int ACOL>
+void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, const weight_layout<float>& wl,
+                      const float* bias, bool accumulate, bool whole_blocks) {
+  constexpr int W = lanes<float>;
+  constexpr int NX1 = std::max(1, accumulator_budget<float> / NV);
+  constexpr int NX2 = std::max(1, 2 * NX1 / 3);
+  const int block = NV * W;
+  const int coblocks = (Cb + block - 1) / block;
+  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
+  const int pairs_total = (Ca + 1) / 2;
+  // The bf16 copy of A: every pass reads one buffer, from its start to the last tap of its last pixel.
+  const float* lo = passes[0].a;
+  const float* hi = passes[0].a;
+  for (int i = 0; i < npasses; ++i) {
+    const forward_pass<float>& ps = passes[i];
+    std::ptrdiff_t last_tap = 0;
+    for (int t = 0; t < ps.taps; ++t) last_tap = std::max(last_tap, ps.a_tap[t]);
+    lo = std::min(lo, ps.a);
+    hi = std::max(hi, ps.a + (ps.batch - 1) * ps.a_batch + (ps.rows - 1) * ps.a_row + std::ptrdiff_t(ps.cols - 1) * ACOL + last_tap + Ca);
+  }
+  const std::ptrdiff_t span = hi - lo;
+  // Two zeros past the end: an odd channel count's last pair reads one value beyond (its weight is 0).
+  std::uint16_t* a16 = scratch<std::uint16_t>(0, std::size_t(span) + 2);
+#pragma omp parallel for schedule(static) if (span > (1 << 16))
+  for (std::ptrdiff_t i = 0; i < span; i += 4096) simd::convert_to_bf16(lo + i, std::min<std::ptrdiff_t>(4096, span - i), a16 + i);
+  a16[span] = a16[span + 1] = 0;
+  // Input-channel chunk (even) so that a chunk of weights (taps x ci x block) stays in L2.
+  int ci_chunk = Ca;
+  {
+    const std::size_t bytes = std::size_t(passes[0].taps) * block * sizeof(std::uint16_t);
+    ci_chunk = int(std::max<std::size_t>(16, (std::size_t(256) << 10) / bytes)) & ~1;
+    if (ci_chunk >= Ca) ci_chunk = Ca;
+  }
+  row_plan plan[4];
+  long long tiles_in[4], first_item[5];
+  const int threads = omp_get_max_threads();
+  long long total_tiles = 0;
+  for (int i = 0; i < npasses; ++i) {
+    plan[i] = row_plan::make(passes[i].cols, NX1, NX2);
+    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
+    total_tiles += tiles_in[i];
+  }
+  long long chunk = 32;
+  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 8LL * threads) chunk /= 2;
+  long long items = 0;
+  for (int i = 0; i < npasses; ++i) {
+    first_item[i] = items;
+    items += (tiles_in[i] + chunk - 1) / chunk * coblocks;
+  }
+  first_item[npasses] = items;
+  // Weights converted once for the call when each block serves several work items, else by the items.
+  const std::ptrdiff_t tap_pairs = std::ptrdiff_t(pairs_total) * block * 2;  // one tap of one block
+  std::ptrdiff_t pass_offset[4] = {};
+  int total_taps = 0;
+  for (int i = 0; i < npasses; ++i) {
+    pass_offset[i] = std::ptrdiff_t(total_taps) * coblocks * tap_pairs;
+    total_taps += passes[i].taps;
+  }
+  const bool convert_once = items >= 3LL * coblocks * npasses;
+  std::uint16_t* packed = nullptr;
+  if (convert_once) {
+    packed = scratch<std::uint16_t>(1, std::size_t(total_taps) * coblocks * tap_pairs);
+    const int jobs = total_taps * coblocks;
+#pragma omp parallel for schedule(dynamic, 1) if (jobs > 1 && std::size_t(total_taps) * Ca * Cb > (1u << 16))
+    for (int job = 0; job < jobs; ++job) {
+      int pi = 0, rest = job;
+      while (rest >= passes[pi].taps * coblocks) rest -= passes[pi].taps * coblocks, ++pi;
+      const int cb = rest / passes[pi].taps, t = rest % passes[pi].taps;
+      pack_bf16_pairs(wl, passes[pi].w_tap[t], cb, block, std::min(block, Cb - cb * block), 0, Ca,
+                      packed + pass_offset[pi] + (std::ptrdiff_t(cb) * passes[pi].taps + t) * tap_pairs);
+    }
+  }
+
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && total_tiles * Ca * Cb > (1 << 16))
+  for (long long item = 0; item < items; ++item) {
+    int pi = 0;
+    while (item >= first_item[pi + 1]) ++pi;
+    const forward_pass<float>& ps = passes[pi];
+    const row_plan& pl = plan[pi];
+    const long long local = item - first_item[pi];
+    const long long ch = local / coblocks;
+    const int cb = int(local % coblocks);
+    const int co0 = cb * block;
+    const int per_row = pl.tiles();
+    const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
+    const std::uint16_t* w_tap[16];
+    const int n_cols = std::min(block, Cb - co0);
+    const float* bias_block = bias ? bias + co0 : nullptr;
+    const int lanes_here = (cb == coblocks - 1 && !whole_blocks) ? last_lanes : W;
+    const std::uint16_t* a_base = a16 + (ps.a - lo);
+    for (int c0 = 0; c0 < Ca; c0 += ci_chunk) {
+      const int c1 = std::min(Ca, c0 + ci_chunk);
+      const int pairs = (c1 - c0 + 1) / 2;
+      if (convert_once) {
+        for (int t = 0; t < ps.taps; ++t)
+          w_tap[t] = packed + pass_offset[pi] + (std::ptrdiff_t(cb) * ps.taps + t) * tap_pairs + std::ptrdiff_t(c0 / 2) * block * 2;
+      } else {
+        std::uint16_t* buffer = scratch<std::uint16_t>(4, std::size_t(ps.taps) * pairs * block * 2);
+        for (int t = 0; t < ps.taps; ++t) {
+          std::uint16_t* dst = buffer + std::ptrdiff_t(t) * pairs * block * 2;
+          pack_bf16_pairs(wl, ps.w_tap[t], cb, block, n_cols, c0, c1, dst);
+          w_tap[t] = dst;
+        }
+      }
+      const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
+      for (long long tile = t0; tile < t1; ++tile) {
+        const long long row = tile / per_row;
+        const auto [x, nx] = pl.tile(int(tile % per_row));
+        const int b = int(row / ps.rows), r = int(row % ps.rows);
+        const std::uint16_t* abase = a_base + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
+        float* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
+        const std::uint16_t* a_tap[16];
+        for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
+        if (nx == NX1)
+          forward_tile_bf16<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+        else if (nx == NX2)
+          forward_tile_bf16<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+        else
+          forward_tile_bf16<1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+      }
+    }
+  }
+}
+
+#endif  // ANISOCAP_BF16_DOT
+
 /// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels, in blocks of
 /// NV registers; bias: readable for whole blocks, or null; accumulate: add onto out instead of
 /// overwriting it.
 template <int NV, int ACOL, class T>
 void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
                  const T* bias, bool accumulate, bool whole_blocks = false) {
+#if ANISOCAP_BF16_DOT
+  if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available) {
+    if (convolution_precision() == precision::bf16) {
+      run_forward_bf16<NV, ACOL>(passes, npasses, Ca, Cb, wl, bias, accumulate, whole_blocks);
+      return;
+    }
+  }
+#endif
   constexpr int W = lanes<T>;
   constexpr int NX1 = std::max(1, accumulator_budget<T> / NV);
   constexpr int NX2 = std::max(1, 2 * NX1 / 3);

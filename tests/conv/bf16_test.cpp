@@ -1,0 +1,166 @@
+// Convolutions in bf16 (nn/precision.hpp): the forward and input-gradient passes of conv2d and
+// conv_transpose2d must equal the naive loops run in double on the bf16-rounded inputs and
+// weights (the products are exact in FP32, only the FP32 sums round), at odd channel counts (the
+// last pair half empty), shapes that convert the weights once per call and shapes whose work
+// items convert their own blocks, and both ways of transposing an input-gradient kernel. Skipped
+// on builds without AVX-512 BF16.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "anisocap/nn/conv.hpp"
+#include "anisocap/nn/conv_transpose.hpp"
+#include "anisocap/nn/precision.hpp"
+#include "reference.hpp"
+
+using namespace anisocap;
+using anisocap::testing::fill_random;
+using anisocap::testing::max_difference;
+
+namespace {
+
+float round_bf16(float x) { return simd::from_bf16(simd::to_bf16(x)); }
+
+template <int C>
+tensor<C> rounded(const tensor<C>& t) {
+  tensor<C> r = t.clone();
+  for (std::size_t i = 0; i < r.size(); ++i) r.data()[i] = round_bf16(r.data()[i]);
+  return r;
+}
+std::vector<float> rounded(const std::vector<float>& v) {
+  std::vector<float> r(v);
+  for (float& x : r) x = round_bf16(x);
+  return r;
+}
+
+/// The bf16 result `got` against the double reference on rounded operands (`exact`) and on the
+/// FP32 operands (`fp32`): FP32-sum close to the first, and visibly rounded against the second
+/// (so the bf16 kernel, not the FP32 one, ran).
+template <int C>
+void check_bf16(const tensor<C>& got, const tensor<C, double>& exact, const tensor<C, double>& fp32, int terms) {
+  const auto [d, m] = max_difference(got, exact);
+  CHECK(d <= 2e-6 * std::sqrt(double(terms)) * (1 + m));
+  const auto [d32, m32] = max_difference(got, fp32);
+  CHECK(d32 > 1e-4 * m32);                                  // bf16 rounding shows
+  CHECK(d32 <= 2.0 / 256 * std::sqrt(double(terms)) * (1 + m32));  // and stays a bf16 rounding
+}
+
+template <int Cin, int Cout, int K, int S, int P>
+void check_conv(int B, int H, int W, unsigned seed) {
+  using G = nn::conv_geometry<K, S, P>;
+  std::mt19937 rng(seed);
+  const int Ho = nn::conv2d_output_size<K, S, P>(H), Wo = nn::conv2d_output_size<K, S, P>(W);
+  tensor<Cin> in(B, H, W);
+  fill_random(in, rng);
+  std::vector<float> w(std::size_t(K * K * Cin * Cout)), bias(Cout);
+  fill_random(w.data(), w.size(), rng);
+  fill_random(bias.data(), bias.size(), rng);
+  const tensor<Cin> in16 = rounded(in);
+  const std::vector<float> w16 = rounded(w);
+
+  tensor<Cout> out(B, Ho, Wo);
+  {
+    nn::precision_scope bf16(nn::precision::bf16);
+    nn::conv2d_forward<Cin, Cout, K, S, P>(in, w.data(), bias.data(), out);
+  }
+  tensor<Cout, double> exact(B, Ho, Wo), fp32(B, Ho, Wo);
+  testing::naive_conv(in16, w16.data(), bias.data(), exact, K, S, G::pad_before);
+  testing::naive_conv(in, w.data(), bias.data(), fp32, K, S, G::pad_before);
+  check_bf16(out, exact, fp32, K * K * Cin);
+
+  tensor<Cout> gout(B, Ho, Wo);
+  fill_random(gout, rng);
+  const tensor<Cout> gout16 = rounded(gout);
+  for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
+    nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
+    tensor<Cin> gin(B, H, W);
+    gin.fill(0);
+    {
+      nn::precision_scope bf16(nn::precision::bf16);
+      nn::conv2d_backward_input<Cin, Cout, K, S, P>(gout, w.data(), gin);
+    }
+    tensor<Cin, double> gexact(B, H, W), g32(B, H, W);
+    testing::naive_conv_backward_input(gout16, w16.data(), gexact, K, S, G::pad_before);
+    testing::naive_conv_backward_input(gout, w.data(), g32, K, S, G::pad_before);
+    check_bf16(gin, gexact, g32, K * K * Cout);
+  }
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
+  CHECK(nn::convolution_precision() == nn::precision::fp32);  // the scopes restored it
+}
+
+template <int Cin, int Cout>
+void check_transposed(int B, int H, int W, unsigned seed) {
+  std::mt19937 rng(seed);
+  tensor<Cin> in(B, H, W);
+  fill_random(in, rng);
+  std::vector<float> w(std::size_t(16 * Cin * Cout)), bias(Cout);
+  fill_random(w.data(), w.size(), rng);
+  fill_random(bias.data(), bias.size(), rng);
+  const tensor<Cin> in16 = rounded(in);
+  const std::vector<float> w16 = rounded(w);
+  tensor<Cout> out(B, 2 * H, 2 * W);
+  {
+    nn::precision_scope bf16(nn::precision::bf16);
+    nn::conv_transpose2d_forward<Cin, Cout>(in, w.data(), bias.data(), out);
+  }
+  tensor<Cout, double> exact(B, 2 * H, 2 * W), fp32(B, 2 * H, 2 * W);
+  testing::naive_conv_transpose(in16, w16.data(), bias.data(), exact);
+  testing::naive_conv_transpose(in, w.data(), bias.data(), fp32);
+  check_bf16(out, exact, fp32, 4 * Cin);
+
+  // The input gradient is the 4x4 stride-2 convolution of gout with the weights read [kh][kw][out][in].
+  tensor<Cout> gout(B, 2 * H, 2 * W);
+  fill_random(gout, rng);
+  const tensor<Cout> gout16 = rounded(gout);
+  std::vector<float> wt(w.size()), wt16(w.size());
+  for (int t = 0; t < 16; ++t)
+    for (int ci = 0; ci < Cin; ++ci)
+      for (int co = 0; co < Cout; ++co) {
+        wt[(t * Cout + co) * Cin + ci] = w[(t * Cin + ci) * Cout + co];
+        wt16[(t * Cout + co) * Cin + ci] = w16[(t * Cin + ci) * Cout + co];
+      }
+  for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
+    nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
+    tensor<Cin> gin(B, H, W);
+    gin.fill(0);
+    {
+      nn::precision_scope bf16(nn::precision::bf16);
+      nn::conv_transpose2d_backward_input<Cin, Cout>(gout, w.data(), gin);
+    }
+    tensor<Cin, double> gexact(B, H, W), g32(B, H, W);
+    testing::naive_conv(gout16, wt16.data(), static_cast<const float*>(nullptr), gexact, 4, 2, 1);
+    testing::naive_conv(gout, wt.data(), static_cast<const float*>(nullptr), g32, 4, 2, 1);
+    check_bf16(gin, gexact, g32, 16 * Cout);
+  }
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
+}
+
+}  // namespace
+
+TEST_CASE("precision names and the bf16 switch") {
+  CHECK(nn::parse_precision("fp32") == nn::precision::fp32);
+  CHECK(nn::parse_precision("bf16") == nn::precision::bf16);
+  CHECK_THROWS_WITH_AS(nn::parse_precision("fp16"), doctest::Contains("fp16"), std::invalid_argument);
+  CHECK(std::string(nn::to_string(nn::precision::bf16)) == "bf16");
+  if (!nn::bf16_available()) {
+    CHECK_THROWS_AS(nn::set_convolution_precision(nn::precision::bf16), std::invalid_argument);
+    CHECK(nn::convolution_precision() == nn::precision::fp32);
+  }
+}
+
+TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * doctest::skip(!nn::bf16_available())) {
+  check_conv<3, 5, 4, 2, 1>(2, 7, 9, 1);                    // odd channels, partial registers
+  check_conv<64, 64, 4, 2, 1>(2, 9, 11, 2);                 // SIMD path, tails
+  check_conv<64, 64, 4, 2, 1>(2, 33, 61, 3);                // many items: weights converted once
+  check_conv<9, 48, 1, 1, 0>(2, 7, 9, 4);                   // odd Ca, 1x1
+  check_conv<12, 64, 3, 1, 1>(2, 7, 9, 5);
+  check_conv<64, 12, 4, 1, nn::same_padding>(2, 7, 9, 6);
+  check_conv<256, 32, 4, 2, 1>(1, 6, 6, 7);                 // few pixels: items convert their blocks
+  check_conv<1024, 32, 3, 1, 1>(1, 3, 3, 8);                // input-channel chunks
+  check_transposed<64, 32>(2, 5, 7, 9);
+  check_transposed<33, 16>(1, 4, 4, 10);                    // odd Ca
+  check_transposed<128, 64>(1, 16, 16, 11);
+}
