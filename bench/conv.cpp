@@ -3,7 +3,7 @@
 // on 1 and 2 threads, as GFLOP/s and as a fraction of the FP32 FMA peak measured in the same run;
 // beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
 // step of the auto-encoder's decoder on one 256 x 256 tile. Where the build has AVX-512 BF16, the
-// forward and input-gradient passes and the decoder step again in bf16 (anisocap_bf16/...; the
+// three passes and the decoder step again in bf16 (anisocap_bf16/...; the
 // peak fraction stays relative to the FP32 FMA peak, of which bf16 can reach 2).
 //
 //   anisocap_bench_conv --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
@@ -299,7 +299,7 @@ void add_conv(const std::string& kind, int n) {
       benchmark::RegisterBenchmark(("anisocap/" + shape + suffix).c_str(), [=](benchmark::State& s) {
         conv_case<Cin, Cout, K, S, P>(s, n, threads, pass_kind(pass), nn::precision::fp32);
       })->UseRealTime()->Unit(benchmark::kMillisecond);
-      if (nn::bf16_available() && pass != backward_weight)
+      if (nn::bf16_available())
         benchmark::RegisterBenchmark(("anisocap_bf16/" + shape + suffix).c_str(), [=](benchmark::State& s) {
           conv_case<Cin, Cout, K, S, P>(s, n, threads, pass_kind(pass), nn::precision::bf16);
         })->UseRealTime()->Unit(benchmark::kMillisecond);
@@ -318,7 +318,7 @@ void add_conv_transpose(int n) {
       benchmark::RegisterBenchmark(("anisocap/" + shape + suffix).c_str(), [=](benchmark::State& s) {
         conv_transpose_case<Cin, Cout>(s, n, threads, pass_kind(pass), nn::precision::fp32);
       })->UseRealTime()->Unit(benchmark::kMillisecond);
-      if (nn::bf16_available() && pass != backward_weight)
+      if (nn::bf16_available())
         benchmark::RegisterBenchmark(("anisocap_bf16/" + shape + suffix).c_str(), [=](benchmark::State& s) {
           conv_transpose_case<Cin, Cout>(s, n, threads, pass_kind(pass), nn::precision::bf16);
         })->UseRealTime()->Unit(benchmark::kMillisecond);

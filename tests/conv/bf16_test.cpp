@@ -1,5 +1,5 @@
-// Convolutions in bf16 (nn/precision.hpp): the forward and input-gradient passes of conv2d and
-// conv_transpose2d must equal the naive loops run in double on the bf16-rounded inputs and
+// Convolutions in bf16 (nn/precision.hpp): the forward, input-gradient and weight-gradient passes
+// of conv2d and conv_transpose2d must equal the naive loops run in double on the bf16-rounded inputs and
 // weights (the products are exact in FP32, only the FP32 sums round), at odd channel counts (the
 // last pair half empty), shapes that convert the weights once per call and shapes whose work
 // items convert their own blocks, and both ways of transposing an input-gradient kernel. Skipped
@@ -48,6 +48,19 @@ void check_bf16(const tensor<C>& got, const tensor<C, double>& exact, const tens
   CHECK(d32 <= 2.0 / 256 * std::sqrt(double(terms)) * (1 + m32));  // and stays a bf16 rounding
 }
 
+/// The same for a weight gradient accumulated onto 0.5.
+void check_bf16_weights(const std::vector<float>& got, const std::vector<double>& exact, const std::vector<double>& fp32, int terms) {
+  double d = 0, m = 0, d32 = 0;
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    d = std::max(d, std::abs(got[i] - 0.5 - exact[i]));
+    d32 = std::max(d32, std::abs(got[i] - 0.5 - fp32[i]));
+    m = std::max(m, std::abs(exact[i]));
+  }
+  CHECK(d <= 2e-6 * std::sqrt(double(terms)) * (1 + m));
+  CHECK(d32 > 1e-4 * m);
+  CHECK(d32 <= 2.0 / 256 * std::sqrt(double(terms)) * (1 + m));
+}
+
 template <int Cin, int Cout, int K, int S, int P>
 void check_conv(int B, int H, int W, unsigned seed) {
   using G = nn::conv_geometry<K, S, P>;
@@ -88,6 +101,17 @@ void check_conv(int B, int H, int W, unsigned seed) {
     check_bf16(gin, gexact, g32, K * K * Cout);
   }
   nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
+
+  // The weight gradient accumulates onto what is there.
+  std::vector<float> gw(w.size(), 0.5f);
+  {
+    nn::precision_scope bf16(nn::precision::bf16);
+    nn::conv2d_backward_weight<Cin, Cout, K, S, P>(in, gout, gw.data(), nullptr);
+  }
+  std::vector<double> gw_exact, gw32, unused;
+  testing::naive_conv_backward_weight(in16, gout16, gw_exact, unused, K, S, G::pad_before);
+  testing::naive_conv_backward_weight(in, gout, gw32, unused, K, S, G::pad_before);
+  check_bf16_weights(gw, gw_exact, gw32, B * Ho * Wo);
   CHECK(nn::convolution_precision() == nn::precision::fp32);  // the scopes restored it
 }
 
@@ -136,6 +160,24 @@ void check_transposed(int B, int H, int W, unsigned seed) {
     check_bf16(gin, gexact, g32, 16 * Cout);
   }
   nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
+
+  // gW[kh][kw][ci][co] = sum in[i][j][ci] gout[2i-1+kh][2j-1+kw][co]: the conv weight gradient with
+  // input gout and output gradient in, transposed.
+  std::vector<float> gw(w.size(), 0.5f);
+  {
+    nn::precision_scope bf16(nn::precision::bf16);
+    nn::conv_transpose2d_backward_weight<Cin, Cout>(in, gout, gw.data(), nullptr);
+  }
+  std::vector<double> t_exact, t32, unused, gw_exact(w.size()), gw32(w.size());
+  testing::naive_conv_backward_weight(gout16, in16, t_exact, unused, 4, 2, 1);
+  testing::naive_conv_backward_weight(gout, in, t32, unused, 4, 2, 1);
+  for (int t = 0; t < 16; ++t)
+    for (int ci = 0; ci < Cin; ++ci)
+      for (int co = 0; co < Cout; ++co) {
+        gw_exact[(t * Cin + ci) * Cout + co] = t_exact[(t * Cout + co) * Cin + ci];
+        gw32[(t * Cin + ci) * Cout + co] = t32[(t * Cout + co) * Cin + ci];
+      }
+  check_bf16_weights(gw, gw_exact, gw32, B * H * W);
 }
 
 }  // namespace
@@ -160,6 +202,7 @@ TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * d
   check_conv<64, 12, 4, 1, nn::same_padding>(2, 7, 9, 6);
   check_conv<256, 32, 4, 2, 1>(1, 6, 6, 7);                 // few pixels: items convert their blocks
   check_conv<1024, 32, 3, 1, 1>(1, 3, 3, 8);                // input-channel chunks
+  check_conv<64, 64, 3, 1, 1>(1, 2, 201, 12);               // rows cut into pixel chunks, odd last chunk
   check_transposed<64, 32>(2, 5, 7, 9);
   check_transposed<33, 16>(1, 4, 4, 10);                    // odd Ca
   check_transposed<128, 64>(1, 16, 16, 11);

@@ -2,11 +2,11 @@
 /// @file
 /// The arithmetic of the convolutions' multiply-adds: FP32 throughout, or bf16 operands with FP32
 /// accumulation (AVX-512 BF16, twice the multiply-adds per instruction). One process-wide
-/// switch: parameters, Adam's state, gradients, biases, activations stored between layers and
-/// every accumulation stay FP32 either way; with bf16, the forward convolutions and the
-/// input-gradient passes round their inputs and weights to bf16 as they read them. The weight
-/// gradient stays FP32 (it reduces over pixels, which bf16 pairs would need transposed copies
-/// of both operands for).
+/// switch: parameters (the FP32 master weights Adam updates), Adam's state, gradients, biases,
+/// activations stored between layers and every accumulation stay FP32 either way; with bf16, each
+/// pass of a convolution or transposed convolution (forward, input gradient, weight gradient)
+/// rounds its two operands to bf16 as it reads them. Products of two bf16 values are exact in
+/// FP32, so the only new error is the rounding of the operands (8 significant bits).
 #include <atomic>
 #include <stdexcept>
 #include <string>

@@ -570,6 +570,137 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
     }
 }
 
+#if ANISOCAP_BF16_DOT
+
+/// The bf16 weight-gradient tile: as weight_tile, two pixels per instruction. For each row r of the
+/// chunk, a16[r] holds the pixel pairs' input channels [pair][nci][2] (this tile's channels start
+/// at ci) and g16[r] their output-gradient block [pair][block][2].
+template <int CIB, int NV>
+inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_t* const* g16, int nrows, int pairs, int nci,
+                             int ci, float* gw, std::ptrdiff_t ldw, int last_lanes) {
+  constexpr int W = lanes<float>;
+  batch<float> acc[CIB][NV];
+  #pragma GCC unroll 32
+  for (int i = 0; i < CIB; ++i)
+    #pragma GCC unroll 32
+    for (int v = 0; v < NV; ++v) {
+      const float* src = gw + i * ldw + v * W;
+      acc[i][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<float>::load_unaligned(src);
+    }
+  for (int r = 0; r < nrows; ++r) {
+    const std::uint16_t* a = a16[r] + 2 * ci;
+    const std::uint16_t* g = g16[r];
+    for (int q = 0; q < pairs; ++q, a += 2 * nci, g += 2 * NV * W) {
+      simd::bf16_pairs gv[NV];
+      #pragma GCC unroll 32
+      for (int v = 0; v < NV; ++v) gv[v] = simd::load_bf16_pairs(g + 2 * v * W);
+      #pragma GCC unroll 32
+      for (int i = 0; i < CIB; ++i) {
+        const simd::bf16_pairs x = simd::broadcast_bf16_pair(a + 2 * i);
+        #pragma GCC unroll 32
+        for (int v = 0; v < NV; ++v) acc[i][v] = simd::dot_bf16_pairs(acc[i][v], x, gv[v]);
+      }
+    }
+  }
+  #pragma GCC unroll 32
+  for (int i = 0; i < CIB; ++i)
+    #pragma GCC unroll 32
+    for (int v = 0; v < NV; ++v) {
+      float* dst = gw + i * ldw + v * W;
+      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[i][v], last_lanes);
+      else acc[i][v].store_unaligned(dst);
+    }
+}
+
+/// `n` channels of pixels p and p + step side by side as bf16 pairs (p + step absent: zeros).
+inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second, int n, std::uint16_t* dst) {
+  if (second) {
+    simd::interleave_to_bf16(p, p + step, n, dst);
+  } else {
+    for (int j = 0; j < n; ++j) dst[2 * j] = simd::to_bf16(p[j]), dst[2 * j + 1] = 0;
+  }
+}
+
+/// run_weight in bf16 (see nn/precision.hpp): the same work items; for each chunk of pixels an
+/// item converts its input channels and its output-gradient block to bf16 pixel pairs once, in
+/// cache, and its tiles reduce two pixels per instruction in FP32.
+template <int NV, int CIB>
+void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
+  constexpr int W = lanes<float>;
+  const int block = NV * W;
+  const int coblocks = (Cb + block - 1) / block;
+  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
+  const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
+  const int quads = CIB > 4 && ci_rest >= 4 ? 1 : 0;
+  const int ci_items = ciblocks + quads + (ci_rest - 4 * quads);
+  auto ci_start = [&](int ck) {
+    if (ck < ciblocks) return ck * CIB;
+    if (ck < ciblocks + quads) return ciblocks * CIB;
+    return ciblocks * CIB + 4 * quads + (ck - ciblocks - quads);
+  };
+  const int threads = omp_get_max_threads();
+  const int pairs_of_taps = coblocks * ps.taps;
+  const int parts = std::max(1, std::min(ci_items, (8 * threads + pairs_of_taps - 1) / pairs_of_taps));
+  const long long items = (long long)pairs_of_taps * parts;
+  const int rows_total = ps.batch * ps.rows;
+  // Chunks of about 96 pixels (whole rows when rows are shorter) of an even width.
+  const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * sizeof(float))));
+  const int seg = std::min(ps.cols, (target + 1) & ~1);
+  const int segs_per_row = (ps.cols + seg - 1) / seg;
+  const int chunk_rows = seg < ps.cols ? 1 : std::max(1, std::min(64, target / std::max(1, ps.cols)));
+  const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work > double(1 << 16))
+  for (long long it = 0; it < items; ++it) {
+    const int pair = int(it / parts), part = int(it % parts);
+    const int cb = pair / ps.taps, t = pair % ps.taps;
+    const int k0 = ci_items * part / parts, k1 = ci_items * (part + 1) / parts;
+    if (k0 >= k1) continue;
+    const int ci_lo = ci_start(k0), ci_hi = k1 < ci_items ? ci_start(k1) : Ca;
+    const int nci = ci_hi - ci_lo;
+    const int co0 = cb * block;
+    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+    const int max_pairs = (seg + 1) / 2;
+    std::uint16_t* abuf = scratch<std::uint16_t>(5, std::size_t(chunk_rows) * max_pairs * nci * 2);
+    std::uint16_t* gbuf = scratch<std::uint16_t>(6, std::size_t(chunk_rows) * max_pairs * block * 2);
+    const std::uint16_t* a16[64];
+    const std::uint16_t* g16[64];
+    for (int r0 = 0; r0 < rows_total; r0 += chunk_rows) {
+      const int nr = std::min(chunk_rows, rows_total - r0);
+      for (int sg = 0; sg < segs_per_row; ++sg) {
+        const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
+        const int pairs = (nc + 1) / 2;
+        for (int r = 0; r < nr; ++r) {
+          const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
+          const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + ps.a_tap[t] + ci_lo;
+          const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + ps.g_tap[t] + co0;
+          std::uint16_t* ad = abuf + std::ptrdiff_t(r) * max_pairs * nci * 2;
+          std::uint16_t* gd = gbuf + std::ptrdiff_t(r) * max_pairs * block * 2;
+          for (int q = 0; q < pairs; ++q) {
+            const bool second = 2 * q + 1 < nc;
+            pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, second, nci, ad + std::ptrdiff_t(q) * nci * 2);
+            pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, second, block, gd + std::ptrdiff_t(q) * block * 2);
+          }
+          a16[r] = ad;
+          g16[r] = gd;
+        }
+        for (int ck = k0; ck < k1; ++ck) {
+          const int ci0 = ci_start(ck);
+          float* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
+          if (ck < ciblocks) {
+            weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+          } else if (ck < ciblocks + quads) {
+            if constexpr (CIB > 4) weight_tile_bf16<4, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+          } else {
+            weight_tile_bf16<1, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+          }
+        }
+      }
+    }
+  }
+}
+
+#endif  // ANISOCAP_BF16_DOT
+
 /// Accumulates a weight gradient gw [taps][Ca][Cb] over one pass on all threads. Work items are
 /// (output-channel block, tap, range of input-channel blocks); each item sweeps every pixel and
 /// owns its part of gw, so no reduction is needed and the result does not depend on the number of
@@ -581,6 +712,14 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   // 16 measured about 1.4x slower), NV loads and CIB broadcasts per pixel. A remainder of 4 or
   // more channels runs as one 4-channel block, the rest one channel at a time.
   constexpr int CIB = NV == 4 ? (accumulator_budget<T> >= 24 ? 6 : 4) : (accumulator_budget<T> / NV >= 8 ? 8 : 4);
+#if ANISOCAP_BF16_DOT
+  if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available) {
+    if (convolution_precision() == precision::bf16) {
+      run_weight_bf16<NV, CIB>(ps, Ca, Cb, gw);
+      return;
+    }
+  }
+#endif
   const int block = NV * W;
   const int coblocks = (Cb + block - 1) / block;
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
