@@ -4,6 +4,7 @@
 // inference tape across windows and calls (estimation_network::estimate), so after the first
 // call an estimate should fault in (almost) nothing. keep_tape:0 frees that tape before every
 // window (estimation_network::release_scratch), as a fresh tape per window did.
+// bf16:1 runs the estimator's convolutions in bf16 (nn/precision.hpp).
 #include <benchmark/benchmark.h>
 #include <omp.h>
 #include <sys/resource.h>
@@ -41,10 +42,16 @@ std::vector<image> photographs() {
   return photos;
 }
 
-/// range(0): threads; range(1): 1 = keep the tape between windows, 0 = free it before each window.
+/// range(0): threads; range(1): 1 = keep the tape between windows, 0 = free it before each window;
+/// range(2): 1 = the convolutions in bf16 (nn/precision.hpp), 0 = FP32.
 void sliding_window_estimate(benchmark::State& state) {
   omp_set_num_threads(int(state.range(0)));
   const bool keep = state.range(1) != 0;
+  if (state.range(2) != 0 && !nn::bf16_available()) {
+    state.SkipWithError("this build has no AVX-512 BF16");
+    return;
+  }
+  nn::precision_scope precision(state.range(2) != 0 ? nn::precision::bf16 : nn::precision::fp32);
   static const std::vector<image> photos = photographs();
   estimator net;
   nn::load_weights(find_models_folder() / "compact" / "estimator.safetensors", net);
@@ -64,5 +71,5 @@ void sliding_window_estimate(benchmark::State& state) {
 }
 }  // namespace
 
-BENCHMARK(sliding_window_estimate)->ArgsProduct({{1, 2}, {1, 0}})->ArgNames({"threads", "keep_tape"})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(sliding_window_estimate)->ArgsProduct({{1, 2}, {1, 0}, {0, 1}})->ArgNames({"threads", "keep_tape", "bf16"})->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK_MAIN();

@@ -18,6 +18,7 @@
 #include "commands/options.hpp"
 
 #include "anisocap/core/simd.hpp"
+#include "anisocap/nn/precision.hpp"
 
 namespace {
 
@@ -26,7 +27,7 @@ int run_program(int argc, char** argv) {
   app.option_defaults()->always_capture_default();
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("anisocap ") + ANISOCAP_VERSION + " (kernels: " + ANISOCAP_KERNEL_ISA + ", " +
-                                        anisocap::simd::arch_name() + ")");
+                                        anisocap::simd::arch_name() + (anisocap::nn::bf16_available() ? ", bf16" : "") + ")");
   anisocap::commands::register_synthesize(app);
   anisocap::commands::register_render(app);
   anisocap::commands::register_capture(app);

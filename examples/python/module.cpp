@@ -380,7 +380,8 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
                     std::optional<int> estimate_stride, std::optional<int> finetune_steps, std::optional<float> finetune_lr,
                     std::optional<int> steps, std::optional<float> lr, std::optional<double> refine_stop,
                     std::optional<std::vector<int>> neighbour_restarts,
-                    const std::string& kernel, const std::string& precision, std::optional<bool> second_run,
+                    const std::string& kernel, const std::string& precision, const std::string& network_precision,
+                    std::optional<bool> second_run,
                     const py::object& start_obj, const py::object& progress, const py::object& log) {
   const capture cap = to_capture(configurations);
   const std::vector<image> photos = to_images(photos_obj, "photos", 3, 3);
@@ -405,6 +406,11 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
   if (neighbour_restarts) o.neighbour_restarts = o.neighbour_restarts_alone = *neighbour_restarts;
   o.kernel = kernel_options::parse(kernel);
   o.render = render_options_of(precision, o.render.cull_tolerance);
+  try {
+    o.network_precision = nn::parse_precision(network_precision);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(std::string("network_precision: ") + e.what());
+  }
   if (second_run) o.second_run.residual = o.second_run.second_prior = *second_run;
   const bool explicit_stages = stages != "auto";
   if (explicit_stages) o.stages = pipeline_stages::parse(stages);
@@ -571,7 +577,9 @@ PYBIND11_MODULE(_anisocap, m) {
   m.def("capture", &capture_py, py::arg("photos"), py::arg("configurations"), py::arg("masks"), py::arg("models"), py::arg("preset"),
         py::arg("also_models"), py::arg("stages"), py::arg("schedule"), py::arg("estimate_window"), py::arg("estimate_stride"),
         py::arg("finetune_steps"), py::arg("finetune_lr"), py::arg("steps"), py::arg("lr"), py::arg("refine_stop"), py::arg("neighbour_restarts"),
-        py::arg("kernel"), py::arg("precision"), py::arg("second_run"), py::arg("start"), py::arg("progress"), py::arg("log"));
+        py::arg("kernel"), py::arg("precision"), py::arg("network_precision"), py::arg("second_run"), py::arg("start"),
+        py::arg("progress"), py::arg("log"));
+  m.def("has_bf16", &nn::bf16_available);
   m.def("export", &export_py, py::arg("maps"), py::arg("format"), py::arg("out"), py::arg("width"));
   m.def("rectify", &rectify_py, py::arg("photos_json"), py::arg("out"), py::arg("resolution"), py::arg("saturation"), py::arg("floor"),
         py::arg("margin_px"), py::arg("footprint"), py::arg("dark_level"), py::arg("full_confidence_px"), py::arg("tag_mm"),

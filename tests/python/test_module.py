@@ -290,3 +290,15 @@ def test_capture_equals_the_programs(program, tmp_path):
     np.testing.assert_array_equal(mine["maps"], anisocap.read_maps(tmp_path / "nets"))
     report = json.loads((tmp_path / "nets" / "report.json").read_text())
     assert mine["loss"] == pytest.approx(report["loss"], rel=1e-12)
+
+
+def test_network_precision_is_checked(material):
+    with pytest.raises(ValueError, match="network_precision"):
+        anisocap.capture(material["photos"], material["configurations"], models=False, network_precision="fp16")
+    if anisocap.has_bf16():
+        result = anisocap.capture(material["photos"], material["configurations"], models=False, steps=50,
+                                  network_precision="bf16")
+        assert np.isfinite(result["loss"])
+    else:
+        with pytest.raises(ValueError, match="AVX-512 BF16"):
+            anisocap.capture(material["photos"], material["configurations"], models=False, network_precision="bf16")

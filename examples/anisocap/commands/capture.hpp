@@ -167,6 +167,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
   report["kernel_used"] = kernel_used;
   report["f0_source"] = result.f0_source;
   report["precision"] = o.render.double_precision ? "double" : "float";
+  report["network_precision"] = nn::to_string(o.network_precision);
   report["exposure_scale"] = result.exposure_scale;
   report["saturation"] = s.photos.saturation;
   report["clipped_excluded"] = s.photos.exclude_clipped;

@@ -41,6 +41,7 @@
 #include "anisocap/nn/pooling.hpp"
 #include "anisocap/nn/progress.hpp"
 #include "anisocap/nn/safetensors.hpp"
+#include "anisocap/nn/precision.hpp"
 #include "anisocap/nn/schedule.hpp"
 #include "anisocap/nn/upsample.hpp"
 #include "anisocap/brdf/canonical_maps.hpp"
@@ -398,6 +399,13 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "at 7.5e-4, refine 500 at 1e-4, no neighbour restarts (~5x longer). Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "thorough", "auto", "paper"}))
       ->default_str("fast");
+  c->add_option_function<std::string>(
+       "--network-precision", [&o](const std::string& name) { o.network_precision = nn::parse_precision(name); },
+       "operands of the networks' convolutions in the estimate and fine-tune: fp32, or bf16 (rounded to bfloat16, multiplied "
+       "and summed in FP32, FP32 master weights; about 0.7x the fine-tune's time; needs a build for a CPU with AVX-512 BF16, "
+       "see --version; docs/program.md)")
+      ->check(CLI::IsMember({"fp32", "bf16"}))
+      ->default_str("fp32");
   c->add_option("--estimate-window", o.estimate.window,
                 "side of the sliding windows the estimation network sees, texels (the capture is estimated window by window and "
                 "blended; docs/model-card.md measures the choice)")

@@ -84,6 +84,12 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");
   cmd->add_option("--validation-count", o.validation_count, "validation materials");
   cmd->add_flag("--resume", o.resume, "continue from OUT/checkpoint.json");
+  cmd->add_option_function<std::string>(
+         "--network-precision", [&o](const std::string& name) { o.precision = nn::parse_precision(name); },
+         "operands of the convolutions: fp32, or bf16 (rounded to bfloat16, summed in FP32, FP32 master weights in Adam; "
+         "needs a build for a CPU with AVX-512 BF16, see --version)")
+      ->check(CLI::IsMember({"fp32", "bf16"}))
+      ->default_str("fp32");
   cmd->add_option("--prefetch", o.prefetch, "build the next step's samples on a second thread during each step (true or false)");
   add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");

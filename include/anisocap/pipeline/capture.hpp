@@ -27,6 +27,7 @@
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/pipeline/uncertainty.hpp"
 #include "anisocap/data/map_io.hpp"
+#include "anisocap/nn/precision.hpp"
 #include "anisocap/render/analysis.hpp"
 
 namespace anisocap {
@@ -143,6 +144,11 @@ struct capture_options {
   std::optional<uncertainty_options> uncertainty = uncertainty_options{};
   render_options render{};  ///< culling, double precision etc. for every image loss
   kernel_options kernel{};
+  /// Operand precision of the networks' convolutions in the estimate, encode and fine-tune stages
+  /// (nn/precision.hpp): fp32, or bf16 with FP32 accumulation and FP32 master weights on builds
+  /// for CPUs with AVX-512 BF16 (nn::bf16_available()), where it takes about 0.7x the fine-tune
+  /// step's time (bench/README.md). The refine does not use the networks.
+  nn::precision network_precision = nn::precision::fp32;
   /// Rescale photographs and intensities to the synthetic captures' exposure first (exposure.hpp),
   /// so that the maps do not depend on the photographs' units.
   bool normalise_exposure = true;
@@ -224,6 +230,12 @@ struct capture_options {
     neighbour_restarts = s.neighbour_restarts;
     return *this;
   }
+  /// Throws std::invalid_argument when network_precision is bf16 and this build lacks AVX-512 BF16.
+  void validate_precision() const {
+    if (network_precision == nn::precision::bf16 && !nn::bf16_available())
+      throw std::invalid_argument(std::string("network_precision bf16 needs a build for a CPU with AVX-512 BF16 (this one is built for ") +
+                                  simd::arch_name() + "); use fp32");
+  }
   /// Throws std::invalid_argument naming the field for impossible values.
   void validate() const {
     refine.validate();
@@ -232,6 +244,7 @@ struct capture_options {
     finetune.validate();
     second_run.validate();
     if (uncertainty) uncertainty->validate();
+    validate_precision();
     if (!(second_start_lobe_width >= 0 && second_start_lobe_width <= 1))
       throw std::invalid_argument("second_start_lobe_width must be in [0, 1]");
     for (const auto* radii : {&neighbour_restarts, &neighbour_restarts_alone})
@@ -383,6 +396,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
   if (ft.shard_cells > 0) f.add("finetune.shard_cells", ft.shard_cells);  // absent: the whole window (check-points made before shards)
   if (ft.min_steps > 0) f.add("finetune.min_steps", ft.min_steps);        // absent: early stopping from the first step
+  if (o.network_precision != nn::precision::fp32) f.add("network_precision", nn::to_string(o.network_precision));  // absent: fp32
   return f;
 }
 
@@ -446,6 +460,8 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   for (int r : o.neighbour_restarts)
     if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
   if (o.stages.finetune) o.finetune.validate();
+  o.validate_precision();
+  const nn::precision_scope precision(o.network_precision);
   capture_result result;
   if (o.normalise_exposure) result.exposure_scale = exposure_scale(given_cap);
   const fitted_photographs fitted = fitted_targets(given_cap, given_photos, masks, result.exposure_scale);

@@ -28,6 +28,7 @@
 
 #include <omp.h>
 
+#include "anisocap/nn/precision.hpp"
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/family_errors.hpp"
@@ -367,11 +368,16 @@ struct train_options {
   long lr_rewarmup = 0;
   long lr_rewarmup_from = -1;  ///< the re-warm-up's first step; required with lr_rewarmup > 0
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
+  /// Operand precision of the networks' convolutions (nn/precision.hpp): fp32, or bf16 with FP32
+  /// accumulation and FP32 master weights in Adam (builds for CPUs with AVX-512 BF16).
+  nn::precision precision = nn::precision::fp32;
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
   void validate() const {
     if (steps < 1) throw std::invalid_argument("training steps (--steps) must be at least 1, got " + std::to_string(steps));
+    if (precision == nn::precision::bf16 && !nn::bf16_available())
+      throw std::invalid_argument("--network-precision bf16 needs a build for a CPU with AVX-512 BF16; use fp32");
     if (batch < 1) throw std::invalid_argument("the batch (--batch) must hold at least 1 material, got " + std::to_string(batch));
     if (!(learning_rate >= 0) || !std::isfinite(learning_rate))
       throw std::invalid_argument("the learning rate (--lr) must be finite and not negative (0: the paper's)");
@@ -755,6 +761,8 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   if (o.lr_decay_to > 0) info["lr_decay"] = decay_of(o);
   auto rewarmup_of = [](const train_options& t) { return json::array({t.lr_rewarmup_from, t.lr_rewarmup}); };
   if (o.lr_rewarmup > 0) info["lr_rewarmup"] = rewarmup_of(o);
+  if (o.precision != nn::precision::fp32) info["precision"] = nn::to_string(o.precision);  // absent: fp32
+  const nn::precision_scope precision(o.precision);
   const auto csv = o.out_dir / "validation.csv";
   if (o.resume) {
     const auto description = o.out_dir / "checkpoint.json";

@@ -30,7 +30,7 @@ from ._anisocap import Configuration, LossTargets, FileError, CalibrationError, 
 
 __all__ = ["Configuration", "LossTargets", "FileError", "CalibrationError", "PARAMETERS", "LOSS_EPSILON",
            "read_maps", "write_maps", "read_capture", "write_capture", "render", "loss_targets",
-           "loss_and_gradient", "synthesize", "capture", "export", "rectify", "models_folder"]
+           "loss_and_gradient", "synthesize", "capture", "export", "rectify", "models_folder", "has_bf16"]
 
 
 def read_maps(folder):
@@ -96,6 +96,12 @@ def synthesize(width=256, height=256, images=12, set="alpha", seed=1, kind=None,
     return _anisocap.synthesize(width, height, images, set, seed, kind or "", mix, fresnel, shot_noise, read_noise)
 
 
+def has_bf16():
+    """True when this build of the module can run the networks' convolutions in bf16
+    (``capture(..., network_precision="bf16")``): built for a CPU with AVX-512 BF16."""
+    return _anisocap.has_bf16()
+
+
 def models_folder(preset="compact"):
     """The weights folder ``capture`` uses when given none, or None: in order ``$ANISOCAP_MODELS``,
     ``share/anisocap/models`` of the prefix the package is installed in, and the places the library
@@ -115,7 +121,7 @@ def models_folder(preset="compact"):
 def capture(photos, configurations=None, masks=None, *, models=None, preset="compact", also_models=None,
             stages="auto", schedule="fast", estimate_window=None, estimate_stride=None, finetune_steps=None,
             finetune_lr=None, steps=None, lr=None, refine_stop=None, neighbour_restarts=None, kernel="auto", precision="float",
-            second_run=None, start=None, progress=None, log=None):
+            network_precision="fp32", second_run=None, start=None, progress=None, log=None):
     """Captures the map set of a material as ``anisocap capture`` does (docs/library.md,
     capture_material), with the program's options as keywords.
 
@@ -128,7 +134,8 @@ def capture(photos, configurations=None, masks=None, *, models=None, preset="com
     other keywords override it as the program's options of the same name do (``steps``, ``lr``
     and ``refine_stop`` are the refine's: its steps, learning rate, and the fraction by which 50
     steps must improve the loss for it to go on, 0: never stop early; ``neighbour_restarts`` a
-    list of radii; ``second_run`` turns both second runs on or off). ``start``: maps to refine from instead of the network stages. ``progress``:
+    list of radii; ``second_run`` turns both second runs on or off; ``network_precision`` is the
+    program's --network-precision: fp32, or bf16 where ``has_bf16()``). ``start``: maps to refine from instead of the network stages. ``progress``:
     called as progress(stage, step, steps, loss) after every window of the estimate and every step
     of the fine-tune and the refine; ``log``: called with each choice in words. Ctrl-C, or an
     exception the callback raises, stops the capture with that exception.
@@ -155,7 +162,7 @@ def capture(photos, configurations=None, masks=None, *, models=None, preset="com
     return _anisocap.capture(photos, list(configurations), masks, models_path, preset, also, stages, schedule,
                              estimate_window, estimate_stride, finetune_steps, finetune_lr, steps, lr, refine_stop,
                              None if neighbour_restarts is None else list(neighbour_restarts), kernel, precision,
-                             second_run, start, progress, log)
+                             network_precision, second_run, start, progress, log)
 
 
 def export(maps, format, out, width=0.0):
