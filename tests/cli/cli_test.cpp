@@ -517,6 +517,25 @@ TEST_CASE("a capture that fails part-way through writing its results leaves the 
   CHECK(fs::exists(t.path / "out/novel"));
 }
 
+TEST_CASE("train --network-precision bf16: recorded in checkpoint.json, and a run may resume in fp32 (the master weights are FP32)") {
+  temp_dir t;
+  const std::string run_options = " --size 32 --batch 2 --validate-every 1 --validation-count 1 --checkpoint-minutes 100";
+  const bool has_bf16 = run("--version", t.path).output.find(", bf16)") != std::string::npos;
+  if (!has_bf16) {
+    check_refused("train-autoencoder --out ae --steps 1 --network-precision bf16" + run_options, t.path, "AVX-512 BF16", "ae");
+    return;
+  }
+  auto r = run("train-autoencoder --out ae --steps 1 --network-precision bf16" + run_options, t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  std::ifstream in(t.path / "ae/checkpoint.json");
+  const nlohmann::json saved = nlohmann::json::parse(in);
+  CHECK(saved["precision"] == "bf16");
+  r = run("train-autoencoder --out ae --steps 2 --resume" + run_options, t.path);
+  INFO(r.output);
+  CHECK(r.status == 0);
+}
+
 TEST_CASE("train --resume: another batch is refused naming checkpoint.json; without a checkpoint no folder is left") {
   temp_dir t;
   const std::string run_options = " --size 32 --validate-every 1 --validation-count 1 --checkpoint-minutes 100";

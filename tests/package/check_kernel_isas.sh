@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The program of a dispatching build (-DANISOCAP_KERNEL_ISAS): the launcher loads the best module this
 # CPU runs, --kernel-isa and ANISOCAP_KERNEL_ISA force one, a module compiled for AVX2 holds no
-# AVX-512 instruction (and the launcher no AVX at all), each module the CPU runs captures the demo
-# material to the same errors, and a request the CPU or the installation cannot serve fails with a
+# AVX-512 instruction (and the launcher no AVX at all), only the BF16 module holds BF16 dot products
+# and runs --network-precision bf16, each module the CPU runs captures the demo material to the
+# same errors, and a request the CPU or the installation cannot serve fails with a
 # message naming what there is.
 #   check_kernel_isas.sh PROGRAM "ISA;ISA;..."
 set -euo pipefail
@@ -18,6 +19,7 @@ flags=" $(grep -m1 '^flags' /proc/cpuinfo | cut -d: -f2) "
 has() { for f in "$@"; do [[ "$flags" == *" $f "* ]] || return 1; done; }
 runs() {
   case $1 in
+    x86-64-v4-bf16) runs x86-64-v4 && has avx512_bf16 ;;
     x86-64-v4) has avx512f avx512bw avx512cd avx512dq avx512vl avx2 fma bmi2 ;;
     x86-64-v3) has avx2 fma bmi1 bmi2 f16c movbe ;;
     x86-64-v2) has sse4_2 popcnt ssse3 ;;
@@ -25,7 +27,7 @@ runs() {
   esac
 }
 best=""
-for isa in x86-64-v4 x86-64-v3 x86-64-v2 x86-64; do
+for isa in x86-64-v4-bf16 x86-64-v4 x86-64-v3 x86-64-v2 x86-64; do
   for b in "${built[@]}"; do
     if [[ $b == "$isa" ]] && runs "$isa" && [[ -z $best ]]; then best=$isa; fi
   done
@@ -39,7 +41,12 @@ if objdump --version >/dev/null 2>&1; then
     ymm=$(objdump -d --no-show-raw-insn "$modules/anisocap-$isa.so" | grep -c ymm || true)
     echo "anisocap-$isa.so: $zmm instructions on zmm registers, $ymm on ymm"
     case $isa in
-      x86-64-v4) ((zmm > 1000)) || fail "the x86-64-v4 module has no AVX-512 kernels ($zmm zmm instructions)" ;;
+      x86-64-v4-bf16)
+        dp=$(objdump -d --no-show-raw-insn "$modules/anisocap-$isa.so" | grep -c vdpbf16ps || true)
+        ((zmm > 1000 && dp > 0)) || fail "the x86-64-v4-bf16 module has no AVX-512 BF16 kernels ($zmm zmm, $dp vdpbf16ps instructions)" ;;
+      x86-64-v4)
+        dp=$(objdump -d --no-show-raw-insn "$modules/anisocap-$isa.so" | grep -c vdpbf16ps || true)
+        ((zmm > 1000 && dp == 0)) || fail "the x86-64-v4 module is not a plain AVX-512 build ($zmm zmm, $dp vdpbf16ps instructions)" ;;
       x86-64-v3) ((zmm == 0 && ymm > 1000)) || fail "the x86-64-v3 module is not an AVX2 build ($zmm zmm, $ymm ymm instructions)" ;;
       *) ((zmm == 0 && ymm == 0)) || fail "the $isa module uses AVX registers" ;;
     esac
@@ -67,7 +74,7 @@ expect_error() {  # expect_error PATTERN ARGS...
   grep -q "x86-64-v" "$work/out" || { cat "$work/out"; fail "anisocap $*: the message lists no module"; }
 }
 expect_error "not an instruction set" --kernel-isa avx9000 --version
-for isa in x86-64-v4 x86-64-v3 x86-64-v2 x86-64; do
+for isa in x86-64-v4-bf16 x86-64-v4 x86-64-v3 x86-64-v2 x86-64; do
   [[ " ${built[*]} " == *" $isa "* ]] && continue
   expect_error "no $isa kernels" --kernel-isa "$isa" --version
   break
@@ -83,6 +90,22 @@ for isa in "${built[@]}"; do
     >"$work/demo-$isa.log" 2>&1 || { cat "$work/demo-$isa.log"; fail "anisocap demo with the $isa kernels"; }
   loss[$isa]="$work/demo-$isa/result/report.json"
 done
+# The BF16 module runs the networks in bf16; a module without BF16 refuses it, naming what it lacks.
+if [[ " ${built[*]} " == *" x86-64-v4-bf16 "* ]] && runs x86-64-v4-bf16; then
+  "$program" --kernel-isa x86-64-v4-bf16 --version | grep -q ", bf16)" || fail "the x86-64-v4-bf16 module does not say bf16"
+  "$program" --kernel-isa x86-64-v4-bf16 demo --size 64 --finetune-steps 50 --steps 20 --no-also-models --network-precision bf16 \
+    -o "$work/demo-bf16" >"$work/demo-bf16.log" 2>&1 || { cat "$work/demo-bf16.log"; fail "anisocap demo --network-precision bf16"; }
+fi
+for isa in "${built[@]}"; do
+  [[ $isa == x86-64-v4-bf16 ]] && continue
+  runs "$isa" || continue
+  if "$program" --kernel-isa "$isa" demo --size 64 --network-precision bf16 -o "$work/no-bf16" >"$work/no-bf16.log" 2>&1; then
+    fail "the $isa module ran --network-precision bf16"
+  fi
+  grep -q "AVX-512 BF16" "$work/no-bf16.log" || { cat "$work/no-bf16.log"; fail "the $isa module's refusal of bf16 does not say why"; }
+  break
+done
+
 # The novel-view loss within 5%; each map's error within 10% or 1e-4 (the diffuse error is ~1e-6 here).
 python3 - "${loss[@]}" <<'EOF'
 import json, sys

@@ -50,7 +50,8 @@ inline void add_kernel_isa_option(CLI::App* app, const std::string& compiled) {
   app->add_option_function<std::string>(
          "--kernel-isa", [](const std::string&) {},
          "instruction set of the kernels: in a build with modules per instruction set (ANISOCAP_KERNEL_ISAS), one of "
-         "x86-64-v4 (AVX-512), x86-64-v3 (AVX2), x86-64-v2, x86-64; the default is the best one this CPU runs (also "
+         "x86-64-v4-bf16 (AVX-512 with BF16, for --network-precision bf16), x86-64-v4 (AVX-512), x86-64-v3 (AVX2), x86-64-v2, "
+         "x86-64; the default is the best one this CPU runs (also "
          "the environment's ANISOCAP_KERNEL_ISA). This program runs " + compiled)
       ->type_name("ISA")
       ->check(CLI::Validator(

@@ -28,6 +28,8 @@ struct isa_entry {
   bool (*supported)();
 };
 const isa_entry known_isas[] = {
+    {"x86-64-v4-bf16", "AVX-512 with BF16",
+     [] { return __builtin_cpu_supports("x86-64-v4") && __builtin_cpu_supports("avx512bf16"); }},
     {"x86-64-v4", "AVX-512 F/BW/CD/DQ/VL", [] { return bool(__builtin_cpu_supports("x86-64-v4")); }},
     {"x86-64-v3", "AVX2, FMA, BMI2", [] { return bool(__builtin_cpu_supports("x86-64-v3")); }},
     {"x86-64-v2", "SSE4.2, POPCNT", [] { return bool(__builtin_cpu_supports("x86-64-v2")); }},

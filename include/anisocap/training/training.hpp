@@ -369,7 +369,8 @@ struct train_options {
   long lr_rewarmup_from = -1;  ///< the re-warm-up's first step; required with lr_rewarmup > 0
   bool prefetch = true;               ///< build the next step's samples on a second thread during each step (same results)
   /// Operand precision of the networks' convolutions (nn/precision.hpp): fp32, or bf16 with FP32
-  /// accumulation and FP32 master weights in Adam (builds for CPUs with AVX-512 BF16).
+  /// accumulation and FP32 master weights in Adam (builds for CPUs with AVX-512 BF16). Recorded in
+  /// checkpoint.json when bf16; a run may resume in the other precision, as the weights stay FP32.
   nn::precision precision = nn::precision::fp32;
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
