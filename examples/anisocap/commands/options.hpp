@@ -58,7 +58,7 @@ inline void add_kernel_isa_option(CLI::App* app, const std::string& compiled) {
           [compiled](std::string& isa) -> std::string {
             if (isa == compiled) return {};
             return isa + ": this program has only the " + compiled +
-                   " kernels (a build with -DANISOCAP_KERNEL_ISAS=\"x86-64-v3;x86-64-v4\" has one module per instruction set)";
+                   " kernels (a build with -DANISOCAP_KERNEL_ISAS=\"x86-64;x86-64-v3;x86-64-v4;x86-64-v4-bf16\" has one module per instruction set)";
           },
           ""));
 }
