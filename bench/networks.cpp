@@ -6,9 +6,14 @@
 // Arguments: size, batch, loss (1: L1 + render loss, as training does; 0: L1 in network space only,
 // the loss studies/networks_torch.py gives the same networks in PyTorch). Counter `parameters`: the
 // trainable parameter count (networks_torch.py checks its PyTorch networks against it).
+// `--network-precision=bf16` (the first argument) runs every step's convolutions in bf16
+// (nn/precision.hpp; builds for CPUs with AVX-512 BF16).
 #include <benchmark/benchmark.h>
 #include <omp.h>
 
+#include <cstdio>
+#include <cstring>
+#include <stdexcept>
 #include <memory>
 #include <vector>
 
@@ -156,4 +161,21 @@ BENCHMARK(autoencoder_step<autoencoder_paper>)
     ->UseRealTime();
 BENCHMARK(sample_generation)->Arg(128)->Arg(256)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  if (argc > 1 && std::strncmp(argv[1], "--network-precision=", 20) == 0) {
+    try {
+      nn::set_convolution_precision(nn::parse_precision(argv[1] + 20));
+    } catch (const std::invalid_argument& e) {
+      std::fprintf(stderr, "anisocap_bench_networks: %s\n", e.what());
+      return 2;
+    }
+    for (int i = 1; i + 1 < argc; ++i) argv[i] = argv[i + 1];
+    --argc;
+  }
+  benchmark::AddCustomContext("network_precision", nn::to_string(nn::convolution_precision()));
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -195,6 +195,55 @@ struct row_plan {
   }
 };
 
+/// How run_forward cuts its passes into work items: each pass's rows into register tiles
+/// (row_plan), the tiles into chunks of `chunk`, and each chunk into one item per output-channel
+/// block. Consecutive items share pixels and differ in output-channel block, so the inputs stay
+/// cached.
+template <class T>
+struct forward_items {
+  row_plan plan[4];
+  long long tiles_in[4] = {}, first_item[5] = {};
+  long long total_tiles = 0, chunk = 32, items = 0;
+  int coblocks = 0;
+  /// One work item: its pass, output-channel block and range of tiles.
+  struct item {
+    int pass, cb;
+    long long t0, t1;
+  };
+  /// One register tile of a pass: batch entry, row, first column and width.
+  struct tile {
+    int b, r, x, nx;
+  };
+  forward_items(const forward_pass<T>* passes, int npasses, int wide, int narrow, int blocks) : coblocks(blocks) {
+    const int threads = omp_get_max_threads();
+    for (int i = 0; i < npasses; ++i) {
+      plan[i] = row_plan::make(passes[i].cols, wide, narrow);
+      tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
+      total_tiles += tiles_in[i];
+    }
+    // Tiles per work item: enough for weight reuse, small enough to feed every thread.
+    while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 8LL * threads) chunk /= 2;
+    for (int i = 0; i < npasses; ++i) {
+      first_item[i] = items;
+      items += (tiles_in[i] + chunk - 1) / chunk * coblocks;
+    }
+    first_item[npasses] = items;
+  }
+  item at(long long k) const {
+    int pi = 0;
+    while (k >= first_item[pi + 1]) ++pi;
+    const long long local = k - first_item[pi];
+    const long long t0 = local / coblocks * chunk;
+    return {pi, int(local % coblocks), t0, std::min(tiles_in[pi], t0 + chunk)};
+  }
+  tile tile_of(const forward_pass<T>& ps, int pass, long long k) const {
+    const row_plan& pl = plan[pass];
+    const long long row = k / pl.tiles();
+    const auto [x, nx] = pl.tile(int(k % pl.tiles()));
+    return {int(row / ps.rows), int(row % ps.rows), x, nx};
+  }
+};
+
 // ---- bf16 forward-type pass ------------------------------------------------------------------
 #if ANISOCAP_BF16_DOT
 
@@ -304,23 +353,8 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
     ci_chunk = int(std::max<std::size_t>(16, (std::size_t(256) << 10) / bytes)) & ~1;
     if (ci_chunk >= Ca) ci_chunk = Ca;
   }
-  row_plan plan[4];
-  long long tiles_in[4], first_item[5];
-  const int threads = omp_get_max_threads();
-  long long total_tiles = 0;
-  for (int i = 0; i < npasses; ++i) {
-    plan[i] = row_plan::make(passes[i].cols, NX1, NX2);
-    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
-    total_tiles += tiles_in[i];
-  }
-  long long chunk = 32;
-  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 8LL * threads) chunk /= 2;
-  long long items = 0;
-  for (int i = 0; i < npasses; ++i) {
-    first_item[i] = items;
-    items += (tiles_in[i] + chunk - 1) / chunk * coblocks;
-  }
-  first_item[npasses] = items;
+  const forward_items<float> work(passes, npasses, NX1, NX2, coblocks);
+  const long long items = work.items;
   // Weights converted once for the call when each block serves several work items, else by the items.
   const std::ptrdiff_t tap_pairs = std::ptrdiff_t(pairs_total) * block * 2;  // one tap of one block
   std::ptrdiff_t pass_offset[4] = {};
@@ -344,18 +378,11 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
     }
   }
 
-#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && total_tiles * Ca * Cb > (1 << 16))
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work.total_tiles * Ca * Cb > (1 << 16))
   for (long long item = 0; item < items; ++item) {
-    int pi = 0;
-    while (item >= first_item[pi + 1]) ++pi;
+    const auto [pi, cb, t0, t1] = work.at(item);
     const forward_pass<float>& ps = passes[pi];
-    const row_plan& pl = plan[pi];
-    const long long local = item - first_item[pi];
-    const long long ch = local / coblocks;
-    const int cb = int(local % coblocks);
     const int co0 = cb * block;
-    const int per_row = pl.tiles();
-    const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
     const std::uint16_t* w_tap[16];
     const int n_cols = std::min(block, Cb - co0);
     const float* bias_block = bias ? bias + co0 : nullptr;
@@ -377,9 +404,7 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
       }
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
-        const long long row = tile / per_row;
-        const auto [x, nx] = pl.tile(int(tile % per_row));
-        const int b = int(row / ps.rows), r = int(row % ps.rows);
+        const auto [b, r, x, nx] = work.tile_of(ps, pi, tile);
         const std::uint16_t* abase = a_base + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
         float* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const std::uint16_t* a_tap[16];
@@ -424,38 +449,14 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
     ci_chunk = int(std::max<std::size_t>(16, (std::size_t(256) << 10) / bytes));
     ci_chunk = std::min(ci_chunk, Ca);
   }
-  row_plan plan[4];
-  long long tiles_in[4], first_item[5];
-  const int threads = omp_get_max_threads();
-  long long total_tiles = 0;
-  for (int i = 0; i < npasses; ++i) {
-    plan[i] = row_plan::make(passes[i].cols, NX1, NX2);
-    tiles_in[i] = (long long)passes[i].batch * passes[i].rows * plan[i].tiles();
-    total_tiles += tiles_in[i];
-  }
-  // Tiles per work item: enough for weight reuse, small enough to feed every thread.
-  long long chunk = 32;
-  while (chunk > 1 && ((total_tiles + chunk - 1) / chunk) * coblocks < 8LL * threads) chunk /= 2;
-  long long items = 0;
-  for (int i = 0; i < npasses; ++i) {
-    first_item[i] = items;
-    items += (tiles_in[i] + chunk - 1) / chunk * coblocks;
-  }
-  first_item[npasses] = items;
+  const forward_items<T> work(passes, npasses, NX1, NX2, coblocks);
+  const long long items = work.items;
 
-#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && total_tiles * Ca * Cb > (1 << 16))
+#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work.total_tiles * Ca * Cb > (1 << 16))
   for (long long item = 0; item < items; ++item) {
-    int pi = 0;
-    while (item >= first_item[pi + 1]) ++pi;
+    const auto [pi, cb, t0, t1] = work.at(item);
     const forward_pass<T>& ps = passes[pi];
-    const row_plan& pl = plan[pi];
-    const long long local = item - first_item[pi];
-    // Consecutive items share pixels and differ in output-channel block: the inputs stay cached.
-    const long long ch = local / coblocks;
-    const int cb = int(local % coblocks);
     const int co0 = cb * block;
-    const int per_row = pl.tiles();
-    const long long t0 = ch * chunk, t1 = std::min(tiles_in[pi], t0 + chunk);
     const T* w_tap[16];
     std::ptrdiff_t ld = wl.ld;
     T* buffer = wl.pack ? scratch<T>(4, std::size_t(ps.taps) * ci_chunk * block) : nullptr;
@@ -496,9 +497,7 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
       }
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
-        const long long row = tile / per_row;
-        const auto [x, nx] = pl.tile(int(tile % per_row));
-        const int b = int(row / ps.rows), r = int(row % ps.rows);
+        const auto [b, r, x, nx] = work.tile_of(ps, pi, tile);
         const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
