@@ -93,7 +93,8 @@ struct forward_pass {
 };
 
 /// A register tile's accumulators at the start: `init` 0 = zero, 1 = the bias vector, 2 = out's
-/// current values (the last register of each pixel holds last_lanes channels).
+/// current values, NX rows o_col apart (pixels of an output, or input channels of a weight
+/// gradient; the last register of each row holds last_lanes channels).
 template <int NX, int NV, class T>
 ANISOCAP_ALWAYS_INLINE void tile_start(batch<T> (&acc)[NX][NV], const T* out, std::ptrdiff_t o_col, int last_lanes, const T* bias, int init) {
   constexpr int W = lanes<T>;
@@ -537,13 +538,7 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
                         std::ptrdiff_t ldw, int last_lanes) {
   constexpr int W = lanes<T>;
   batch<T> acc[CIB][NV];
-  #pragma GCC unroll 32
-  for (int i = 0; i < CIB; ++i)
-    #pragma GCC unroll 32
-    for (int v = 0; v < NV; ++v) {
-      const T* src = gw + i * ldw + v * W;
-      acc[i][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<T>::load_unaligned(src);
-    }
+  tile_start<CIB, NV>(acc, gw, ldw, last_lanes, static_cast<const T*>(nullptr), 2);
   for (int r = 0; r < nrows; ++r) {
     const T* a = a_rows[r] + a_off;
     const T* g = g_rows[r] + g_off;
@@ -559,14 +554,7 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
       }
     }
   }
-  #pragma GCC unroll 32
-  for (int i = 0; i < CIB; ++i)
-    #pragma GCC unroll 32
-    for (int v = 0; v < NV; ++v) {
-      T* dst = gw + i * ldw + v * W;
-      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[i][v], last_lanes);
-      else acc[i][v].store_unaligned(dst);
-    }
+  tile_finish<CIB, NV>(acc, gw, ldw, last_lanes);
 }
 
 #if ANISOCAP_BF16_DOT
@@ -579,13 +567,7 @@ inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_
                              int ci, float* gw, std::ptrdiff_t ldw, int last_lanes) {
   constexpr int W = lanes<float>;
   batch<float> acc[CIB][NV];
-  #pragma GCC unroll 32
-  for (int i = 0; i < CIB; ++i)
-    #pragma GCC unroll 32
-    for (int v = 0; v < NV; ++v) {
-      const float* src = gw + i * ldw + v * W;
-      acc[i][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<float>::load_unaligned(src);
-    }
+  tile_start<CIB, NV>(acc, gw, ldw, last_lanes, static_cast<const float*>(nullptr), 2);
   for (int r = 0; r < nrows; ++r) {
     const std::uint16_t* a = a16[r] + 2 * ci;
     const std::uint16_t* g = g16[r];
@@ -601,14 +583,7 @@ inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_
       }
     }
   }
-  #pragma GCC unroll 32
-  for (int i = 0; i < CIB; ++i)
-    #pragma GCC unroll 32
-    for (int v = 0; v < NV; ++v) {
-      float* dst = gw + i * ldw + v * W;
-      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[i][v], last_lanes);
-      else acc[i][v].store_unaligned(dst);
-    }
+  tile_finish<CIB, NV>(acc, gw, ldw, last_lanes);
 }
 
 /// `n` channels of pixels p and p + step side by side as bf16 pairs (p + step absent: zeros).
