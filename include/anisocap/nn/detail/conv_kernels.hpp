@@ -557,6 +557,51 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
   tile_finish<CIB, NV>(acc, gw, ldw, last_lanes);
 }
 
+/// How run_weight cuts a weight pass into work items: (output-channel block, tap, range of input-
+/// channel blocks), each sweeping every pixel in chunks of about 96 (whole rows when rows are
+/// shorter, else row segments) whose output-gradient block stays in L1 while the item's
+/// input-channel blocks run over it. Input channels go in blocks of CIB; a remainder of 4 or more
+/// runs as one 4-channel block, the rest one channel at a time. `even`: segments of an even width.
+struct weight_items {
+  int block, coblocks, last_lanes, CIB, ciblocks, quads, ci_items, parts;
+  long long items;
+  int rows_total, seg, segs_per_row, chunk_rows;
+  double work;
+  /// One work item: output-channel block, tap, and input-channel blocks k0..k1.
+  struct item {
+    int cb, t, k0, k1;
+  };
+  weight_items(int taps, int batch, int rows, int cols, int Ca, int Cb, int lanes, int NV, int cib, std::size_t value_bytes,
+               bool even)
+      : block(NV * lanes), coblocks((Cb + block - 1) / block), last_lanes(Cb - (coblocks - 1) * block - (NV - 1) * lanes),
+        CIB(cib), ciblocks(Ca / cib), quads(cib > 4 && Ca % cib >= 4 ? 1 : 0),
+        ci_items(ciblocks + quads + (Ca % cib - 4 * quads)) {
+    const int threads = omp_get_max_threads();
+    // Split the input channels when (block, tap) pairs alone would not feed every thread.
+    const int pairs = coblocks * taps;
+    parts = std::max(1, std::min(ci_items, (8 * threads + pairs - 1) / pairs));
+    items = (long long)pairs * parts;
+    rows_total = batch * rows;
+    const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * value_bytes)));
+    seg = std::min(cols, even ? (target + 1) & ~1 : target);
+    segs_per_row = (cols + seg - 1) / seg;
+    chunk_rows = seg < cols ? 1 : std::max(1, std::min(64, target / std::max(1, cols)));
+    work = double(rows_total) * cols * taps * Ca * Cb;
+  }
+  item at(long long it, int taps) const {
+    const int pair = int(it / parts), part = int(it % parts);
+    return {pair / taps, pair % taps, ci_items * part / parts, ci_items * (part + 1) / parts};
+  }
+  /// First input channel of input-channel block ck.
+  int ci_start(int ck) const {
+    if (ck < ciblocks) return ck * CIB;
+    if (ck < ciblocks + quads) return ciblocks * CIB;
+    return ciblocks * CIB + 4 * quads + (ck - ciblocks - quads);
+  }
+  /// Input channels of block ck: CIB, 4 or 1.
+  int ci_width(int ck) const { return ck < ciblocks ? CIB : ck < ciblocks + quads ? 4 : 1; }
+};
+
 #if ANISOCAP_BF16_DOT
 
 /// The bf16 weight-gradient tile: as weight_tile, two pixels per instruction. For each row r of the
@@ -601,46 +646,24 @@ inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second,
 template <int NV, int CIB>
 void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
   constexpr int W = lanes<float>;
-  const int block = NV * W;
-  const int coblocks = (Cb + block - 1) / block;
-  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
-  const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
-  const int quads = CIB > 4 && ci_rest >= 4 ? 1 : 0;
-  const int ci_items = ciblocks + quads + (ci_rest - 4 * quads);
-  auto ci_start = [&](int ck) {
-    if (ck < ciblocks) return ck * CIB;
-    if (ck < ciblocks + quads) return ciblocks * CIB;
-    return ciblocks * CIB + 4 * quads + (ck - ciblocks - quads);
-  };
-  const int threads = omp_get_max_threads();
-  const int pairs_of_taps = coblocks * ps.taps;
-  const int parts = std::max(1, std::min(ci_items, (8 * threads + pairs_of_taps - 1) / pairs_of_taps));
-  const long long items = (long long)pairs_of_taps * parts;
-  const int rows_total = ps.batch * ps.rows;
-  // Chunks of about 96 pixels (whole rows when rows are shorter) of an even width.
-  const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * sizeof(float))));
-  const int seg = std::min(ps.cols, (target + 1) & ~1);
-  const int segs_per_row = (ps.cols + seg - 1) / seg;
-  const int chunk_rows = seg < ps.cols ? 1 : std::max(1, std::min(64, target / std::max(1, ps.cols)));
-  const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
-#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work > double(1 << 16))
-  for (long long it = 0; it < items; ++it) {
-    const int pair = int(it / parts), part = int(it % parts);
-    const int cb = pair / ps.taps, t = pair % ps.taps;
-    const int k0 = ci_items * part / parts, k1 = ci_items * (part + 1) / parts;
+  const weight_items plan(ps.taps, ps.batch, ps.rows, ps.cols, Ca, Cb, W, NV, CIB, sizeof(float), true);
+  const int block = plan.block, seg = plan.seg, chunk_rows = plan.chunk_rows;
+#pragma omp parallel for schedule(dynamic, 1) if (plan.items > 1 && plan.work > double(1 << 16))
+  for (long long it = 0; it < plan.items; ++it) {
+    const auto [cb, t, k0, k1] = plan.at(it, ps.taps);
     if (k0 >= k1) continue;
-    const int ci_lo = ci_start(k0), ci_hi = k1 < ci_items ? ci_start(k1) : Ca;
+    const int ci_lo = plan.ci_start(k0), ci_hi = k1 < plan.ci_items ? plan.ci_start(k1) : Ca;
     const int nci = ci_hi - ci_lo;
     const int co0 = cb * block;
-    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+    const int lanes_here = (cb == plan.coblocks - 1) ? plan.last_lanes : W;
     const int max_pairs = (seg + 1) / 2;
     std::uint16_t* abuf = scratch<std::uint16_t>(5, std::size_t(chunk_rows) * max_pairs * nci * 2);
     std::uint16_t* gbuf = scratch<std::uint16_t>(6, std::size_t(chunk_rows) * max_pairs * block * 2);
     const std::uint16_t* a16[64];
     const std::uint16_t* g16[64];
-    for (int r0 = 0; r0 < rows_total; r0 += chunk_rows) {
-      const int nr = std::min(chunk_rows, rows_total - r0);
-      for (int sg = 0; sg < segs_per_row; ++sg) {
+    for (int r0 = 0; r0 < plan.rows_total; r0 += chunk_rows) {
+      const int nr = std::min(chunk_rows, plan.rows_total - r0);
+      for (int sg = 0; sg < plan.segs_per_row; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
         const int pairs = (nc + 1) / 2;
         for (int r = 0; r < nr; ++r) {
@@ -658,11 +681,11 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
           g16[r] = gd;
         }
         for (int ck = k0; ck < k1; ++ck) {
-          const int ci0 = ci_start(ck);
+          const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
           float* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
-          if (ck < ciblocks) {
+          if (width == CIB) {
             weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
-          } else if (ck < ciblocks + quads) {
+          } else if (width == 4) {
             if constexpr (CIB > 4) weight_tile_bf16<4, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
           } else {
             weight_tile_bf16<1, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
@@ -694,38 +717,18 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
     }
   }
 #endif
-  const int block = NV * W;
-  const int coblocks = (Cb + block - 1) / block;
-  const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
-  const int ciblocks = Ca / CIB, ci_rest = Ca % CIB;
-  const int quads = CIB > 4 && ci_rest >= 4 ? 1 : 0;  // one 4-channel block of the remainder
-  const int ci_items = ciblocks + quads + (ci_rest - 4 * quads);
-  const int threads = omp_get_max_threads();
-  // Split the input channels when (block, tap) pairs alone would not feed every thread.
-  const int pairs = coblocks * ps.taps;
-  const int parts = std::max(1, std::min(ci_items, (8 * threads + pairs - 1) / pairs));
-  const long long items = (long long)pairs * parts;
-  const int rows_total = ps.batch * ps.rows;
-  // Pixel chunks of about 96 (whole rows when rows are shorter, else row segments): the chunk's
-  // output-gradient block (96 x NV registers) stays in L1 while the item's input-channel blocks
-  // run over it.
-  const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * sizeof(T))));
-  const int seg = std::min(ps.cols, target);
-  const int segs_per_row = (ps.cols + seg - 1) / seg;
-  const int chunk_rows = seg < ps.cols ? 1 : std::max(1, std::min(64, target / std::max(1, ps.cols)));
-  const double work = double(rows_total) * ps.cols * ps.taps * Ca * Cb;
-#pragma omp parallel for schedule(dynamic, 1) if (items > 1 && work > double(1 << 16))
-  for (long long it = 0; it < items; ++it) {
-    const int pair = int(it / parts), part = int(it % parts);
-    const int cb = pair / ps.taps, t = pair % ps.taps;
-    const int k0 = ci_items * part / parts, k1 = ci_items * (part + 1) / parts;
+  const weight_items plan(ps.taps, ps.batch, ps.rows, ps.cols, Ca, Cb, W, NV, CIB, sizeof(T), false);
+  const int block = plan.block, seg = plan.seg, chunk_rows = plan.chunk_rows;
+#pragma omp parallel for schedule(dynamic, 1) if (plan.items > 1 && plan.work > double(1 << 16))
+  for (long long it = 0; it < plan.items; ++it) {
+    const auto [cb, t, k0, k1] = plan.at(it, ps.taps);
     const int co0 = cb * block;
-    const int lanes_here = (cb == coblocks - 1) ? last_lanes : W;
+    const int lanes_here = (cb == plan.coblocks - 1) ? plan.last_lanes : W;
     const T* a_rows[64];
     const T* g_rows[64];
-    for (int r0 = 0; r0 < rows_total; r0 += chunk_rows) {
-      const int nr = std::min(chunk_rows, rows_total - r0);
-      for (int sg = 0; sg < segs_per_row; ++sg) {
+    for (int r0 = 0; r0 < plan.rows_total; r0 += chunk_rows) {
+      const int nr = std::min(chunk_rows, plan.rows_total - r0);
+      for (int sg = 0; sg < plan.segs_per_row; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
         for (int r = 0; r < nr; ++r) {
           const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
@@ -733,19 +736,15 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
           g_rows[r] = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col;
         }
         for (int ck = k0; ck < k1; ++ck) {
-          if (ck < ciblocks) {
-            const int ci0 = ck * CIB;
-            weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
-                                 gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
-          } else if (ck < ciblocks + quads) {
-            const int ci0 = ciblocks * CIB;
+          const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
+          T* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
+          if (width == CIB) {
+            weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col, dst, Cb, lanes_here);
+          } else if (width == 4) {
             if constexpr (CIB > 4)
-              weight_tile<4, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
-                                 gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+              weight_tile<4, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col, dst, Cb, lanes_here);
           } else {
-            const int ci0 = ciblocks * CIB + 4 * quads + (ck - ciblocks - quads);
-            weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col,
-                               gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0, Cb, lanes_here);
+            weight_tile<1, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col, dst, Cb, lanes_here);
           }
         }
       }
