@@ -43,12 +43,18 @@ inline std::atomic<precision>& current_precision() {
 /// The precision the convolutions use now (fp32 unless set).
 inline precision convolution_precision() { return detail::current_precision().load(std::memory_order_relaxed); }
 
+/// Throws std::invalid_argument naming `setting` (an option or field) when p is bf16 and this build
+/// lacks AVX-512 BF16.
+inline void require_available(precision p, const std::string& setting) {
+  if (p == precision::bf16 && !bf16_available())
+    throw std::invalid_argument(setting + " bf16 needs a build for a CPU with AVX-512 BF16 (this one is built for " +
+                                std::string(simd::arch_name()) + " without it); use fp32");
+}
+
 /// Sets the convolutions' precision for the whole process. Throws std::invalid_argument when bf16
 /// is asked of a build without AVX-512 BF16.
 inline void set_convolution_precision(precision p) {
-  if (p == precision::bf16 && !bf16_available())
-    throw std::invalid_argument("precision bf16 needs a build for a CPU with AVX-512 BF16 (this one is built for " +
-                                std::string(simd::arch_name()) + " without it); use fp32");
+  require_available(p, "precision");
   detail::current_precision().store(p, std::memory_order_relaxed);
 }
 

@@ -231,11 +231,7 @@ struct capture_options {
     return *this;
   }
   /// Throws std::invalid_argument when network_precision is bf16 and this build lacks AVX-512 BF16.
-  void validate_precision() const {
-    if (network_precision == nn::precision::bf16 && !nn::bf16_available())
-      throw std::invalid_argument(std::string("network_precision bf16 needs a build for a CPU with AVX-512 BF16 (this one is built for ") +
-                                  simd::arch_name() + "); use fp32");
-  }
+  void validate_precision() const { nn::require_available(network_precision, "network_precision"); }
   /// Throws std::invalid_argument naming the field for impossible values.
   void validate() const {
     refine.validate();

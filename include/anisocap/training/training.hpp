@@ -377,8 +377,7 @@ struct train_options {
   /// Throws std::invalid_argument for impossible values (before a run creates anything).
   void validate() const {
     if (steps < 1) throw std::invalid_argument("training steps (--steps) must be at least 1, got " + std::to_string(steps));
-    if (precision == nn::precision::bf16 && !nn::bf16_available())
-      throw std::invalid_argument("--network-precision bf16 needs a build for a CPU with AVX-512 BF16; use fp32");
+    nn::require_available(precision, "--network-precision");
     if (batch < 1) throw std::invalid_argument("the batch (--batch) must hold at least 1 material, got " + std::to_string(batch));
     if (!(learning_rate >= 0) || !std::isfinite(learning_rate))
       throw std::invalid_argument("the learning rate (--lr) must be finite and not negative (0: the paper's)");

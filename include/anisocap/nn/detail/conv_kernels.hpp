@@ -196,6 +196,21 @@ struct row_plan {
   }
 };
 
+/// Copies rows r0..r1 of one block of a transposed kernel (weight_layout::transposed: stored
+/// [out][reduced], rows ld apart, from src = the tap's start) into dst as [r - r0][block], column j
+/// from stored row co0 + j; columns from n_cols on are zero. The block is small, so it stays in cache.
+template <class T>
+void transpose_block(const T* src, std::ptrdiff_t ld, int co0, int n_cols, int r0, int r1, int block, T* dst) {
+  for (int j = 0; j < block; ++j) {
+    if (j < n_cols) {
+      const T* sj = src + std::ptrdiff_t(co0 + j) * ld + r0;
+      for (int r = 0; r < r1 - r0; ++r) dst[std::ptrdiff_t(r) * block + j] = sj[r];
+    } else {
+      for (int r = 0; r < r1 - r0; ++r) dst[std::ptrdiff_t(r) * block + j] = T(0);
+    }
+  }
+}
+
 /// How run_forward cuts its passes into work items: each pass's rows into register tiles
 /// (row_plan), the tiles into chunks of `chunk`, and each chunk into one item per output-channel
 /// block. Consecutive items share pixels and differ in output-channel block, so the inputs stay
@@ -276,6 +291,16 @@ inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint
   tile_finish<NX, NV>(acc, out, o_col, last_lanes);
 }
 
+/// `n` values at p and at p + step side by side as bf16 pairs (two pixels of a weight gradient,
+/// or two weight rows); `second` false: the second of each pair is zero.
+inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second, int n, std::uint16_t* dst) {
+  if (second) {
+    simd::interleave_to_bf16(p, p + step, n, dst);
+  } else {
+    for (int j = 0; j < n; ++j) dst[2 * j] = simd::to_bf16(p[j]), dst[2 * j + 1] = 0;
+  }
+}
+
 /// Writes rows r0..r1 of one tap of a forward-type pass's weights (layout wl, output-channel block
 /// cb of `block` columns, n_cols of them real) as bf16 pairs [(r1 - r0 + 1) / 2][block][2]; a
 /// missing odd row and the columns beyond n_cols are zero. A transposed source is first
@@ -288,15 +313,8 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
   std::ptrdiff_t ld;
   int n;
   if (wl.pack && wl.transposed) {
-    float* t = scratch<float>(7, std::size_t(rows + 1) * block);
-    for (int j = 0; j < block; ++j) {
-      if (j < n_cols) {
-        const float* src = wl.w + w_tap + std::ptrdiff_t(co0 + j) * wl.ld + r0;
-        for (int r = 0; r < rows; ++r) t[std::ptrdiff_t(r) * block + j] = src[r];
-      } else {
-        for (int r = 0; r < rows; ++r) t[std::ptrdiff_t(r) * block + j] = 0.0f;
-      }
-    }
+    float* t = scratch<float>(7, std::size_t(rows) * block);
+    transpose_block(wl.w + w_tap, wl.ld, co0, n_cols, r0, r1, block, t);
     base = t;
     ld = block;
     n = block;
@@ -308,11 +326,7 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
   for (int r = 0; r < rows; r += 2) {
     std::uint16_t* d = dst + std::ptrdiff_t(r) * block;
     const float* a = base + std::ptrdiff_t(r) * ld;
-    if (r + 1 < rows) {
-      simd::interleave_to_bf16(a, a + ld, n, d);
-    } else {
-      for (int j = 0; j < n; ++j) d[2 * j] = simd::to_bf16(a[j]), d[2 * j + 1] = 0;
-    }
+    pixel_pair_to_bf16(a, ld, r + 1 < rows, n, d);
     if (n < block) std::memset(static_cast<void*>(d + 2 * n), 0, sizeof(std::uint16_t) * 2 * (block - n));
   }
 }
@@ -469,16 +483,8 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
       const int c1 = std::min(Ca, c0 + ci_chunk);
       if (wl.pack && wl.transposed) {
         for (int t = 0; t < ps.taps; ++t) {
-          const T* src = wl.w + ps.w_tap[t] + std::ptrdiff_t(co0) * wl.ld + c0;
           T* dst = buffer + std::ptrdiff_t(t) * (c1 - c0) * block;
-          for (int j = 0; j < block; ++j) {
-            if (j < n_cols) {
-              const T* sj = src + std::ptrdiff_t(j) * wl.ld;
-              for (int r = 0; r < c1 - c0; ++r) dst[std::ptrdiff_t(r) * block + j] = sj[r];
-            } else {
-              for (int r = 0; r < c1 - c0; ++r) dst[std::ptrdiff_t(r) * block + j] = T(0);
-            }
-          }
+          transpose_block(wl.w + ps.w_tap[t], wl.ld, co0, n_cols, c0, c1, block, dst);
           w_tap[t] = dst;
         }
         ld = block;
@@ -629,15 +635,6 @@ inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_
     }
   }
   tile_finish<CIB, NV>(acc, gw, ldw, last_lanes);
-}
-
-/// `n` channels of pixels p and p + step side by side as bf16 pairs (p + step absent: zeros).
-inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second, int n, std::uint16_t* dst) {
-  if (second) {
-    simd::interleave_to_bf16(p, p + step, n, dst);
-  } else {
-    for (int j = 0; j < n; ++j) dst[2 * j] = simd::to_bf16(p[j]), dst[2 * j + 1] = 0;
-  }
 }
 
 /// run_weight in bf16 (see nn/precision.hpp): the same work items; for each chunk of pixels an
