@@ -6,11 +6,13 @@
 #include <cstdio>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "anisocap/training/training.hpp"
 #include "common.hpp"
+#include "ranks.hpp"
 
 namespace anisocap::commands {
 
@@ -91,6 +93,10 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
       ->check(CLI::IsMember({"fp32", "bf16"}))
       ->default_str("fp32");
   cmd->add_option("--prefetch", o.prefetch, "build the next step's samples on a second thread during each step (true or false)");
+  cmd->add_option("--data-parallel", o.data_parallel,
+                  "true: compute each material's gradient alone and add the batch's in a fixed order, the weights of a run "
+                  "under mpirun on any rank count bit for bit (always so under mpirun); false: the whole batch in one pass")
+      ->default_str(o.data_parallel ? "true" : "false");
   add_mix_option(cmd, o.mix, {material_mix::original, material_mix::training},
                  "procedural families: original (the 8 original kinds) or training (all kinds but the held-out leather and printed)");
   cmd->add_option_function<std::string>(
@@ -143,22 +149,28 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
 
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
 /// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
-/// folder's lock; a run refused before writing anything leaves no folder behind.
+/// folder's lock; a run refused before writing anything leaves no folder behind. Under an MPI
+/// launcher every rank trains a share of each batch (train_options::data_parallel) and rank 0
+/// alone locks and writes the folder.
 template <template <class...> class Net, class Paper, class Compact, class Train>
-void train_in_locked_folder(const train_settings& s, Train train) {
-  const training::train_options& o = s.options;
-  output_lock lock(o.out_dir);  // one run per output folder
+void train_in_locked_folder(const train_settings& settings, Train train) {
+  train_settings s = settings;
+  training::train_options& o = s.options;
+  const communicator& ranks = program_ranks();
+  if (mpi_job()) o.data_parallel = true;
+  std::optional<output_lock> lock;
+  if (ranks.root()) lock.emplace(o.out_dir);  // one run per output folder
   try {
     auto run = [&]<class P>() {
       auto net = std::make_unique<Net<P>>(o.seed);
-      train(o, *net);
+      train(o, *net, ranks);
     };
     if (s.preset == Paper::name)
       run.template operator()<Paper>();
     else
       Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + Paper::name + ", " + Compact::joined(); });
   } catch (...) {
-    lock.release_empty();
+    if (lock) lock->release_empty();
     throw;
   }
 }
@@ -312,23 +324,27 @@ inline void add_train_commands(CLI::App& app) {
   auto* est_cmd = app.add_subcommand("train-estimator", "train the estimation network on procedural materials");
   add_common(est_cmd, *est, false);
   est_cmd->callback([est] {
-    train_in_locked_folder<estimation_network, estimator_paper, program_estimator_presets>(
-        *est, [](const training::train_options& o, auto& net) { training::train_estimator(o, net); });
+    run_on_ranks([&] {
+      train_in_locked_folder<estimation_network, estimator_paper, program_estimator_presets>(
+          *est, [](const training::train_options& o, auto& net, const communicator& ranks) { training::train_estimator(o, net, ranks); });
+    });
   });
   auto ae = std::make_shared<train_settings>();
   ae->options = training::train_options::autoencoder();
   auto* ae_cmd = app.add_subcommand("train-autoencoder", "train the map auto-encoder on procedural materials");
   add_common(ae_cmd, *ae, true);
   ae_cmd->callback([ae] {
-    train_in_locked_folder<auto_encoder, autoencoder_paper, program_autoencoder_presets>(
-        *ae, [&s = *ae](const training::train_options& o, auto& net) {
-          if (s.inputs == "truth") return training::train_autoencoder(o, net);
-          with_estimator_preset<program_estimator_presets>(s.input_estimator, [&]<class P>() {
-            auto estimator = std::make_unique<estimation_network<P>>();
-            nn::load_weights(s.input_estimator, *estimator);
-            training::train_autoencoder(o, net, *estimator);
+    run_on_ranks([&] {
+      train_in_locked_folder<auto_encoder, autoencoder_paper, program_autoencoder_presets>(
+          *ae, [&s = *ae](const training::train_options& o, auto& net, const communicator& ranks) {
+            if (s.inputs == "truth") return training::train_autoencoder(o, net, ranks);
+            with_estimator_preset<program_estimator_presets>(s.input_estimator, [&]<class P>() {
+              auto estimator = std::make_unique<estimation_network<P>>();
+              nn::load_weights(s.input_estimator, *estimator);
+              training::train_autoencoder(o, net, *estimator, ranks);
+            });
           });
-        });
+    });
   });
   auto ev = std::make_shared<network_eval_settings>();
   auto* ev_cmd = app.add_subcommand("eval-networks", "per-parameter errors of the compact estimator (against the mean-map baseline) and auto-encoder");

@@ -156,12 +156,16 @@ class auto_encoder {
   /// z from network-space maps (batch x H x W x 12, H and W multiples of size_multiple). Batch norm
   /// uses the batch's statistics while `training`, the running ones otherwise.
   ad::variable<latent_channels, T> encode(ad::tape& t, const ad::variable<parameter_count, T>& maps) {
-    if (maps.value.height() % size_multiple != 0 || maps.value.width() % size_multiple != 0 || maps.value.height() == 0 ||
-        maps.value.width() == 0)
-      throw std::invalid_argument("auto_encoder::encode: map size " + std::to_string(maps.value.height()) + "x" +
-                                  std::to_string(maps.value.width()) + " is not a positive multiple of " +
-                                  std::to_string(size_multiple) + " (pad it)");
+    check_size(maps.value.height(), maps.value.width());
     return encode_from<0>(t, maps);
+  }
+
+  /// The encoder without its batch norm (latent_norm): the last convolution's output, from which
+  /// a data-parallel step normalises with the statistics of a batch spread over several passes
+  /// (training::autoencoder_gradient_parts). Same sizes as encode().
+  ad::variable<latent_channels, T> encode_features(ad::tape& t, const ad::variable<parameter_count, T>& maps) {
+    check_size(maps.value.height(), maps.value.width());
+    return encode_from<0, parameter_count, false>(t, maps);
   }
 
   /// Network-space maps (batch x size_multiple h x size_multiple w x 12, in (-1, 1)) from z
@@ -207,11 +211,20 @@ class auto_encoder {
   }
 
  private:
-  template <std::size_t I, int C>
+  static void check_size(int height, int width) {
+    if (height % size_multiple != 0 || width % size_multiple != 0 || height == 0 || width == 0)
+      throw std::invalid_argument("auto_encoder::encode: map size " + std::to_string(height) + "x" + std::to_string(width) +
+                                  " is not a positive multiple of " + std::to_string(size_multiple) + " (pad it)");
+  }
+  template <std::size_t I, int C, bool Normalised = true>
   ad::variable<latent_channels, T> encode_from(ad::tape& t, const ad::variable<C, T>& h) {
     auto y = std::get<I>(encoder_)(t, h);
-    if constexpr (I + 1 == L) return latent_norm(t, y);
-    else return encode_from<I + 1>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
+    if constexpr (I + 1 == L) {
+      if constexpr (Normalised) return latent_norm(t, y);
+      else return y;
+    } else {
+      return encode_from<I + 1, E[I], Normalised>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
+    }
   }
   template <std::size_t I, int C>
   ad::variable<parameter_count, T> decode_from(ad::tape& t, const ad::variable<C, T>& h) {
