@@ -1,8 +1,14 @@
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <utility>
+#include <vector>
+
+#include <omp.h>
 
 #include "../render/render_reference.hpp"
+#include "../support/loopback_communicator.hpp"
 #include "anisocap/pipeline/refine.hpp"
 
 using namespace anisocap;
@@ -332,4 +338,59 @@ TEST_CASE("neighbour restarts put a band fitted a quarter turn off back in the r
   CHECK(nr.final_loss < 0.5 * single.final_loss);
   CHECK(band_rotation_error(restarted) < 0.25 * band_rotation_error(one));
   CHECK_THROWS_AS(refine_neighbour_restarts(restarted, cap, targets, {0}, options), std::invalid_argument);
+}
+
+TEST_CASE("refine over 1, 2 and 3 ranks gives the single process's maps and losses, bit for bit") {
+  // The ranks are threads of this process (tests/support/loopback_communicator.hpp); each refines
+  // its share of the texel groups. With freezing and early stopping, whose decisions read the
+  // gathered losses, and the neighbour restarts and the second start built on refine.
+  const int w = 40, h = 36;  // 1440 texels: 23 groups, the last one short
+  const material_maps truth = random_maps(w, h, 71);
+  const capture cap = random_capture(8, 72);
+  const loss_targets targets = make_loss_targets(render(truth, cap));
+  material_maps start(w, h);
+  const float flat[parameter_count] = {0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.2f, 0.2f, 0.5f, 0.0f, 0.0f, 0.0f};
+  start.fill(flat);
+  refine_options options;
+  options.steps = 400;
+  options.learning_rate = 0.05f;
+  options.freeze_tolerance = 0.02;
+  options.freeze_every = 20;
+  options.min_relative_improvement = 0.02;
+  options.patience = 30;
+  struct outcome {
+    material_maps maps;
+    std::vector<double> losses;
+    double restart_loss = 0;
+    double two_start_loss = 0;
+  };
+  auto run = [&](const communicator* ranks) {
+    refine_options o = options;
+    o.ranks = ranks;
+    outcome r{start, {}};
+    r.losses = refine(r.maps, cap, targets, o).losses;
+    r.restart_loss = refine_neighbour_restarts(r.maps, cap, targets, {2}, o).final_loss;
+    material_maps second = start;
+    r.two_start_loss = refine_two_starts(second, cap, targets, 0.3f, o).final_loss;
+    return std::pair{r, second};
+  };
+  const auto [alone, alone_second] = run(nullptr);
+  CHECK(alone.losses.size() < std::size_t(options.steps));  // early stopping decided
+  for (int ranks : {1, 2, 3}) {
+    CAPTURE(ranks);
+    std::vector<std::pair<outcome, material_maps>> results(static_cast<std::size_t>(ranks));
+    testing::run_on_loopback_ranks(ranks, [&](const communicator& comm) {
+      omp_set_num_threads(1);
+      results[std::size_t(comm.rank())] = run(&comm);
+    });
+    for (const auto& [r, second] : results) {
+      CHECK(r.losses == alone.losses);
+      CHECK(r.restart_loss == alone.restart_loss);
+      CHECK(r.two_start_loss == alone.two_start_loss);
+      for (int k = 0; k < parameter_count; ++k) {
+        CHECK(std::equal(r.maps.plane(k), r.maps.plane(k) + r.maps.texel_count(), alone.maps.plane(k)));
+        CHECK(std::equal(second.plane(k), second.plane(k) + second.texel_count(), alone_second.plane(k)));
+      }
+    }
+  }
 }

@@ -160,9 +160,9 @@ struct capture_options {
   /// estimate's windows and the fine-tune's steps are shared between them (the estimate gives the
   /// same bits on any rank count; for the fine-tune set finetune_options::shard_cells, e.g. to
   /// finetune_options::distributed_shard_cells, so that any rank count, one included, gives the
-  /// same bits); the refine runs whole on every rank. Only rank 0 writes check-points. Resuming
-  /// needs the check-point folder on a file system every rank reads. Not owned: it must outlive
-  /// the call.
+  /// same bits); so are the refine's texel groups (refine_options::ranks; any rank count gives the
+  /// same bits). Only rank 0 writes check-points. Resuming needs the check-point folder on a file
+  /// system every rank reads. Not owned: it must outlive the call.
   const communicator* ranks = nullptr;
   /// Progress of every stage (estimate: windows; fine-tune and refine every `progress_every` of theirs).
   std::function<void(const std::string& stage, const optimisation_progress&)> progress;
@@ -557,6 +557,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   if (o.stages.refine) {
     refine_options ro = o.refine;
     ro.render = o.render;
+    ro.ranks = o.ranks;  // the texel groups shared over the ranks
     if (!ro.progress) ro.progress = reporter("refine");
     if (o.second_start_lobe_width > 0) {
       const two_start_result tr = with_features(result.features, [&]<brdf_features F>() {

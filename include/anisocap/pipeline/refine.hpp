@@ -15,11 +15,13 @@
 #include <cstdint>
 #include <functional>
 #include <numbers>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
+#include "anisocap/core/distributed.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/adam.hpp"
 #include "anisocap/nn/early_stopping.hpp"
@@ -49,6 +51,12 @@ struct refine_options {
   /// texels just stop moving). 0: never freeze.
   double freeze_tolerance = 0.0;
   int freeze_every = 25;
+  /// The ranks that share the refine (core/distributed.hpp): each refines a contiguous share of the
+  /// texel groups (part_range over the groups) and the groups' losses and the final maps are
+  /// gathered, so every rank ends with the same maps, those of one process, bit for bit. Null (or
+  /// one rank): this process alone. Every rank calls refine with the same maps and options. Not
+  /// owned: it must outlive the call.
+  const communicator* ranks = nullptr;
 
   /// After the networks the maps start near the answer: 500 steps (the paper's count) at 3e-3
   /// (docs/results.md "Run time against error").
@@ -92,6 +100,19 @@ inline float logit(float p) {
   return std::log(p / (1.0f - p));
 }
 inline const float log_min_lobe = float(log_min_lobe_width);
+
+/// Every rank's groups' losses, `losses[first, last)` on this rank, to every rank (refine over
+/// several ranks).
+inline void gather_groups(const communicator& ranks, std::vector<double>& losses, std::size_t first, std::size_t last) {
+  std::vector<std::size_t> counts(std::size_t(ranks.size()));
+  for (int r = 0; r < ranks.size(); ++r) {
+    const auto [a, b] = part_range(int(losses.size()), ranks.size(), r);
+    counts[std::size_t(r)] = std::size_t(b - a);
+  }
+  std::vector<double> all;
+  ranks.all_gather(std::span<const double>(losses.data() + first, last - first), all, counts);
+  std::copy(all.begin(), all.end(), losses.begin());  // in place: texel_groups points at it
+}
 
 /// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
 /// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
@@ -169,11 +190,22 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   const std::size_t group_count = texel_groups::count(maps);
   std::vector<std::uint8_t> group_active(group_count, 1);
   std::vector<double> group_loss(group_count, 0.0), group_loss_checked(group_count, 0.0);
-  const texel_groups groups{freezing ? group_active.data() : nullptr, group_loss.data()};
+  // Over several ranks: this rank's groups [first_group, last_group), evaluated where also active.
+  const bool shared = options.ranks && options.ranks->distributed();
+  const auto share = shared ? part_range(int(group_count), options.ranks->size(), options.ranks->rank()) : std::pair{0, int(group_count)};
+  const std::size_t first_group = std::size_t(share.first), last_group = std::size_t(share.second);
+  std::vector<std::uint8_t> evaluated(shared ? group_count : 0, 0);
+  const texel_groups groups{shared ? evaluated.data() : freezing ? group_active.data() : nullptr, group_loss.data()};
   std::size_t evaluated_groups = 0, active_count = group_count;
   for (int step = 0; step < options.steps; ++step) {
     detail::maps_from_unconstrained(u, maps, jac);  // (a reduced kernel F ignores the planes it lacks)
-    const double loss = loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
+    if (shared)
+      for (std::size_t g = first_group; g < last_group; ++g) evaluated[g] = group_active[g];
+    loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
+    if (shared) detail::gather_groups(*options.ranks, group_loss, first_group, last_group);
+    // The sum of the groups' losses in group order: the same bits on any rank and thread count.
+    double loss = 0;
+    for (double l : group_loss) loss += l;
     result.losses.push_back(loss);
     evaluated_groups += active_count;
     if (freezing && step % options.freeze_every == 0) {
@@ -198,6 +230,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
       const std::size_t i = std::size_t(bi) * L;
       if (freezing && !group_active[i / texel_group_size]) continue;
+      if (shared && (i / texel_group_size < first_group || i / texel_group_size >= last_group)) continue;  // another rank's
       for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
       if constexpr (F.normal_map) {
         const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
@@ -211,6 +244,19 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0)
       options.progress(optimisation_progress::at(step + 1, options.steps, loss, seconds_since(start)));
     if (stopper.stop_after(step, loss) && step + 1 >= options.min_steps) break;
+  }
+  if (shared) {  // every rank's texels to every rank
+    const std::size_t first_texel = first_group * texel_group_size, last_texel = std::min(n, last_group * texel_group_size);
+    std::vector<float> all;
+    std::vector<std::size_t> counts(std::size_t(options.ranks->size()));
+    for (int r = 0; r < options.ranks->size(); ++r) {
+      const auto [a, b] = part_range(int(group_count), options.ranks->size(), r);
+      counts[std::size_t(r)] = std::min(n, std::size_t(b) * texel_group_size) - std::min(n, std::size_t(a) * texel_group_size);
+    }
+    for (int k = 0; k < parameter_count; ++k) {
+      options.ranks->all_gather(std::span<const float>(u.plane(k) + first_texel, last_texel - first_texel), all, counts);
+      std::copy(all.begin(), all.end(), u.plane(k));
+    }
   }
   detail::maps_from_unconstrained(u, maps, jac);
   restrict_to_features(maps, F);
