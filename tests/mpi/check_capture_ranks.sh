@@ -17,8 +17,8 @@ mpirun() { "$mpiexec" --allow-run-as-root --oversubscribe "$@"; }
 
 "$program" synthesize -o syn --width 1024 --height 1024 --images 5 --seed 3 > /dev/null 2>&1
 # The estimate's 16 windows without overlap, three fine-tune steps in shards of 8 cells (16 shards
-# of the 32 x 32 cells), two refine steps, no second runs or uncertainty: the windows dealt out and
-# the fine-tune's sum over ranks are what is tested.
+# of the 32 x 32 cells), two refine steps, no second runs or uncertainty: the windows dealt out,
+# the fine-tune's sum over ranks and the refine's texel groups dealt out are what is tested.
 args=(capture syn/capture.json --stages all --estimate-stride 256 --finetune-steps 3 --finetune-shards 8 --steps 2 --neighbour-restarts none
       --no-also-residual --no-also-models --no-uncertainty --no-view)
 "$program" "${args[@]}" -o alone 2> alone.log || { cat alone.log; exit 1; }

@@ -1,0 +1,330 @@
+#pragma once
+/// @file
+/// One optimiser step of either network: the gradient of a batch (the whole batch in one pass, or
+/// data-parallel, material by material, summed over ranks in a fixed order) and the Adam step.
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "anisocap/core/distributed.hpp"
+#include "anisocap/networks/auto_encoder.hpp"
+#include "anisocap/networks/estimator.hpp"
+#include "anisocap/nn/nn.hpp"
+#include "anisocap/training/options.hpp"
+
+namespace anisocap::training {
+
+namespace detail {
+
+/// The latent smoothness term's |D(z) - D(z + delta)| (`y`, `y2`): adds +-step to the gradients
+/// `gy` and -+step to `gy2` per value and returns the sum of the absolute differences.
+inline double add_smoothness(const tensor<parameter_count>& y, const tensor<parameter_count>& y2, tensor<parameter_count>& gy,
+                             tensor<parameter_count>& gy2, float step) {
+  double s = 0;
+  for (std::size_t i = 0; i < y.size(); ++i) {
+    const float d = y.data()[i] - y2.data()[i];
+    s += std::abs(d);
+    const float sg = d > 0 ? step : (d < 0 ? -step : 0.0f);
+    gy.data()[i] += sg;
+    gy2.data()[i] -= sg;
+  }
+  return s;
+}
+
+}  // namespace detail
+
+/// The estimator's gradient on a batch (make_batch with photos; docs/method.md section 7): the
+/// samples' 5 inputs in network space, the forward pass, map_losses with weights `w` (L1 +
+/// w.render x render loss by default) and its gradient, backward. The gradients are added to the
+/// parameters' (zero them first). `t` is cleared first (reuse it across steps to keep its memory).
+/// `batch_size`: as map_losses's (a data-parallel part's share of a larger batch). Returns the
+/// batch's loss terms.
+template <class Preset>
+loss_terms estimator_gradient(ad::tape& t, estimation_network<Preset>& net, std::span<const sample> samples, const loss_weights& w = {},
+                              int batch_size = 0) {
+  const int B = int(samples.size()), N = int(samples[0].photos.size());
+  const int H = samples[0].truth.height(), W = samples[0].truth.width();
+  t.clear();
+  auto x = t.make_variable<estimation_network<Preset>::inputs>(B * N, H, W, false);
+  for (int b = 0; b < B; ++b)
+    for (int i = 0; i < N; ++i) network_space::photo_to_network(samples[std::size_t(b)].photos[i], x.value, b * N + i);
+  auto y = net.forward(t, x, N);
+  const loss_terms l = map_losses(y.value, samples, &y.grad, w, batch_size);
+  t.backward();
+  return l;
+}
+
+/// One optimiser step of the estimator on a batch: estimator_gradient, then one Adam step.
+/// Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms estimator_step(ad::tape& t, estimation_network<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
+                          const loss_weights& w = {}) {
+  const loss_terms l = estimator_gradient(t, net, samples, w);
+  opt.step();
+  return l;
+}
+
+/// The auto-encoder's gradient on a batch (make_batch without photos; docs/method.md section 7):
+/// D(E(m)) of the samples' true maps in training mode, map_losses with o.loss()'s weights, and with
+/// o.smoothness_weight > 0 the latent smoothness term o.smoothness_weight * mean |D(z) - D(z +
+/// delta)|, delta ~ N(0, o.latent_noise^2) per latent value drawn from (o.seed, step); backward.
+/// The gradients are added to the parameters'. `t` is cleared first. Returns the batch's loss
+/// terms. With `inputs` (one network-space map set per sample, e.g. the estimator's estimates) the
+/// encoder reads those instead of the true maps; the loss still compares with the truth.
+template <class Preset>
+loss_terms autoencoder_gradient(ad::tape& t, auto_encoder<Preset>& net, const std::vector<sample>& samples, const train_options& o,
+                                long step, const std::vector<tensor<parameter_count>>* inputs = nullptr) {
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
+  const int B = int(samples.size()), H = samples[0].truth_net.height(), W = samples[0].truth_net.width();
+  if (inputs && int(inputs->size()) != B) throw std::invalid_argument("autoencoder_step: one input per sample");
+  t.clear();
+  auto x = t.make_variable<parameter_count>(B, H, W, false);
+  for (int b = 0; b < B; ++b) {
+    const tensor<parameter_count>& in = inputs ? (*inputs)[std::size_t(b)] : samples[b].truth_net;
+    if (in.height() != H || in.width() != W) throw std::invalid_argument("autoencoder_step: an input's size differs from its sample's");
+    std::copy_n(in.data(), in.size(), x.value.pixel(b, 0, 0));
+  }
+  net.set_training(true);
+  auto z = net.encode(t, x);
+  auto y = net.decode(t, z);
+  loss_terms l = map_losses(y.value, samples, &y.grad, o.loss());
+  if (o.smoothness_weight > 0) {
+    auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
+    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+    for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
+    auto y2 = net.decode(t, nn::add(t, z, delta));
+    const double values = double(y.value.size());
+    l.smoothness = detail::add_smoothness(y.value, y2.value, y.grad, y2.grad, float(o.smoothness_weight / values)) / values;
+    l.total += o.smoothness_weight * l.smoothness;
+  }
+  t.backward();
+  return l;
+}
+
+/// One optimiser step of the auto-encoder on a batch: autoencoder_gradient, then one Adam step.
+/// Returns the batch's loss terms before the step.
+template <class Preset>
+loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& opt, const std::vector<sample>& samples,
+                            const train_options& o, long step, const std::vector<tensor<parameter_count>>* inputs = nullptr) {
+  const loss_terms l = autoencoder_gradient(t, net, samples, o, step, inputs);
+  opt.step();
+  return l;
+}
+
+/// The gradients of a data-parallel step (train_options::data_parallel): one part per material of
+/// the batch, each rank holding the parts part_range deals it, summed in ordered_sum's fixed tree.
+class part_gradients {
+ public:
+  /// The trainable parameters of `net` (for_each_parameter's order, frozen ones left out) and this
+  /// rank's share of a batch of `batch` parts.
+  template <class Net>
+  part_gradients(Net& net, const communicator& comm, int batch) : comm_(comm), batch_(batch) {
+    net.for_each_parameter([&](nn::parameter& p) {
+      if (p.trainable()) trained_.push_back(&p);
+    });
+    for (const nn::parameter* p : trained_) size_ += p->size();
+    const auto range = part_range(batch, comm.size(), comm.rank());
+    first_ = range.first;
+    last_ = range.second;
+    gradients_.assign(std::size_t(last_ - first_) * size_, 0.0f);
+    losses_.assign(std::size_t(last_ - first_) * loss_count, 0.0);
+  }
+  /// This rank's parts: [first(), last()) of the batch.
+  int first() const noexcept { return first_; }
+  int last() const noexcept { return last_; }
+  /// Adds the parameters' gradients to part k's (a batch index this rank holds) and zeroes them.
+  void take(int k) {
+    float* out = part(k);
+    for (nn::parameter* p : trained_) {
+      for (std::size_t i = 0; i < p->size(); ++i) out[i] += p->grad[i];
+      std::fill(p->grad.begin(), p->grad.end(), 0.0f);
+      out += p->size();
+    }
+  }
+  /// Adds `l` to part k's loss terms.
+  void add_loss(int k, const loss_terms& l) {
+    double* out = losses_.data() + std::size_t(k - first_) * loss_count;
+    const double* in = reinterpret_cast<const double*>(&l);
+    for (std::size_t i = 0; i < loss_count; ++i) out[i] += in[i];
+  }
+  /// Every rank: the sum of all parts' gradients into the parameters' gradients; returns the sum of
+  /// the parts' loss terms (the batch's).
+  loss_terms finish() {
+    std::vector<float> sum(size_);
+    ordered_sum<float>(comm_, batch_, size_, gradients_, sum);
+    const float* in = sum.data();
+    for (nn::parameter* p : trained_) {
+      std::copy(in, in + p->size(), p->grad.begin());
+      in += p->size();
+    }
+    loss_terms total;
+    ordered_sum<double>(comm_, batch_, loss_count, losses_, std::span<double>(reinterpret_cast<double*>(&total), loss_count));
+    return total;
+  }
+
+ private:
+  static constexpr std::size_t loss_count = sizeof(loss_terms) / sizeof(double);
+  static_assert(sizeof(loss_terms) == loss_count * sizeof(double), "loss_terms holds doubles only");
+  float* part(int k) {
+    if (k < first_ || k >= last_) throw std::logic_error("part_gradients: part " + std::to_string(k) + " is not this rank's");
+    return gradients_.data() + std::size_t(k - first_) * size_;
+  }
+  const communicator& comm_;
+  int batch_;
+  int first_ = 0, last_ = 0;
+  std::vector<nn::parameter*> trained_;
+  std::size_t size_ = 0;
+  std::vector<float> gradients_;
+  std::vector<double> losses_;
+};
+
+/// The estimator's gradient on a batch of `batch` materials, data-parallel
+/// (train_options::data_parallel): `local` holds this rank's materials (part_range's share), each
+/// one's gradient is computed alone (estimator_gradient with the batch's normalisation) and the
+/// parts are summed over the ranks in ordered_sum's tree. Every rank calls it; on return every
+/// rank's parameters hold the batch's gradient. Returns the batch's loss terms.
+template <class Preset>
+loss_terms estimator_gradient_parts(ad::tape& t, estimation_network<Preset>& net, std::span<const sample> local, int batch,
+                                    const loss_weights& w, const communicator& comm) {
+  part_gradients parts(net, comm, batch);
+  if (int(local.size()) != parts.last() - parts.first())
+    throw std::invalid_argument("estimator_gradient_parts: this rank's materials are not its share of the batch");
+  for (int k = parts.first(); k < parts.last(); ++k) {
+    parts.add_loss(k, estimator_gradient(t, net, local.subspan(std::size_t(k - parts.first()), 1), w, batch));
+    parts.take(k);
+  }
+  return parts.finish();
+}
+
+/// The auto-encoder's gradient on a batch of `batch` materials, data-parallel: `local` (and
+/// `inputs`, when given) hold this rank's materials. Each material's encoder, decoder and loss
+/// (smoothness included, its delta the whole batch's slice) run alone; the batch norm that ends
+/// the encoder normalises with the statistics of the whole batch, summed over the materials in
+/// ordered_sum's tree (a synchronised batch norm: its mean, then its centred variance, and in the
+/// backward pass the sums of dL/dz and dL/dz * z_hat), and updates the running statistics as
+/// batch_norm does. The result equals autoencoder_gradient's up to rounding, on any rank count the
+/// same bits. Every rank calls it. Returns the batch's loss terms.
+template <class Preset>
+loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, std::span<const sample> local, int batch,
+                                      const train_options& o, long step, const communicator& comm,
+                                      const std::vector<tensor<parameter_count>>* inputs = nullptr) {
+  constexpr int Z = auto_encoder<Preset>::latent_channels;
+  part_gradients parts(net, comm, batch);
+  const int first = parts.first(), count = parts.last() - parts.first();
+  if (int(local.size()) != count || (inputs && int(inputs->size()) != count))
+    throw std::invalid_argument("autoencoder_gradient_parts: this rank's materials are not its share of the batch");
+  net.set_training(true);
+  nn::batch_norm<Z>& norm = net.latent_norm;
+  // The encoders, each on a tape of its own (kept for the backward pass after the statistics).
+  std::vector<std::unique_ptr<ad::tape>> tapes;
+  std::vector<ad::variable<Z>> features;
+  int h = 0, w = 0;
+  for (int k = 0; k < count; ++k) {
+    const tensor<parameter_count>& in = inputs ? (*inputs)[std::size_t(k)] : local[std::size_t(k)].truth_net;
+    tapes.push_back(std::make_unique<ad::tape>());
+    auto x = tapes.back()->make_variable<parameter_count>(1, in.height(), in.width(), false);
+    std::copy_n(in.data(), in.size(), x.value.data());
+    features.push_back(net.encode_features(*tapes.back(), x));
+    h = features.back().value.height();
+    w = features.back().value.width();
+  }
+  // The batch's shape, the same on every rank (a rank may hold no material).
+  {
+    const int one = count > 0 ? 1 : 0;
+    int shape[2] = {h * one, w * one};
+    std::vector<int> all;
+    comm.all_gather(std::span<const int>(shape, 2), all, std::vector<std::size_t>(std::size_t(comm.size()), 2));
+    for (std::size_t r = 0; r < all.size(); r += 2)
+      if (all[r] > 0) {
+        h = all[r];
+        w = all[r + 1];
+      }
+  }
+  const double n = double(batch) * h * w;
+  if (n < 2) throw std::invalid_argument("nn::batch_norm: training needs more than one value per channel");
+  const std::size_t cell = std::size_t(h) * w;
+  // Per-channel sums of each material, added over the batch in the tree.
+  auto channel_sums = [&](auto per_value) {
+    std::vector<double> local_sums(std::size_t(count) * Z, 0.0), total(Z);
+    for (int k = 0; k < count; ++k)
+      for (std::size_t i = 0; i < cell; ++i)
+        for (int c = 0; c < Z; ++c) local_sums[std::size_t(k) * Z + std::size_t(c)] += per_value(k, i, c);
+    ordered_sum<double>(comm, batch, Z, local_sums, total);
+    return std::pair{local_sums, total};
+  };
+  const auto [unused_mean_parts, sum] = channel_sums([&](int k, std::size_t i, int c) { return double(features[std::size_t(k)].value.data()[i * Z + c]); });
+  (void)unused_mean_parts;
+  std::vector<double> mean(Z);
+  for (int c = 0; c < Z; ++c) mean[std::size_t(c)] = sum[std::size_t(c)] / n;
+  const auto [unused_variance_parts, squares] = channel_sums([&](int k, std::size_t i, int c) {
+    const double d = double(features[std::size_t(k)].value.data()[i * Z + c]) - mean[std::size_t(c)];
+    return d * d;
+  });
+  (void)unused_variance_parts;
+  std::vector<float> mean_f(Z), rstd(Z);
+  for (int c = 0; c < Z; ++c) {
+    const double variance = squares[std::size_t(c)] / n;
+    norm.running_mean.value[c] = (1 - norm.momentum) * norm.running_mean.value[c] + norm.momentum * float(mean[std::size_t(c)]);
+    norm.running_var.value[c] = (1 - norm.momentum) * norm.running_var.value[c] + norm.momentum * float(variance * n / (n - 1));
+    mean_f[std::size_t(c)] = float(mean[std::size_t(c)]);
+    rstd[std::size_t(c)] = float(1 / std::sqrt(variance + double(norm.epsilon)));
+  }
+  auto z_hat = [&](int k, std::size_t i, int c) { return (features[std::size_t(k)].value.data()[i * Z + c] - mean_f[std::size_t(c)]) * rstd[std::size_t(c)]; };
+  // The batch's smoothness deltas, drawn as autoencoder_gradient draws them; material k's slice.
+  std::vector<float> deltas;
+  if (o.smoothness_weight > 0) {
+    deltas.resize(std::size_t(batch) * cell * Z);
+    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+    for (float& d : deltas) d = float(o.latent_noise * rng.normal());
+  }
+  // Each material's decoder, loss and backward pass to z; dL/dz kept for the encoder's.
+  std::vector<std::vector<float>> dz(static_cast<std::size_t>(count));
+  for (int k = 0; k < count; ++k) {
+    t.clear();
+    auto z = t.make_variable<Z>(1, h, w, true);
+    for (std::size_t i = 0; i < cell; ++i)
+      for (int c = 0; c < Z; ++c) z.value.data()[i * Z + c] = z_hat(k, i, c) * norm.weight.value[c] + norm.bias.value[c];
+    auto y = net.decode(t, z);
+    loss_terms l = map_losses(y.value, local.subspan(std::size_t(k), 1), &y.grad, o.loss(), batch);
+    if (o.smoothness_weight > 0) {
+      auto delta = t.make_variable<Z>(1, h, w, false);
+      std::copy_n(deltas.data() + std::size_t(first + k) * cell * Z, cell * Z, delta.value.data());
+      auto y2 = net.decode(t, nn::add(t, z, delta));
+      const double values = double(y.value.size()) * batch;  // the batch's
+      l.smoothness = detail::add_smoothness(y.value, y2.value, y.grad, y2.grad, float(o.smoothness_weight / values)) / values;
+      l.total += o.smoothness_weight * l.smoothness;
+    }
+    t.backward();
+    dz[std::size_t(k)].assign(z.grad.data(), z.grad.data() + z.grad.size());
+    parts.add_loss(first + k, l);
+    parts.take(first + k);  // the decoder's gradient of this material
+  }
+  // The batch norm's backward pass: its scale's and shift's gradients per material, and the sums
+  // over the batch that dL/d(features) needs.
+  const auto [scale_parts, scale_sum] = channel_sums([&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]) * z_hat(k, i, c); });
+  const auto [shift_parts, shift_sum] = channel_sums([&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]); });
+  for (int k = 0; k < count; ++k) {
+    if (norm.weight.trainable())
+      for (int c = 0; c < Z; ++c) norm.weight.grad[c] += float(scale_parts[std::size_t(k) * Z + std::size_t(c)]);
+    if (norm.bias.trainable())
+      for (int c = 0; c < Z; ++c) norm.bias.grad[c] += float(shift_parts[std::size_t(k) * Z + std::size_t(c)]);
+    auto& f = features[std::size_t(k)];
+    if (f.requires_grad) {
+      for (std::size_t i = 0; i < cell; ++i)
+        for (int c = 0; c < Z; ++c) {
+          const double g = dz[std::size_t(k)][i * Z + c] - shift_sum[std::size_t(c)] / n - z_hat(k, i, c) * scale_sum[std::size_t(c)] / n;
+          f.grad.data()[i * Z + c] = float(double(norm.weight.value[c]) * rstd[std::size_t(c)] * g);
+        }
+      tapes[std::size_t(k)]->backward();
+    }
+    parts.take(first + k);
+  }
+  return parts.finish();
+}
+
+}  // namespace anisocap::training
