@@ -117,13 +117,16 @@ inline void gather_groups(const communicator& ranks, std::vector<double>& losses
 /// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
 /// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
 /// are padded to a multiple of 16, so whole registers are always in bounds.
-inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian) {
+/// With `first` and `last` (multiples of the SIMD width, or the texel count): texels [first, last)
+/// only (a rank's share of the refine).
+inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian, std::size_t first = 0,
+                                    std::size_t last = std::size_t(-1)) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
-  const std::size_t n = maps.texel_count();
+  const std::size_t n = std::min(last, maps.texel_count());
   const std::ptrdiff_t blocks = std::ptrdiff_t((n + L - 1) / L);
 #pragma omp parallel for schedule(static)
-  for (std::ptrdiff_t b = 0; b < blocks; ++b) {
+  for (std::ptrdiff_t b = std::ptrdiff_t(first / L); b < blocks; ++b) {
     const std::size_t i = std::size_t(b) * L;
     for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0}) {
       const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
@@ -197,8 +200,10 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   std::vector<std::uint8_t> evaluated(shared ? group_count : 0, 0);
   const texel_groups groups{shared ? evaluated.data() : freezing ? group_active.data() : nullptr, group_loss.data()};
   std::size_t evaluated_groups = 0, active_count = group_count;
+  const std::size_t first_texel = first_group * texel_group_size, last_texel = std::min(n, last_group * texel_group_size);
   for (int step = 0; step < options.steps; ++step) {
-    detail::maps_from_unconstrained(u, maps, jac);  // (a reduced kernel F ignores the planes it lacks)
+    // (a reduced kernel F ignores the planes it lacks; over ranks, this rank's texels alone)
+    detail::maps_from_unconstrained(u, maps, jac, first_texel, last_texel);
     if (shared)
       for (std::size_t g = first_group; g < last_group; ++g) evaluated[g] = group_active[g];
     loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
@@ -246,7 +251,6 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     if (stopper.stop_after(step, loss) && step + 1 >= options.min_steps) break;
   }
   if (shared) {  // every rank's texels to every rank
-    const std::size_t first_texel = first_group * texel_group_size, last_texel = std::min(n, last_group * texel_group_size);
     std::vector<float> all;
     std::vector<std::size_t> counts(std::size_t(options.ranks->size()));
     for (int r = 0; r < options.ranks->size(); ++r) {
