@@ -4,16 +4,7 @@
 # a failing run ends every rank with one message, a non-zero exit and no output; a 2-rank run
 # killed in its fine-tune resumes to the same maps.
 # Usage: check_capture_ranks.sh PROGRAM MPIEXEC
-set -euo pipefail
-program=$(realpath "$1")
-mpiexec=$2
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
-cd "$work"
-# The same threads per rank in every run: the convolutions split their weight-gradient sums by
-# thread, so the thread count (unlike the rank count) changes the bits (docs/scaling.md).
-export OMP_NUM_THREADS=1
-mpirun() { "$mpiexec" --allow-run-as-root --oversubscribe "$@"; }
+source "$(dirname "${BASH_SOURCE[0]}")/ranks_setup.sh" "$@"
 
 "$program" synthesize -o syn --width 1024 --height 1024 --images 5 --seed 3 > /dev/null 2>&1
 # The estimate's 16 windows without overlap, three fine-tune steps in shards of 8 cells (16 shards

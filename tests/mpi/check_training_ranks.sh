@@ -4,16 +4,7 @@
 # rank 0 alone writes; a 2-rank run resumed from its check-point ends as the run that went
 # straight through; a failing run ends every rank with one message and leaves no folder.
 # Usage: check_training_ranks.sh PROGRAM MPIEXEC
-set -euo pipefail
-program=$(realpath "$1")
-mpiexec=$2
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
-cd "$work"
-# The same threads per rank in every run: the convolutions split their weight-gradient sums by
-# thread, so the thread count (unlike the rank count) changes the bits (docs/scaling.md).
-export OMP_NUM_THREADS=1
-mpirun() { "$mpiexec" --allow-run-as-root --oversubscribe "$@"; }
+source "$(dirname "${BASH_SOURCE[0]}")/ranks_setup.sh" "$@"
 
 # Four materials per step: one part per rank on 4 ranks, two on 2, all four on 1.
 common=(--size 64 --batch 4 --validate-every 3 --validation-count 1 --seed 9)
