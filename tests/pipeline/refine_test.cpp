@@ -14,6 +14,18 @@
 using namespace anisocap;
 using namespace anisocap::testing;
 
+namespace {
+
+/// The refine tests' start, far from any truth: every texel grey, mid lobes, a flat normal.
+material_maps flat_start(int w, int h) {
+  material_maps maps(w, h);
+  const float flat[parameter_count] = {0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.2f, 0.2f, 0.5f, 0.0f, 0.0f, 0.0f};
+  maps.fill(flat);
+  return maps;
+}
+
+}  // namespace
+
 TEST_CASE("the refine parameterisation round-trips valid maps") {
   const material_maps maps = random_maps(13, 11, 3);
   const material_maps u = unconstrained_from_maps(maps);
@@ -29,9 +41,7 @@ TEST_CASE("refine lowers the image loss, keeps every parameter valid and moves t
   const capture cap = random_capture(12, 12);
   const loss_targets targets = make_loss_targets(render(truth, cap));
   // Start from a flat guess.
-  material_maps maps(w, h);
-  const float flat[parameter_count] = {0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.2f, 0.2f, 0.5f, 0.0f, 0.0f, 0.0f};
-  maps.fill(flat);
+  material_maps maps = flat_start(w, h);
   auto mse = [&](int k) {
     double e = 0;
     for (std::size_t i = 0; i < maps.texel_count(); ++i) e += std::pow(maps.plane(k)[i] - truth.plane(k)[i], 2);
@@ -102,9 +112,7 @@ TEST_CASE("refine with texel freezing evaluates fewer texels, reports an exact l
   const material_maps truth = random_maps(w, h, 61);
   const capture cap = random_capture(10, 62);
   const loss_targets targets = make_loss_targets(render(truth, cap));
-  material_maps start(w, h);
-  const float flat[parameter_count] = {0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.2f, 0.2f, 0.5f, 0.0f, 0.0f, 0.0f};
-  start.fill(flat);
+  const material_maps start = flat_start(w, h);
   refine_options options;
   options.steps = 300;
   options.learning_rate = 0.05f;
@@ -348,9 +356,7 @@ TEST_CASE("refine over 1, 2 and 3 ranks gives the single process's maps and loss
   const material_maps truth = random_maps(w, h, 71);
   const capture cap = random_capture(8, 72);
   const loss_targets targets = make_loss_targets(render(truth, cap));
-  material_maps start(w, h);
-  const float flat[parameter_count] = {0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.3f, 0.2f, 0.2f, 0.5f, 0.0f, 0.0f, 0.0f};
-  start.fill(flat);
+  const material_maps start = flat_start(w, h);
   refine_options options;
   options.steps = 400;
   options.learning_rate = 0.05f;

@@ -214,12 +214,8 @@ class batch_norm {
       const std::size_t n = x.value.size() / C;
       if (n < 2) throw std::invalid_argument("nn::batch_norm: training needs more than one value per channel");
       detail::channel_statistics(t, x.value, false, mean, rstd);
-      const T unbiased = T(n) / T(n - 1);
-      for (int c = 0; c < C; ++c) {
-        running_mean.value[c] = (1 - momentum) * running_mean.value[c] + momentum * mean[c];
-        running_var.value[c] = (1 - momentum) * running_var.value[c] + momentum * rstd[c] * unbiased;
-        rstd[c] = T(1) / std::sqrt(rstd[c] + epsilon);
-      }
+      track(mean, rstd, n);  // rstd holds the variance here
+      for (int c = 0; c < C; ++c) rstd[c] = T(1) / std::sqrt(rstd[c] + epsilon);
     } else {
       for (int c = 0; c < C; ++c) {
         mean[c] = running_mean.value[c];
@@ -227,6 +223,18 @@ class batch_norm {
       }
     }
     return detail::normalize(t, x, weight, bias, false, training, mean, rstd);
+  }
+
+  /// Moves the running statistics towards a batch's per-channel `mean` and biased `variance` over
+  /// `n` values per channel (momentum; the variance made unbiased), as training mode does.
+  /// Exposed for a batch whose statistics are summed over several passes
+  /// (training::autoencoder_gradient_parts).
+  void track(const T* mean, const T* variance, std::size_t n) {
+    const T unbiased = T(n) / T(n - 1);
+    for (int c = 0; c < C; ++c) {
+      running_mean.value[c] = (1 - momentum) * running_mean.value[c] + momentum * mean[c];
+      running_var.value[c] = (1 - momentum) * running_var.value[c] + momentum * variance[c] * unbiased;
+    }
   }
 
   /// Visits the trainable weights (weight, then bias).

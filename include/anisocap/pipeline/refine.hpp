@@ -101,14 +101,21 @@ inline float logit(float p) {
 }
 inline const float log_min_lobe = float(log_min_lobe_width);
 
+/// Per rank, the values its share of `groups` groups (part_range) holds at `unit` values a group,
+/// the last group cut at `total` values: the counts of a gather over the refine's groups.
+inline std::vector<std::size_t> group_share_counts(const communicator& ranks, std::size_t groups, std::size_t unit, std::size_t total) {
+  std::vector<std::size_t> counts(std::size_t(ranks.size()));
+  for (int r = 0; r < ranks.size(); ++r) {
+    const auto [a, b] = part_range(int(groups), ranks.size(), r);
+    counts[std::size_t(r)] = std::min(total, std::size_t(b) * unit) - std::min(total, std::size_t(a) * unit);
+  }
+  return counts;
+}
+
 /// Every rank's groups' losses, `losses[first, last)` on this rank, to every rank (refine over
 /// several ranks).
 inline void gather_groups(const communicator& ranks, std::vector<double>& losses, std::size_t first, std::size_t last) {
-  std::vector<std::size_t> counts(std::size_t(ranks.size()));
-  for (int r = 0; r < ranks.size(); ++r) {
-    const auto [a, b] = part_range(int(losses.size()), ranks.size(), r);
-    counts[std::size_t(r)] = std::size_t(b - a);
-  }
+  const std::vector<std::size_t> counts = group_share_counts(ranks, losses.size(), 1, losses.size());
   std::vector<double> all;
   ranks.all_gather(std::span<const double>(losses.data() + first, last - first), all, counts);
   std::copy(all.begin(), all.end(), losses.begin());  // in place: texel_groups points at it
@@ -252,11 +259,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   }
   if (shared) {  // every rank's texels to every rank
     std::vector<float> all;
-    std::vector<std::size_t> counts(std::size_t(options.ranks->size()));
-    for (int r = 0; r < options.ranks->size(); ++r) {
-      const auto [a, b] = part_range(int(group_count), options.ranks->size(), r);
-      counts[std::size_t(r)] = std::min(n, std::size_t(b) * texel_group_size) - std::min(n, std::size_t(a) * texel_group_size);
-    }
+    const std::vector<std::size_t> counts = detail::group_share_counts(*options.ranks, group_count, texel_group_size, n);
     for (int k = 0; k < parameter_count; ++k) {
       options.ranks->all_gather(std::span<const float>(u.plane(k) + first_texel, last_texel - first_texel), all, counts);
       std::copy(all.begin(), all.end(), u.plane(k));

@@ -36,6 +36,13 @@ inline double add_smoothness(const tensor<parameter_count>& y, const tensor<para
   return s;
 }
 
+/// The smoothness term's deltas of training step `step`: `count` values ~ N(0, o.latent_noise^2)
+/// from (o.seed, step), the whole batch's latent in order (a data-parallel part takes its slice).
+inline void draw_smoothness_deltas(const train_options& o, long step, float* out, std::size_t count) {
+  nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
+  for (std::size_t i = 0; i < count; ++i) out[i] = float(o.latent_noise * rng.normal());
+}
+
 }  // namespace detail
 
 /// The estimator's gradient on a batch (make_batch with photos; docs/method.md section 7): the
@@ -95,8 +102,7 @@ loss_terms autoencoder_gradient(ad::tape& t, auto_encoder<Preset>& net, const st
   loss_terms l = map_losses(y.value, samples, &y.grad, o.loss());
   if (o.smoothness_weight > 0) {
     auto delta = t.make_variable<Z>(z.value.batch(), z.value.height(), z.value.width(), false);
-    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
-    for (std::size_t i = 0; i < delta.value.size(); ++i) delta.value.data()[i] = float(o.latent_noise * rng.normal());
+    detail::draw_smoothness_deltas(o, step, delta.value.data(), delta.value.size());
     auto y2 = net.decode(t, nn::add(t, z, delta));
     const double values = double(y.value.size());
     l.smoothness = detail::add_smoothness(y.value, y2.value, y.grad, y2.grad, float(o.smoothness_weight / values)) / values;
@@ -220,30 +226,20 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     throw std::invalid_argument("autoencoder_gradient_parts: this rank's materials are not its share of the batch");
   net.set_training(true);
   nn::batch_norm<Z>& norm = net.latent_norm;
+  // Every material is o.size x o.size (make_batch), its latent h x w on every rank, also on a rank
+  // that holds none.
+  const int h = o.size / auto_encoder<Preset>::size_multiple, w = h;
   // The encoders, each on a tape of its own (kept for the backward pass after the statistics).
   std::vector<std::unique_ptr<ad::tape>> tapes;
   std::vector<ad::variable<Z>> features;
-  int h = 0, w = 0;
   for (int k = 0; k < count; ++k) {
     const tensor<parameter_count>& in = inputs ? (*inputs)[std::size_t(k)] : local[std::size_t(k)].truth_net;
+    if (in.height() != o.size || in.width() != o.size)
+      throw std::invalid_argument("autoencoder_gradient_parts: a material is not o.size x o.size");
     tapes.push_back(std::make_unique<ad::tape>());
     auto x = tapes.back()->make_variable<parameter_count>(1, in.height(), in.width(), false);
     std::copy_n(in.data(), in.size(), x.value.data());
     features.push_back(net.encode_features(*tapes.back(), x));
-    h = features.back().value.height();
-    w = features.back().value.width();
-  }
-  // The batch's shape, the same on every rank (a rank may hold no material).
-  {
-    const int one = count > 0 ? 1 : 0;
-    int shape[2] = {h * one, w * one};
-    std::vector<int> all;
-    comm.all_gather(std::span<const int>(shape, 2), all, std::vector<std::size_t>(std::size_t(comm.size()), 2));
-    for (std::size_t r = 0; r < all.size(); r += 2)
-      if (all[r] > 0) {
-        h = all[r];
-        w = all[r + 1];
-      }
   }
   const double n = double(batch) * h * w;
   if (n < 2) throw std::invalid_argument("nn::batch_norm: training needs more than one value per channel");
@@ -266,21 +262,20 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     return d * d;
   });
   (void)unused_variance_parts;
-  std::vector<float> mean_f(Z), rstd(Z);
+  std::vector<float> mean_f(Z), variance_f(Z), rstd(Z);
   for (int c = 0; c < Z; ++c) {
     const double variance = squares[std::size_t(c)] / n;
-    norm.running_mean.value[c] = (1 - norm.momentum) * norm.running_mean.value[c] + norm.momentum * float(mean[std::size_t(c)]);
-    norm.running_var.value[c] = (1 - norm.momentum) * norm.running_var.value[c] + norm.momentum * float(variance * n / (n - 1));
     mean_f[std::size_t(c)] = float(mean[std::size_t(c)]);
+    variance_f[std::size_t(c)] = float(variance);
     rstd[std::size_t(c)] = float(1 / std::sqrt(variance + double(norm.epsilon)));
   }
+  norm.track(mean_f.data(), variance_f.data(), std::size_t(n));
   auto z_hat = [&](int k, std::size_t i, int c) { return (features[std::size_t(k)].value.data()[i * Z + c] - mean_f[std::size_t(c)]) * rstd[std::size_t(c)]; };
   // The batch's smoothness deltas, drawn as autoencoder_gradient draws them; material k's slice.
   std::vector<float> deltas;
   if (o.smoothness_weight > 0) {
     deltas.resize(std::size_t(batch) * cell * Z);
-    nn::random_generator rng(hash64(o.seed ^ 0x736d6f6f7468ULL, step, 0));
-    for (float& d : deltas) d = float(o.latent_noise * rng.normal());
+    detail::draw_smoothness_deltas(o, step, deltas.data(), deltas.size());
   }
   // Each material's decoder, loss and backward pass to z; dL/dz kept for the encoder's.
   std::vector<std::vector<float>> dz(static_cast<std::size_t>(count));

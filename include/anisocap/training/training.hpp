@@ -207,7 +207,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   // The next step's batch is built with as many OpenMP threads as the step uses (faster on 2 cores
   // than one thread, bench/README.md "Training throughput").
   // Over several ranks (or data-parallel) each rank builds its own share of each batch.
-  const auto share = o.data_parallel || comm.distributed() ? part_range(o.batch, comm.size(), comm.rank()) : std::pair{0, o.batch};
+  const auto share = steps_data_parallel(o, comm) ? part_range(o.batch, comm.size(), comm.rank()) : std::pair{0, o.batch};
   prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos, share.first, share.second); }, end,
                                           o.prefetch, omp_get_max_threads());
   while (step < o.steps) {
@@ -262,7 +262,7 @@ void train_estimator(const train_options& o, estimation_network<Preset>& net, co
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 5e-5, o));
   opt.add_parameters(net);
   ad::tape t;
-  const bool parts = o.data_parallel || comm.distributed();
+  const bool parts = steps_data_parallel(o, comm);
   auto step_fn = [&](long, const std::vector<sample>& samples) {
     if (!parts) return estimator_step(t, net, opt, samples, o.loss()).total;
     const double loss = estimator_gradient_parts(t, net, samples, o.batch, o.loss(), comm).total;
@@ -299,7 +299,7 @@ void train_autoencoder_on(const train_options& options, auto_encoder<Preset>& ne
   opt.add_parameters(net);
   net.freeze_decoder(o.encoder_only);
   ad::tape t;
-  const bool parts = o.data_parallel || comm.distributed();
+  const bool parts = steps_data_parallel(o, comm);
   auto step_fn = [&](long step, const std::vector<sample>& samples) {
     std::vector<tensor<parameter_count>> estimates;
     if constexpr (from_estimates)
