@@ -5,11 +5,13 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <mutex>
 #include <random>
 
 #include "../networks/tiny_presets.hpp"
 #include "../render/render_reference.hpp"
 #include "../support/capture_options.hpp"
+#include "../support/loopback_communicator.hpp"
 #include "anisocap/pipeline/capture.hpp"
 
 using namespace anisocap;
@@ -210,6 +212,41 @@ TEST_CASE_TEMPLATE("fine-tune crops: every window's maps are the whole decode's;
   }
   CHECK(norm > 0);
   CHECK(std::sqrt(diff / norm) < 1e-4);
+}
+
+TEST_CASE("fine-tune shards: the same decoder bit for bit on 1, 2 and 3 ranks, and the whole tile's up to rounding") {
+  const scene s(45, 37);
+  const loss_targets targets = make_loss_targets(s.photos);
+  auto_encoder<autoencoder_tiny> start(2);
+  const auto z = encode(start, s.truth);
+  // The decoder's last weights and the result of a fine-tune of 4 steps from the same start.
+  auto run = [&](const finetune_options& o, const communicator& comm) {
+    auto_encoder<autoencoder_tiny> ae(2);
+    const finetune_result r = finetune(ae, z, 45, 37, s.cap, targets, all_features, {}, 1.0, o, {}, nullptr, comm);
+    return std::pair{std::vector<float>(ae.dec<4>().weight.value.begin(), ae.dec<4>().weight.value.end()), r};
+  };
+  finetune_options whole_tile = measured_capture_options().finetune;
+  whole_tile.steps = 4;
+  for (const int crop : {0, 2}) {
+    CAPTURE(crop);
+    whole_tile.crop.cells = crop;
+    finetune_options sharded = whole_tile;
+    sharded.shard_cells = 1;  // a block per latent cell: more blocks than ranks, some ranks with more than one
+    const auto alone = run(sharded, serial_communicator());
+    REQUIRE(alone.second.steps == 4);
+    const auto whole = run(whole_tile, serial_communicator());
+    CHECK(alone.second.loss == doctest::Approx(whole.second.loss).epsilon(1e-4));
+    for (std::size_t i = 0; i < alone.first.size(); ++i) REQUIRE(alone.first[i] == doctest::Approx(whole.first[i]).epsilon(1e-4));
+    for (const int ranks : {2, 3}) {
+      std::mutex m;
+      run_on_loopback_ranks(ranks, [&](const communicator& comm) {
+        const auto spread = run(sharded, comm);
+        std::lock_guard lock(m);
+        CHECK(spread.first == alone.first);
+        CHECK(spread.second.loss == alone.second.loss);
+      });
+    }
+  }
 }
 
 TEST_CASE("fine-tune crops: random windows cover every cell, and a cropped fine-tune resumes exactly") {

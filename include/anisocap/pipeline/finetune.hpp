@@ -20,6 +20,7 @@
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/adam.hpp"
 #include "anisocap/nn/early_stopping.hpp"
+#include "anisocap/nn/part_gradients.hpp"
 #include "anisocap/nn/progress.hpp"
 #include "anisocap/nn/safetensors.hpp"
 #include "anisocap/pipeline/encode.hpp"
@@ -425,48 +426,27 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
   // a fixed tree (ordered_sum), so that any rank count gives the same bits.
   const int shard_cells = o.shard_cells > 0 ? o.shard_cells : comm.distributed() ? finetune_options::distributed_shard_cells : 0;
   const bool sharding = shard_cells > 0;
-  std::vector<nn::parameter*> trained;
-  autoencoder.for_each_decoder_parameter([&](nn::parameter& p) {
-    if (p.trainable()) trained.push_back(&p);
-  });
-  std::size_t gradient_size = 0;
-  for (const nn::parameter* p : trained) gradient_size += p->size();
-  std::vector<float> shard_gradients, gradient_sum(sharding ? gradient_size : 0);
-  std::vector<double> shard_losses;
-  double sum_of_losses = 0;
+  nn::part_gradients<double> shard_parts(nn::trainable_parameters([&](auto&& f) { autoencoder.for_each_decoder_parameter(f); }), comm);
   // One step on the shards of `win` (crop weights over k_y x k_x cells, or the whole tile's mean):
-  // leaves the summed gradient in gradient_sum and returns the window's loss.
+  // sums the shards' gradients (shard_parts.apply() puts them in the decoder's) and returns the
+  // window's loss.
   auto sharded_step = [&](const finetune_crops::latent_window& win, bool whole, int k_y, int k_x) {
     constexpr int M = auto_encoder<P>::size_multiple;
     const std::vector<finetune_crops::latent_window> shards = finetune_crops::shards_of(win, shard_cells);
-    const int parts = int(shards.size());
-    const auto [first_shard, last_shard] = part_range(parts, comm.size(), comm.rank());
+    shard_parts.start(int(shards.size()));
     const double window_area = finetune_crops::texels_in(win, M, W, H);
     const double area = whole ? window_area : double(k_y) * k_x * M * M;
-    shard_gradients.resize(std::size_t(last_shard - first_shard) * gradient_size);
-    shard_losses.resize(std::size_t(last_shard - first_shard));
-    for (int k = first_shard; k < last_shard; ++k) {
+    for (int k = shard_parts.first(); k < shard_parts.last(); ++k) {
       t.clear();
       adam.zero_grad();
       const auto& shard = shards[std::size_t(k)];
       const double shard_loss = with_features(features, [&]<brdf_features F>() {
         return finetune_crops::window_step<F>(t, autoencoder, z, shard, area, W, H, cap, targets, render, scratch, residual);
       });
-      shard_losses[std::size_t(k - first_shard)] = shard_loss * (finetune_crops::texels_in(shard, M, W, H) / window_area);
-      float* out = shard_gradients.data() + std::size_t(k - first_shard) * gradient_size;
-      for (const nn::parameter* p : trained) out = std::copy(p->grad.begin(), p->grad.end(), out);
+      shard_parts.loss(k) = shard_loss * (finetune_crops::texels_in(shard, M, W, H) / window_area);
+      shard_parts.take(k);  // and zeroes the decoder's gradients
     }
-    adam.zero_grad();
-    ordered_sum<float>(comm, parts, gradient_size, shard_gradients, gradient_sum);
-    ordered_sum<double>(comm, parts, 1, shard_losses, std::span<double>(&sum_of_losses, 1));
-    return sum_of_losses;
-  };
-  auto apply_gradient_sum = [&]() {
-    const float* in = gradient_sum.data();
-    for (nn::parameter* p : trained) {
-      std::copy(in, in + p->size(), p->grad.begin());
-      in += p->size();
-    }
+    return shard_parts.sum();
   };
   nn::early_stopping stopper(o.min_improvement, o.patience, cropping);  // crop losses are noisy: window means
   stopper.restore(loop.stopping);
@@ -511,7 +491,7 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
       loss = sharded_step(win, !cropping, crop_y, crop_x);
       observe_decoding(step, loss);
       restarted = guard_restarts(step, loss);
-      if (!restarted) apply_gradient_sum();
+      if (!restarted) shard_parts.apply();
     } else if (!cropping) {
       auto y = autoencoder.decode(t, t.leaf(z));
       const auto u_view = residual ? network_space::shifted(y.value.tile(0, 0, H, W), *residual) : y.value.tile(0, 0, H, W);

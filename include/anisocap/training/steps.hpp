@@ -15,6 +15,7 @@
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
 #include "anisocap/nn/nn.hpp"
+#include "anisocap/nn/part_gradients.hpp"
 #include "anisocap/training/options.hpp"
 
 namespace anisocap::training {
@@ -122,72 +123,22 @@ loss_terms autoencoder_step(ad::tape& t, auto_encoder<Preset>& net, nn::adam& op
   return l;
 }
 
-/// The gradients of a data-parallel step (train_options::data_parallel): one part per material of
-/// the batch, each rank holding the parts part_range deals it, summed in ordered_sum's fixed tree.
-class part_gradients {
- public:
-  /// The trainable parameters of `net` (for_each_parameter's order, frozen ones left out) and this
-  /// rank's share of a batch of `batch` parts.
-  template <class Net>
-  part_gradients(Net& net, const communicator& comm, int batch) : comm_(comm), batch_(batch) {
-    net.for_each_parameter([&](nn::parameter& p) {
-      if (p.trainable()) trained_.push_back(&p);
-    });
-    for (const nn::parameter* p : trained_) size_ += p->size();
-    const auto range = part_range(batch, comm.size(), comm.rank());
-    first_ = range.first;
-    last_ = range.second;
-    gradients_.assign(std::size_t(last_ - first_) * size_, 0.0f);
-    losses_.assign(std::size_t(last_ - first_) * loss_count, 0.0);
-  }
-  /// This rank's parts: [first(), last()) of the batch.
-  int first() const noexcept { return first_; }
-  int last() const noexcept { return last_; }
-  /// Adds the parameters' gradients to part k's (a batch index this rank holds) and zeroes them.
-  void take(int k) {
-    float* out = part(k);
-    for (nn::parameter* p : trained_) {
-      for (std::size_t i = 0; i < p->size(); ++i) out[i] += p->grad[i];
-      std::fill(p->grad.begin(), p->grad.end(), 0.0f);
-      out += p->size();
-    }
-  }
-  /// Adds `l` to part k's loss terms.
-  void add_loss(int k, const loss_terms& l) {
-    double* out = losses_.data() + std::size_t(k - first_) * loss_count;
-    const double* in = reinterpret_cast<const double*>(&l);
-    for (std::size_t i = 0; i < loss_count; ++i) out[i] += in[i];
-  }
-  /// Every rank: the sum of all parts' gradients into the parameters' gradients; returns the sum of
-  /// the parts' loss terms (the batch's).
-  loss_terms finish() {
-    std::vector<float> sum(size_);
-    ordered_sum<float>(comm_, batch_, size_, gradients_, sum);
-    const float* in = sum.data();
-    for (nn::parameter* p : trained_) {
-      std::copy(in, in + p->size(), p->grad.begin());
-      in += p->size();
-    }
-    loss_terms total;
-    ordered_sum<double>(comm_, batch_, loss_count, losses_, std::span<double>(reinterpret_cast<double*>(&total), loss_count));
-    return total;
-  }
+/// The parts of a data-parallel step (train_options::data_parallel) of `net`: one per material of
+/// a batch of `batch`, started.
+template <class Net>
+nn::part_gradients<loss_terms> batch_parts(Net& net, const communicator& comm, int batch) {
+  nn::part_gradients<loss_terms> parts(nn::trainable_parameters([&](auto&& f) { net.for_each_parameter(f); }), comm);
+  parts.start(batch);
+  return parts;
+}
 
- private:
-  static constexpr std::size_t loss_count = sizeof(loss_terms) / sizeof(double);
-  static_assert(sizeof(loss_terms) == loss_count * sizeof(double), "loss_terms holds doubles only");
-  float* part(int k) {
-    if (k < first_ || k >= last_) throw std::logic_error("part_gradients: part " + std::to_string(k) + " is not this rank's");
-    return gradients_.data() + std::size_t(k - first_) * size_;
-  }
-  const communicator& comm_;
-  int batch_;
-  int first_ = 0, last_ = 0;
-  std::vector<nn::parameter*> trained_;
-  std::size_t size_ = 0;
-  std::vector<float> gradients_;
-  std::vector<double> losses_;
-};
+/// The sum of the parts' gradients in the parameters' gradients, on every rank; returns the
+/// batch's loss terms.
+inline loss_terms finish_parts(nn::part_gradients<loss_terms>& parts) {
+  const loss_terms total = parts.sum();
+  parts.apply();
+  return total;
+}
 
 /// The estimator's gradient on a batch of `batch` materials, data-parallel
 /// (train_options::data_parallel): `local` holds this rank's materials (part_range's share), each
@@ -197,14 +148,14 @@ class part_gradients {
 template <class Preset>
 loss_terms estimator_gradient_parts(ad::tape& t, estimation_network<Preset>& net, std::span<const sample> local, int batch,
                                     const loss_weights& w, const communicator& comm) {
-  part_gradients parts(net, comm, batch);
+  nn::part_gradients<loss_terms> parts = batch_parts(net, comm, batch);
   if (int(local.size()) != parts.last() - parts.first())
     throw std::invalid_argument("estimator_gradient_parts: this rank's materials are not its share of the batch");
   for (int k = parts.first(); k < parts.last(); ++k) {
-    parts.add_loss(k, estimator_gradient(t, net, local.subspan(std::size_t(k - parts.first()), 1), w, batch));
+    parts.loss(k) = estimator_gradient(t, net, local.subspan(std::size_t(k - parts.first()), 1), w, batch);
     parts.take(k);
   }
-  return parts.finish();
+  return finish_parts(parts);
 }
 
 /// The auto-encoder's gradient on a batch of `batch` materials, data-parallel: `local` (and
@@ -220,7 +171,7 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
                                       const train_options& o, long step, const communicator& comm,
                                       const std::vector<tensor<parameter_count>>* inputs = nullptr) {
   constexpr int Z = auto_encoder<Preset>::latent_channels;
-  part_gradients parts(net, comm, batch);
+  nn::part_gradients<loss_terms> parts = batch_parts(net, comm, batch);
   const int first = parts.first(), count = parts.last() - parts.first();
   if (int(local.size()) != count || (inputs && int(inputs->size()) != count))
     throw std::invalid_argument("autoencoder_gradient_parts: this rank's materials are not its share of the batch");
@@ -296,7 +247,7 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     }
     t.backward();
     dz[std::size_t(k)].assign(z.grad.data(), z.grad.data() + z.grad.size());
-    parts.add_loss(first + k, l);
+    parts.loss(first + k) = l;
     parts.take(first + k);  // the decoder's gradient of this material
   }
   // The batch norm's backward pass: its scale's and shift's gradients per material, and the sums
@@ -319,7 +270,7 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     }
     parts.take(first + k);
   }
-  return parts.finish();
+  return finish_parts(parts);
 }
 
 }  // namespace anisocap::training
