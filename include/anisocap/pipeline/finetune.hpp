@@ -374,6 +374,224 @@ int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoen
 
 }  // namespace finetune_detail
 
+namespace finetune_detail {
+
+/// One fine-tune (see finetune): its inputs, Adam and the divergence guard, the kinds of step
+/// (the whole tile, a crop, shards), the loop and its end.
+template <class P>
+class run {
+ public:
+  using latent = tensor<auto_encoder<P>::latent_channels, float>;
+  using latent_window = finetune_crops::latent_window;
+  run(auto_encoder<P>& autoencoder, const latent& z, int width, int height, const capture& cap, const loss_targets& targets,
+      brdf_features features, const render_options& render, const finetune_options& o, const tensor<parameter_count, float>* residual,
+      const communicator& comm)
+      : ae_(frozen_encoder(autoencoder)), z_(z), W_(width), H_(height), cap_(cap), targets_(targets), features_(features),
+        render_(render), o_(o), residual_(residual), comm_(comm),
+        schedule_(nn::learning_rate_schedule::warmup_half_life(o.learning_rate, o.warmup, o.half_life)), adam_(schedule_),
+        guard_(o.guard, schedule_), grad_(width, height), cells_y_(z.height()), cells_x_(z.width()),
+        // Crops: k x k latent cells, only where the tile has more cells than that.
+        crop_y_(o.crop.cells > 0 && o.crop.cells < cells_y_ ? o.crop.cells : cells_y_),
+        crop_x_(o.crop.cells > 0 && o.crop.cells < cells_x_ ? o.crop.cells : cells_x_), cropping_(crop_y_ < cells_y_ || crop_x_ < cells_x_),
+        // Shards: the step's window cut into fixed blocks, spread over the ranks, their gradients
+        // added in a fixed tree (ordered_sum), so that any rank count gives the same bits.
+        shard_cells_(o.shard_cells > 0 ? o.shard_cells : comm.distributed() ? finetune_options::distributed_shard_cells : 0),
+        shard_parts_(nn::trainable_parameters([&](auto&& f) { autoencoder.for_each_decoder_parameter(f); }), comm),
+        // The guard checks the whole tile's loss every step; with crops it checks the mean loss of
+        // every `guard.every` steps instead (a whole-tile decode would cost as much as the crops).
+        guarding_(o.guard.factor > 0) {
+    autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam_.add(p); });
+  }
+
+  /// Runs the steps from the check-point's (when `checkpoint` resumes one) to o.steps, or until
+  /// early stopping or o.stop_after; `start_loss` is the image loss before the stage.
+  finetune_result operator()(double start_loss, const checkpoint_options& checkpoint) {
+    namespace fs = std::filesystem;
+    const auto start = std::chrono::steady_clock::now();
+    finetune_result result;
+    int first = 0;
+    const bool checkpoints = !checkpoint.folder.empty();
+    // Whether to continue from a check-point: rank 0, which writes them, decides for every rank.
+    if (comm_.root_decides([&] { return checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "state.safetensors"); })) {
+      first = load_checkpoint(checkpoint.folder, ae_, adam_, guard_, loop_);
+      adam_.schedule = schedule_.scaled(guard_.lr_scale);
+      result.resumed = true;
+    }
+    auto last_checkpoint = std::chrono::steady_clock::now();
+    nn::early_stopping stopper(o_.min_improvement, o_.patience, cropping_);  // crop losses are noisy: window means
+    stopper.restore(loop_.stopping);
+    if (guarding_ && cropping_ && first == 0) {  // the start, at the whole tile's loss, is the first place to come back to
+      guard_.take(adam_, start_loss);
+      guard_.best_loss = std::min(guard_.best_loss, guard_.snapshot_loss);
+    }
+    int step = first;
+    for (; step < o_.steps; ++step) {
+      const double loss = one_step(step);
+      if (o_.progress && o_.progress_every > 0 && (step + 1) % o_.progress_every == 0)
+        o_.progress(optimisation_progress::at(step + 1, o_.steps, loss, seconds_since(start), first));
+      const bool stops = stopper.stop_after(step, loss) && step + 1 >= o_.min_steps;
+      const bool killed = o_.stop_after >= 0 && step + 1 >= o_.stop_after && !stops && step + 1 < o_.steps;
+      if (checkpoints && comm_.root() && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
+        loop_.stopping = stopper.current();
+        save_checkpoint(checkpoint.folder, ae_, adam_, step + 1, guard_, loop_);
+        last_checkpoint = std::chrono::steady_clock::now();
+      }
+      if (stops || killed) {
+        ++step;
+        result.stopped = killed;
+        break;
+      }
+    }
+    finish(result);
+    result.steps = step - first;
+    result.restarts = guard_.restarts;
+    result.seconds = seconds_since(start);
+    return result;
+  }
+
+ private:
+  static auto_encoder<P>& frozen_encoder(auto_encoder<P>& autoencoder) {
+    autoencoder.freeze_encoder(true);
+    return autoencoder;
+  }
+
+  /// Step `step` of the kind the options choose, and Adam's update unless the guard restarted.
+  /// Returns the step's loss.
+  double one_step(int step) {
+    t_.clear();
+    double loss = 0;
+    bool restarted = false;
+    if (shard_cells_ > 0) {
+      const latent_window win = cropping_ ? random_window(step) : latent_window{0, cells_y_, 0, cells_x_};
+      loss = sharded_step(win, !cropping_);
+      observe_decoding(step, loss);
+      restarted = guard_restarts(step, loss);
+      if (!restarted) shard_parts_.apply();
+    } else if (!cropping_) {
+      auto y = ae_.decode(t_, t_.leaf(z_));
+      const auto u_view = residual_ ? network_space::shifted(y.value.tile(0, 0, H_, W_), *residual_) : y.value.tile(0, 0, H_, W_);
+      const material_maps m = network_space::network_to_maps(u_view, 0);
+      loss = with_features(features_, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap_, targets_, &grad_, {}, render_); });
+      if (o_.observer) o_.observer(step, loss, [&]() { return m; });
+      restarted = guard_restarts(step, loss);
+      if (!restarted) {
+        auto g_view = y.grad.tile(0, 0, H_, W_);
+        network_space::add_network_gradient(u_view, 0, grad_, 1.0, g_view);
+        t_.backward();
+      }
+    } else {
+      const latent_window win = random_window(step);
+      loss = with_features(features_, [&]<brdf_features F>() {
+        return finetune_crops::crop_step<F>(t_, ae_, z_, win, crop_y_, crop_x_, W_, H_, cap_, targets_, render_, scratch_, residual_);
+      });
+      observe_decoding(step, loss);
+      restarted = guard_restarts(step, loss);
+    }
+    if (!restarted) adam_.step();
+    return loss;
+  }
+
+  latent_window random_window(int step) const {
+    return finetune_crops::random_window(cells_y_, cells_x_, crop_y_, crop_x_, o_.crop.seed, step);
+  }
+
+  /// One step on the shards of `win` (crop weights over the crop's cells, or the whole tile's
+  /// mean): sums the shards' gradients (shard_parts_.apply() puts them in the decoder's) and
+  /// returns the window's loss.
+  double sharded_step(const latent_window& win, bool whole) {
+    constexpr int M = auto_encoder<P>::size_multiple;
+    const std::vector<latent_window> shards = finetune_crops::shards_of(win, shard_cells_);
+    shard_parts_.start(int(shards.size()));
+    const double window_area = finetune_crops::texels_in(win, M, W_, H_);
+    const double area = whole ? window_area : double(crop_y_) * crop_x_ * M * M;
+    for (int k = shard_parts_.first(); k < shard_parts_.last(); ++k) {
+      t_.clear();
+      adam_.zero_grad();
+      const auto& shard = shards[std::size_t(k)];
+      const double shard_loss = with_features(features_, [&]<brdf_features F>() {
+        return finetune_crops::window_step<F>(t_, ae_, z_, shard, area, W_, H_, cap_, targets_, render_, scratch_, residual_);
+      });
+      shard_parts_.loss(k) = shard_loss * (finetune_crops::texels_in(shard, M, W_, H_) / window_area);
+      shard_parts_.take(k);  // and zeroes the decoder's gradients
+    }
+    return shard_parts_.sum();
+  }
+
+  /// The observer, for steps that have no whole-tile maps at hand (crops, shards): decodes them
+  /// only if it asks (weights not yet updated; the step's tape is no longer needed).
+  void observe_decoding(int at, double loss) {
+    if (!o_.observer) return;
+    std::optional<material_maps> whole;
+    o_.observer(at, loss, [&]() {
+      if (!whole) whole = decode(ae_, z_, W_, H_, residual_);
+      return *whole;
+    });
+  }
+
+  /// The guard after a step's loss: the whole tile's every step, or with crops the mean of every
+  /// `guard.every` steps. True when it restarted from its snapshot.
+  bool guard_restarts(int at, double loss) {
+    if (!guarding_) return false;
+    if (!cropping_) return guard_.restarts_after(adam_, loss, at % o_.guard.every == 0);
+    loop_.window_sum += loss;  // crops: the losses of the guard's current window of steps
+    if (++loop_.window_steps < o_.guard.every) return false;
+    const bool restarts = guard_.restarts_after(adam_, loop_.window_sum / loop_.window_steps, true);
+    loop_.window_sum = 0;
+    loop_.window_steps = 0;
+    return restarts;
+  }
+
+  double image_loss(const material_maps& m) const {
+    return with_features(features_, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap_, targets_, nullptr, {}, render_); });
+  }
+
+  /// The decoder's maps (restricted to the kernel's features: what a reduced kernel fitted, as
+  /// every renderer sees it) and their image loss. The crop guard watches window means, not the
+  /// tile: it keeps the last snapshot's decoder instead when the whole tile renders better with it.
+  void finish(finetune_result& result) {
+    result.maps = decode(ae_, z_, W_, H_, residual_);
+    restrict_to_features(result.maps, features_);
+    result.loss = image_loss(result.maps);
+    if (!(guarding_ && cropping_ && !guard_.snapshot.empty())) return;
+    const auto last = adam_.take_snapshot();
+    adam_.restore(guard_.snapshot);
+    material_maps snapshot_maps = decode(ae_, z_, W_, H_, residual_);
+    restrict_to_features(snapshot_maps, features_);
+    const double snapshot_tile_loss = image_loss(snapshot_maps);
+    if (snapshot_tile_loss < result.loss) {
+      result.maps = std::move(snapshot_maps);
+      result.loss = snapshot_tile_loss;
+    } else {
+      adam_.restore(last);
+    }
+  }
+
+  auto_encoder<P>& ae_;
+  const latent& z_;
+  const int W_, H_;
+  const capture& cap_;
+  const loss_targets& targets_;
+  const brdf_features features_;
+  const render_options& render_;
+  const finetune_options& o_;
+  const tensor<parameter_count, float>* const residual_;
+  const communicator& comm_;
+  const nn::learning_rate_schedule schedule_;
+  nn::adam adam_;
+  divergence_guard guard_;
+  loop_state loop_;
+  material_maps grad_;
+  ad::tape t_;
+  const int cells_y_, cells_x_, crop_y_, crop_x_;
+  const bool cropping_;
+  finetune_crops::scratch scratch_;
+  const int shard_cells_;
+  nn::part_gradients<double> shard_parts_;
+  const bool guarding_;
+};
+
+}  // namespace finetune_detail
+
 /// Fine-tunes the decoder of `autoencoder` from the latent code `z` on the photographs behind
 /// `targets` (a `width` x `height` material under `cap`), with the image loss of kernel `features`.
 /// `start_loss` is the image loss of the decoder's maps before the stage. The encoder is frozen.
@@ -387,169 +605,12 @@ finetune_result finetune(auto_encoder<P>& autoencoder, const tensor<auto_encoder
                          const render_options& render, double start_loss, const finetune_options& o,
                          const checkpoint_options& checkpoint = {}, const tensor<parameter_count, float>* residual = nullptr,
                          const communicator& comm = serial_communicator()) {
-  namespace fs = std::filesystem;
-  const auto start = std::chrono::steady_clock::now();
   o.validate();
-  const int W = width, H = height;
-  if (residual && (residual->height() != H || residual->width() != W))
+  if (residual && (residual->height() != height || residual->width() != width))
     throw std::invalid_argument("finetune: the residual is " + std::to_string(residual->height()) + "x" + std::to_string(residual->width()) +
-                                ", the material " + std::to_string(H) + "x" + std::to_string(W));
-  auto image_loss = [&](const material_maps& m) {
-    return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, render); });
-  };
-  autoencoder.freeze_encoder(true);
-  const auto schedule = nn::learning_rate_schedule::warmup_half_life(o.learning_rate, o.warmup, o.half_life);
-  nn::adam adam(schedule);
-  autoencoder.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
-  divergence_guard guard(o.guard, schedule);
-  finetune_detail::loop_state loop;
-  finetune_result result;
-  int first = 0;
-  const bool checkpoints = !checkpoint.folder.empty();
-  // Whether to continue from a check-point: rank 0, which writes them, decides for every rank.
-  if (comm.root_decides([&] { return checkpoints && checkpoint.resume && fs::exists(checkpoint.folder / "state.safetensors"); })) {
-    first = finetune_detail::load_checkpoint(checkpoint.folder, autoencoder, adam, guard, loop);
-    adam.schedule = schedule.scaled(guard.lr_scale);
-    result.resumed = true;
-  }
-  material_maps grad(W, H);
-  auto last_checkpoint = std::chrono::steady_clock::now();
-  int step = first;
-  ad::tape t;
-  // Crops: k x k latent cells, only where the tile has more cells than that.
-  const int cells_y = z.height(), cells_x = z.width();
-  const int crop_y = o.crop.cells > 0 && o.crop.cells < cells_y ? o.crop.cells : cells_y;
-  const int crop_x = o.crop.cells > 0 && o.crop.cells < cells_x ? o.crop.cells : cells_x;
-  const bool cropping = crop_y < cells_y || crop_x < cells_x;
-  finetune_crops::scratch scratch;
-  // Shards: the step's window cut into fixed blocks, spread over the ranks, their gradients added in
-  // a fixed tree (ordered_sum), so that any rank count gives the same bits.
-  const int shard_cells = o.shard_cells > 0 ? o.shard_cells : comm.distributed() ? finetune_options::distributed_shard_cells : 0;
-  const bool sharding = shard_cells > 0;
-  nn::part_gradients<double> shard_parts(nn::trainable_parameters([&](auto&& f) { autoencoder.for_each_decoder_parameter(f); }), comm);
-  // One step on the shards of `win` (crop weights over k_y x k_x cells, or the whole tile's mean):
-  // sums the shards' gradients (shard_parts.apply() puts them in the decoder's) and returns the
-  // window's loss.
-  auto sharded_step = [&](const finetune_crops::latent_window& win, bool whole, int k_y, int k_x) {
-    constexpr int M = auto_encoder<P>::size_multiple;
-    const std::vector<finetune_crops::latent_window> shards = finetune_crops::shards_of(win, shard_cells);
-    shard_parts.start(int(shards.size()));
-    const double window_area = finetune_crops::texels_in(win, M, W, H);
-    const double area = whole ? window_area : double(k_y) * k_x * M * M;
-    for (int k = shard_parts.first(); k < shard_parts.last(); ++k) {
-      t.clear();
-      adam.zero_grad();
-      const auto& shard = shards[std::size_t(k)];
-      const double shard_loss = with_features(features, [&]<brdf_features F>() {
-        return finetune_crops::window_step<F>(t, autoencoder, z, shard, area, W, H, cap, targets, render, scratch, residual);
-      });
-      shard_parts.loss(k) = shard_loss * (finetune_crops::texels_in(shard, M, W, H) / window_area);
-      shard_parts.take(k);  // and zeroes the decoder's gradients
-    }
-    return shard_parts.sum();
-  };
-  nn::early_stopping stopper(o.min_improvement, o.patience, cropping);  // crop losses are noisy: window means
-  stopper.restore(loop.stopping);
-  // The guard checks the whole tile's loss every step; with crops it checks the mean loss of every
-  // `guard.every` steps instead (a whole-tile decode would cost as much as the crops).
-  const bool guarding = o.guard.factor > 0;
-  double& window_sum = loop.window_sum;  // crops: the losses of the guard's current window of steps
-  int& window_steps = loop.window_steps;
-  if (guarding && cropping && first == 0) {  // the start, at the whole tile's loss, is the first place to come back to
-    guard.take(adam, start_loss);
-    guard.best_loss = std::min(guard.best_loss, guard.snapshot_loss);
-  }
-  // The observer, for steps that have no whole-tile maps at hand (crops, shards): decodes them only
-  // if it asks (weights not yet updated; the step's tape is no longer needed).
-  auto observe_decoding = [&](int at, double loss) {
-    if (!o.observer) return;
-    std::optional<material_maps> whole;
-    o.observer(at, loss, [&]() {
-      if (!whole) whole = decode(autoencoder, z, W, H, residual);
-      return *whole;
-    });
-  };
-  // The guard after a step's loss: the whole tile's every step, or with crops the mean of every
-  // `guard.every` steps. True when it restarted from its snapshot.
-  auto guard_restarts = [&](int at, double loss) {
-    if (!guarding) return false;
-    if (!cropping) return guard.restarts_after(adam, loss, at % o.guard.every == 0);
-    window_sum += loss;
-    if (++window_steps < o.guard.every) return false;
-    const bool restarts = guard.restarts_after(adam, window_sum / window_steps, true);
-    window_sum = 0;
-    window_steps = 0;
-    return restarts;
-  };
-  for (; step < o.steps; ++step) {
-    t.clear();
-    double loss = 0;
-    bool restarted = false;
-    if (sharding) {
-      const finetune_crops::latent_window win = cropping ? finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step)
-                                                         : finetune_crops::latent_window{0, cells_y, 0, cells_x};
-      loss = sharded_step(win, !cropping, crop_y, crop_x);
-      observe_decoding(step, loss);
-      restarted = guard_restarts(step, loss);
-      if (!restarted) shard_parts.apply();
-    } else if (!cropping) {
-      auto y = autoencoder.decode(t, t.leaf(z));
-      const auto u_view = residual ? network_space::shifted(y.value.tile(0, 0, H, W), *residual) : y.value.tile(0, 0, H, W);
-      const material_maps m = network_space::network_to_maps(u_view, 0);
-      loss = with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, &grad, {}, render); });
-      if (o.observer) o.observer(step, loss, [&]() { return m; });
-      restarted = guard_restarts(step, loss);
-      if (!restarted) {
-        auto g_view = y.grad.tile(0, 0, H, W);
-        network_space::add_network_gradient(u_view, 0, grad, 1.0, g_view);
-        t.backward();
-      }
-    } else {
-      const auto win = finetune_crops::random_window(cells_y, cells_x, crop_y, crop_x, o.crop.seed, step);
-      loss = with_features(features, [&]<brdf_features F>() {
-        return finetune_crops::crop_step<F>(t, autoencoder, z, win, crop_y, crop_x, W, H, cap, targets, render, scratch, residual);
-      });
-      observe_decoding(step, loss);
-      restarted = guard_restarts(step, loss);
-    }
-    if (!restarted) adam.step();
-    if (o.progress && o.progress_every > 0 && (step + 1) % o.progress_every == 0)
-      o.progress(optimisation_progress::at(step + 1, o.steps, loss, seconds_since(start), first));
-    const bool stops = stopper.stop_after(step, loss) && step + 1 >= o.min_steps;
-    const bool killed = o.stop_after >= 0 && step + 1 >= o.stop_after && !stops && step + 1 < o.steps;
-    if (checkpoints && comm.root() && (killed || seconds_since(last_checkpoint) > checkpoint.seconds)) {
-      loop.stopping = stopper.current();
-      finetune_detail::save_checkpoint(checkpoint.folder, autoencoder, adam, step + 1, guard, loop);
-      last_checkpoint = std::chrono::steady_clock::now();
-    }
-    if (stops || killed) {
-      ++step;
-      result.stopped = killed;
-      break;
-    }
-  }
-  result.maps = decode(autoencoder, z, W, H, residual);
-  restrict_to_features(result.maps, features);  // what a reduced kernel fitted, as every renderer sees it
-  result.loss = image_loss(result.maps);
-  if (guarding && cropping && !guard.snapshot.empty()) {
-    // The crop guard watches window means, not the tile: keep the last snapshot's decoder when the
-    // whole tile renders better with it than with the last weights.
-    const auto last = adam.take_snapshot();
-    adam.restore(guard.snapshot);
-    material_maps snapshot_maps = decode(autoencoder, z, W, H, residual);
-    restrict_to_features(snapshot_maps, features);
-    const double snapshot_tile_loss = image_loss(snapshot_maps);
-    if (snapshot_tile_loss < result.loss) {
-      result.maps = std::move(snapshot_maps);
-      result.loss = snapshot_tile_loss;
-    } else {
-      adam.restore(last);
-    }
-  }
-  result.steps = step - first;
-  result.restarts = guard.restarts;
-  result.seconds = seconds_since(start);
-  return result;
+                                ", the material " + std::to_string(height) + "x" + std::to_string(width));
+  finetune_detail::run<P> stage(autoencoder, z, width, height, cap, targets, features, render, o, residual, comm);
+  return stage(start_loss, checkpoint);
 }
 
 }  // namespace anisocap
