@@ -202,14 +202,14 @@ inline sensor_noise training_input_noise(const train_options& o, std::uint64_t s
   return {o.input_noise.shot * f, o.input_noise.read * f};
 }
 
-/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b),
-/// its photographs with training_input_noise.
-/// The entries are built in turn; each one's renders run on every OpenMP thread (building the
-/// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
 /// Whether a run over `comm` takes data-parallel steps: with o.data_parallel, and always over more
 /// than one rank.
 inline bool steps_data_parallel(const train_options& o, const communicator& comm) { return o.data_parallel || comm.distributed(); }
 
+/// The samples of training step `step`: entry b is the sample of training_seed(o.seed, step, b),
+/// its photographs with training_input_noise.
+/// The entries are built in turn; each one's renders run on every OpenMP thread (building the
+/// entries side by side instead was slower on 2 cores, bench/README.md "Training throughput").
 /// With `first` and `last`, only entries [first, last) (a rank's share of a data-parallel step).
 inline std::vector<sample> make_batch(const train_options& o, long step, bool with_photos, int first = 0, int last = -1) {
   std::vector<sample> samples;
