@@ -1012,6 +1012,53 @@ TEST_CASE("photographs to maps as the README's walkthrough runs them: photograph
   CHECK_FALSE(fs::exists(t.path / "bad"));
 }
 
+TEST_CASE("the loop of the walkthrough: capture, plan, photograph --plan takes the proposed photographs beside the others, rectify them all") {
+  temp_dir t;
+  const std::string shoot = "--size 32 --images 6 --flash --photo-width 240 --photo-height 180 --read-noise 0.002";
+  REQUIRE(run("photograph -o shoot " + shoot, t.path).status == 0);
+  REQUIRE(run("rectify shoot/photos/photos.json -o rect --resolution 32", t.path).status == 0);
+  REQUIRE(run("capture rect/capture.json -o result --stages refine --steps 20 --no-view", t.path).status == 0);
+  auto r = run("plan result --sample-mm 100 --photos 2", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("The next 2 photographs") != std::string::npos);
+  CHECK(r.output.find("Why: it ") != std::string::npos);
+  const nlohmann::json plan = nlohmann::json::parse(read_text(t.path / "result/plan.json"));
+  REQUIRE(plan["photos"].size() == 2);
+
+  r = run("photograph -o shoot2 " + shoot + " --plan result/plan.json", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  // The set's six photographs are those taken without the plan, byte for byte (the same noise);
+  // the plan's two follow, each with its own light.
+  for (int i = 0; i < 6; ++i) {
+    const std::string name = "/photos/photo_0" + std::to_string(i) + ".jpg";
+    CHECK(read_text(t.path / ("shoot" + name)) == read_text(t.path / ("shoot2" + name)));
+  }
+  const nlohmann::json photos = nlohmann::json::parse(read_text(t.path / "shoot2/photos/photos.json"));
+  REQUIRE(photos["photos"].size() == 8);
+  for (int i = 0; i < 2; ++i) {
+    const nlohmann::json& planned = plan["photos"][std::size_t(i)];
+    const nlohmann::json& light = photos["photos"][std::size_t(6 + i)]["light"];
+    CHECK(photos["photos"][std::size_t(6 + i)]["file"] == "photo_0" + std::to_string(6 + i) + ".jpg");
+    if (planned["kind"] == "flash") {
+      CHECK(light.contains("flash_offset_mm"));
+    } else {
+      REQUIRE(light.contains("position_mm"));
+      for (std::size_t k = 0; k < 3; ++k) CHECK(light["position_mm"][k].get<double>() == doctest::Approx(planned["light_mm"][k].get<double>()).epsilon(1e-5));
+    }
+  }
+  r = run("rectify shoot2/photos/photos.json -o rect2 --resolution 32", t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  CHECK(r.output.find("8/8") != std::string::npos);
+
+  // A plan that is not one: one message naming the file and the entry, and no output.
+  write(t.path / "bad.json", "{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, 0, 2], \"light\": [1, 0, -1]}]}");
+  check_refused("photograph -o bad " + shoot + " --plan bad.json", t.path, "bad.json: photos[0]", "bad");
+  check_refused("photograph -o bad " + shoot + " --plan missing.json", t.path, "missing.json", "bad");
+}
+
 TEST_CASE("compact variants: train-estimator --init from a compact estimator, then capture and eval-networks read the variant from its file") {
   temp_dir t;
   const fs::path models = fs::path(ANISOCAP_SOURCE_DIR) / "models" / "compact";

@@ -5,6 +5,7 @@
 
 #include "../render/render_reference.hpp"
 #include "anisocap/pipeline/plan.hpp"
+#include "anisocap/pipeline/plan_io.hpp"
 #include "anisocap/render/configurations.hpp"
 
 using namespace anisocap;
@@ -88,4 +89,47 @@ TEST_CASE("plan_photographs: after flash photographs, a lamp photograph (F0 then
   CHECK(flash_only.photos[0].candidate.flash);
   CHECK(flash_only.photos[0].determined_after[fresnel_f0] == 0.0);
   CHECK_THROWS_AS(plan_photographs(truth, cap, targets, 0.0, o), std::invalid_argument);
+}
+
+TEST_CASE("plan.json: plan_to_json's photographs read back exactly; a malformed plan is one error naming the file and the entry") {
+  const int n = 16;
+  const material_maps truth = random_maps(n, n, 4);
+  const capture cap = flash_capture(6, n, 2);
+  plan_options o;
+  o.photos = 3;
+  o.stride = 4;
+  const plan_result plan = plan_photographs(truth, cap, make_loss_targets(render(truth, cap)), 0.02, o);
+  REQUIRE(plan.photos.size() == 3);
+  for (double sample_mm : {0.0, 120.0}) {
+    const std::string text = plan_to_json(plan, "result", sample_mm);
+    CHECK((text.find("camera_mm") != std::string::npos) == (sample_mm > 0));
+    const std::vector<plan_candidate> back = parse_plan_photos(text, "plan.json");
+    REQUIRE(back.size() == plan.photos.size());
+    for (std::size_t i = 0; i < back.size(); ++i) {
+      const plan_candidate& c = plan.photos[i].candidate;
+      CHECK(back[i].flash == c.flash);
+      CHECK(back[i].config.camera == c.config.camera);  // floats survive JSON exactly
+      CHECK(back[i].config.light == c.config.light);
+      CHECK(back[i].config.intensity == c.config.intensity);
+      CHECK(back[i].elevation == c.elevation);
+      CHECK(back[i].azimuth == c.azimuth);
+    }
+  }
+  auto refused = [](const std::string& text, const std::string& message) {
+    INFO(text);
+    CHECK_THROWS_WITH_AS(parse_plan_photos(text, "my/plan.json"), doctest::Contains(message.c_str()), io_error);
+    CHECK_THROWS_WITH_AS(parse_plan_photos(text, "my/plan.json"), doctest::Contains("my/plan.json"), io_error);
+  };
+  refused("{\"photos\": [", "malformed JSON");
+  refused("[1, 2]", "expected an object");
+  refused("{\"photos\": []}", "non-empty array");
+  refused("{\"photos\": [{\"kind\": \"drone\", \"camera\": [0, 0, 2], \"light\": [0, 0, 2]}]}", "photos[0]: \"kind\"");
+  refused("{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, 0, 2]}]}", "missing field \"light\"");
+  refused("{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, 0, 2], \"light\": [1, 0, -1]}]}", "below the sample's plane");
+  refused("{\"photos\": [{\"kind\": \"flash\", \"camera\": [0, 0, 2], \"light\": [1, 0, 1]}]}", "must be its \"camera\"");
+  refused("{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, 0, 2], \"light\": [0, 1, 1], \"tilt\": 3}]}", "unknown field \"tilt\"");
+  refused("{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, \"a\", 2], \"light\": [0, 1, 1]}]}", "must be a number");
+  refused("{\"photos\": [{\"kind\": \"lamp\", \"camera\": [0, 0, 2], \"light\": [0, 1, 1], \"intensity\": [1, 0, 1]}]}",
+          "\"intensity\" must be positive");
+  CHECK_THROWS_WITH_AS(read_plan_photos("no/such/plan.json"), doctest::Contains("no/such/plan.json"), io_error);
 }

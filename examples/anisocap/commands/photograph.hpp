@@ -19,6 +19,7 @@
 #include "anisocap/data/map_io.hpp"
 #include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
+#include "anisocap/pipeline/plan_io.hpp"
 #include "anisocap/render/configurations.hpp"
 
 namespace anisocap::commands {
@@ -28,6 +29,7 @@ inline void add_photograph_command(CLI::App& app) {
   struct settings {
     std::filesystem::path out = "anisocap-photographs";
     std::optional<std::filesystem::path> maps;
+    std::optional<std::filesystem::path> plan;
     int size = 128, images = 12;
     std::uint64_t seed = 1;
     std::uint64_t noise_seed = 0;
@@ -46,8 +48,11 @@ inline void add_photograph_command(CLI::App& app) {
   cmd->add_option("--noise-seed", s->noise_seed, "another draw of the sensor noise for the same material and configurations (0: --seed's)")
       ->capture_default_str();
   cmd->add_option("--kind", s->kind, "procedural material kind (plain_weave, twill, satin, brushed_metal, ...)");
-  cmd->add_option("--images", s->images, "number of photographs")->capture_default_str()->check(CLI::Range(4, 1000));
+  cmd->add_option("--images", s->images, "number of photographs of the set (--plan's come on top)")->capture_default_str()->check(CLI::Range(4, 1000));
   cmd->add_option("--set", s->set, "configuration set: alpha or beta")->capture_default_str()->check(CLI::IsMember({"alpha", "beta"}));
+  cmd->add_option("--plan", s->plan,
+                  "also take the photographs of a plan.json of `anisocap plan` (numbered after the set's, each with its own flash or "
+                  "lamp; the set's photographs are the same as without it)");
   cmd->add_flag("--flash", s->options.flash, "light fixed to the camera (a phone's flash) instead of the configuration's light");
   cmd->add_option("--flash-offset", s->options.flash_offset_mm, "flash offset from the lens in mm, camera coordinates x right, y down, z forward")
       ->delimiter(',')->capture_default_str();
@@ -93,10 +98,22 @@ inline void add_photograph_command(CLI::App& app) {
         }
         truth = generate_material(s->seed, s->size, s->size, po);
       }
-      const capture configurations = s->set == "alpha" ? set_alpha(s->images, s->seed, truth.width(), truth.height())
-                                                       : set_beta(s->images, s->seed, truth.width(), truth.height());
+      capture configurations = s->set == "alpha" ? set_alpha(s->images, s->seed, truth.width(), truth.height())
+                                                 : set_beta(s->images, s->seed, truth.width(), truth.height());
       std::fprintf(stderr, "photograph: %d photos of %dx%d px of a %dx%d-texel material (%s light)\n", s->images, o.width, o.height,
                    truth.width(), truth.height(), o.flash ? "flash" : "separate");
+      if (s->plan) {
+        // The plan's photographs after the set's; the set's keep their indices, so their noise too.
+        o.flash_per_photo.assign(configurations.images.size(), o.flash ? 1 : 0);
+        for (const plan_candidate& p : read_plan_photos(*s->plan)) {
+          capture_image image = p.config;
+          image.file = input_file_name(int(configurations.images.size()));
+          configurations.images.push_back(image);
+          o.flash_per_photo.push_back(p.flash ? 1 : 0);
+          std::fprintf(stderr, "photograph: + the plan's %s photograph from [%.2f, %.2f, %.2f] sample lengths\n", p.flash ? "flash" : "lamp",
+                       p.config.camera[0], p.config.camera[1], p.config.camera[2]);
+        }
+      }
       if (s->marker_frame) {
         // The sheet as printed at 4 dots per mm, lying flat around the sample.
         const double n = std::max(truth.width(), truth.height());

@@ -16,6 +16,7 @@
 #include "anisocap/data/photo_io.hpp"
 #include "anisocap/pipeline/capture.hpp"
 #include "anisocap/pipeline/plan.hpp"
+#include "anisocap/pipeline/plan_io.hpp"
 
 namespace anisocap::commands {
 
@@ -73,8 +74,6 @@ inline void run_plan_command(const plan_settings& s) {
                maps.width(), maps.height(), noise);
   const plan_result plan = plan_photographs(maps, cap, targets, noise > 0 ? noise : uo.min_noise, s.options, uo);
 
-  nlohmann::json out = {{"result", fs::absolute(s.result).string()}, {"noise", plan.noise}, {"candidates", plan.candidates},
-                        {"sample_mm", s.sample_mm}, {"photos", nlohmann::json::array()}};
   std::printf("The next %zu photograph%s (positions from the sample's centre: x along its top edge to the right, y towards\n"
               "the top edge, z up; azimuth counter-clockwise from x):\n", plan.photos.size(), plan.photos.size() == 1 ? "" : "s");
   int index = 1;
@@ -89,17 +88,9 @@ inline void run_plan_command(const plan_settings& s) {
     if (c.flash) std::printf("the flash beside the lens.\n");
     else std::printf("the lamp as far away and as high on the opposite side, at %s.\n", plan_position(c.config.light, s.sample_mm).c_str());
     std::printf("   Why: it %s.\n", p.reason.c_str());
-    nlohmann::json entry = {{"kind", c.flash ? "flash" : "lamp"}, {"distance", c.distance}, {"elevation_degrees", c.elevation},
-                            {"azimuth_degrees", c.azimuth}, {"camera", c.config.camera}, {"light", c.config.light},
-                            {"intensity", c.config.intensity}, {"gain", p.gain}, {"reason", p.reason}};
-    if (s.sample_mm > 0) {
-      entry["camera_mm"] = {c.config.camera[0] * s.sample_mm, c.config.camera[1] * s.sample_mm, c.config.camera[2] * s.sample_mm};
-      if (!c.flash) entry["light_mm"] = {c.config.light[0] * s.sample_mm, c.config.light[1] * s.sample_mm, c.config.light[2] * s.sample_mm};
-    }
-    out["photos"].push_back(entry);
   }
   const fs::path file = s.out.empty() ? s.result / "plan.json" : s.out;
-  write_file_atomically(file, out.dump(2) + "\n");
+  write_file_atomically(file, plan_to_json(plan, fs::absolute(s.result).string(), s.sample_mm));
   std::fprintf(stderr, "plan: written to %s; add the photographs to photos.json, rectify them with the others and capture again\n",
                file.c_str());
 }

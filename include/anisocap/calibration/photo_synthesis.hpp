@@ -189,6 +189,10 @@ struct photo_synthesis_options {
   double white_fraction = 0.99;        ///< exposure: this fraction of the sample's pixels stays below white (the rest clips)
   bool flash = false;                  ///< light fixed to the camera at flash_offset_mm instead of the configuration's light
   std::array<double, 3> flash_offset_mm{0, 0, 0};  ///< flash offset in camera coordinates (x right, y down, z forward)
+  /// Empty: `flash` holds for every photograph. Else one entry per configuration: whether that
+  /// photograph's light is the flash (1) or the configuration's light (0), as when a plan's lamp
+  /// photographs (pipeline/plan_io.hpp) are added to flash ones.
+  std::vector<std::uint8_t> flash_per_photo;
   sensor_noise noise;                  ///< sensor noise on the exposed linear values, before clipping
   std::uint64_t seed = 1;              ///< noise seed
   photo_format format = photo_format::jpeg;  ///< how the photographs are stored
@@ -223,6 +227,9 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
   if (!(o.white_fraction > 0 && o.white_fraction <= 1)) throw std::invalid_argument("photograph: white fraction must be in (0, 1]");
   if (o.jpeg_quality < 1 || o.jpeg_quality > 100) throw std::invalid_argument("photograph: JPEG quality must be in 1..100");
   o.noise.validate();
+  if (!o.flash_per_photo.empty() && o.flash_per_photo.size() != configurations.images.size())
+    throw std::invalid_argument("photograph: " + std::to_string(o.flash_per_photo.size()) + " flash settings for " +
+                                std::to_string(configurations.images.size()) + " configurations");
   const double n = std::max(maps.width(), maps.height());
   synthetic_photographs out;
   out.description.width_mm = maps.width() / n * o.longest_mm;
@@ -250,7 +257,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     const char* extension = o.format == photo_format::jpeg ? "jpg" : o.format == photo_format::png ? "png" : "exr";
     std::snprintf(name, sizeof name, "photo_%02zu.%s", i, extension);
     entry.file = name;
-    if (o.flash) {
+    if (o.flash_per_photo.empty() ? o.flash : o.flash_per_photo[i] != 0) {
       const auto& f = o.flash_offset_mm;
       setup.light_mm = setup.pose.to_sample(Eigen::Vector3d(f[0], f[1], f[2]));
       const double d = setup.light_mm.norm() / o.longest_mm;  // the flash aims at the centre: pi d^2 as configurations do
