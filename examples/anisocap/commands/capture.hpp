@@ -217,26 +217,9 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
   return report;
 }
 
-/// Runs a capture: writes the map set (canonical, brdf/canonical_maps.hpp), the viewer page
-/// (unless `s.view` is off), re-renders, novel views, a contact sheet and report.json into `s.out`;
-/// returns the report. `parsed` is the command (to see which options were given).
-inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
-  const auto start = std::chrono::steady_clock::now();
-  capture_options& o = s.options;
-  o.validate();  // impossible options are refused before any work
-  const communicator& ranks = program_ranks();
-  o.ranks = &ranks;
-  if (mpi_job() && o.finetune.shard_cells == 0) o.finetune.shard_cells = finetune_options::distributed_shard_cells;
-  const capture_command_inputs in = read_capture_command_inputs(s);
-  if (!ranks.root()) {  // the same capture, sharing the fine-tune's steps; rank 0 writes every output
-    std::string stages_text;
-    const networks nets = choose_networks(s, o, parsed, stages_text);
-    o.checkpoint = {s.out / ".checkpoint", s.resume, s.checkpoint_seconds};
-    o.uncertainty.reset();  // rank 0's alone is written
-    capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
-    return {};
-  }
-  // Outputs stay inside OUT and never replace an input; checked before any work, as is --tileable.
+/// Every file a capture writes into OUT, after checking --tileable against the photographs' size:
+/// the list refuse_overwriting_inputs checks before any work.
+inline std::vector<fs::path> capture_output_files(const capture_settings& s, const capture_command_inputs& in) {
   std::vector<fs::path> outputs = map_files(s.out), renders = image_outputs(in.cap, s.out / "renders");
   if (s.tileable) {
     try {
@@ -249,12 +232,99 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   }
   outputs.insert(outputs.end(), renders.begin(), renders.end());
   for (const char* name : {"report.json", "contact_sheet.png"}) outputs.push_back(s.out / name);
-  refuse_overwriting_inputs(outputs, in.files);
+  return outputs;
+}
+
+/// Prints, after the fit, what the photographs do not tell: F0 held from the networks or the prior,
+/// and the parameters undetermined on most texels.
+inline void print_undetermined(const capture_result& result, const capture_options& o) {
+  if (result.f0_source != "photographs") {
+    const std::string held = result.f0_source == "estimate" ? "the networks' estimate"
+                                                            : "the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4);
+    if (o.kernel.auto_tolerance > 0)
+      std::fprintf(stderr, "capture: F0 is not determined by these photographs (each sees the Fresnel factor F / F0 within %g of 1): "
+                   "fresnel.exr holds %s; a photograph with the light away from the camera at a low angle measures it\n",
+                   o.kernel.auto_tolerance, held.c_str());
+    else  // the kernel was chosen by hand, without the Fresnel term
+      std::fprintf(stderr, "capture: the kernel has no Fresnel term (--kernel), so F0 was not fitted: fresnel.exr holds %s\n",
+                   held.c_str());
+  }
+  if (!result.uncertainty) return;
+  std::string undetermined;
+  for (int k = 0; k < parameter_count; ++k)
+    if (!result.uncertainty->determined(k)) {
+      char text[64];
+      std::snprintf(text, sizeof text, "%s%s (%.0f%% of texels)", undetermined.empty() ? "" : ", ", parameter_name(k),
+                    100 * result.uncertainty->determined_share[std::size_t(k)]);
+      undetermined += text;
+    }
+  if (!undetermined.empty())
+    std::fprintf(stderr, "capture: these photographs determine on most texels every parameter but %s; uncertainty/ holds each "
+                 "parameter's standard deviation per texel\n", undetermined.c_str());
+}
+
+/// What stage_capture_files staged beside the maps.
+struct staged_capture {
+  std::vector<fs::path> stale_maps;           ///< map files of an earlier capture to remove after the commit
+  std::optional<tileable_change> tile_change;  ///< with --tileable: how the tile differs from the maps
+  capture novel;                              ///< the novel views rendered into novel/
+};
+
+/// Stages every result file of a capture but report.json within `files`: the maps (and the
+/// tileable ones), uncertainty/, the viewer, the re-renders, the contact sheet and the novel views.
+inline staged_capture stage_capture_files(const capture_settings& s, const capture_command_inputs& in, const capture_result& result,
+                                          file_transaction& files) {
+  const material_maps& maps = result.maps;  // canonical (capture_material)
+  create_output_folder(s.out);
+  staged_capture staged;
+  staged.stale_maps = stage_maps(maps, s.out, files);
+  if (s.tileable) {
+    const material_maps tile = make_tileable(maps, s.tile);
+    staged.tile_change = compare_tile(maps, tile);
+    const std::vector<fs::path> stale_tile = stage_maps(tile, s.out / "tileable", files);
+    staged.stale_maps.insert(staged.stale_maps.end(), stale_tile.begin(), stale_tile.end());
+  }
+  if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files);
+  if (s.view) {
+    viewer_options view{s.out.filename().string()};
+    const std::optional<material_maps> ratio = result.uncertainty ? std::optional(result.uncertainty->ratio()) : std::nullopt;
+    if (ratio) view.uncertainty = &*ratio;
+    files.stage(s.out / "material.html", viewer_html(maps, view));
+  }
+  const std::vector<image> rerenders = render(maps, in.cap);
+  stage_images(rerenders, in.cap, s.out / "renders", files, in.files);
+  write_png(make_capture_sheet(in.photos, rerenders, maps, in.truth ? &*in.truth : nullptr), s.out / "contact_sheet.png", files);
+  staged.novel = novel_view_set(1, maps.width(), maps.height());
+  stage_images(render(maps, staged.novel), staged.novel, s.out / "novel", files);
+  return staged;
+}
+
+/// Runs a capture: writes the map set (canonical, brdf/canonical_maps.hpp), the viewer page
+/// (unless `s.view` is off), re-renders, novel views, a contact sheet and report.json into `s.out`;
+/// returns the report (empty on ranks other than 0, which share the fit and write nothing).
+/// `parsed` is the command (to see which options were given).
+inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* parsed) {
+  const auto start = std::chrono::steady_clock::now();
+  capture_options& o = s.options;
+  o.validate();  // impossible options are refused before any work
+  const communicator& ranks = program_ranks();
+  o.ranks = &ranks;
+  if (mpi_job() && o.finetune.shard_cells == 0) o.finetune.shard_cells = finetune_options::distributed_shard_cells;
+  const capture_command_inputs in = read_capture_command_inputs(s);
+  std::string stages_text;
+  if (!ranks.root()) {  // the same capture, sharing the fine-tune's steps; rank 0 writes every output
+    const networks nets = choose_networks(s, o, parsed, stages_text);
+    o.checkpoint = {s.out / ".checkpoint", s.resume, s.checkpoint_seconds};
+    o.uncertainty.reset();  // rank 0's alone is written
+    capture_material(in.cap, in.photos, nets, o, in.masks, in.start_maps ? &*in.start_maps : nullptr);
+    return {};
+  }
+  // Outputs stay inside OUT and never replace an input; checked before any work, as is --tileable.
+  refuse_overwriting_inputs(capture_output_files(s, in), in.files);
   output_lock lock(s.out);
   capture_failure_cleanup cleanup(lock, s.out / ".checkpoint");
   const double load_seconds = seconds_since(start);
 
-  std::string stages_text;
   const networks nets = choose_networks(s, o, parsed, stages_text);
   o.checkpoint = {s.out / ".checkpoint", s.resume, s.checkpoint_seconds};
   o.finetune.progress_every = 25;
@@ -272,72 +342,27 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   progress.finish();
   if (o.kernel.auto_tolerance > 0)
     std::fprintf(stderr, "capture: kernel auto -> %s\n", kernel_analysis{result.features, 0, 0, 0}.describe().c_str());
-  if (result.f0_source != "photographs") {
-    const std::string held = result.f0_source == "estimate" ? "the networks' estimate"
-                                                            : "the prior F0 " + std::to_string(o.kernel.prior_f0).substr(0, 4);
-    if (o.kernel.auto_tolerance > 0)
-      std::fprintf(stderr, "capture: F0 is not determined by these photographs (each sees the Fresnel factor F / F0 within %g of 1): "
-                   "fresnel.exr holds %s; a photograph with the light away from the camera at a low angle measures it\n",
-                   o.kernel.auto_tolerance, held.c_str());
-    else  // the kernel was chosen by hand, without the Fresnel term
-      std::fprintf(stderr, "capture: the kernel has no Fresnel term (--kernel), so F0 was not fitted: fresnel.exr holds %s\n",
-                   held.c_str());
-  }
-  if (result.uncertainty) {
-    std::string undetermined;
-    for (int k = 0; k < parameter_count; ++k)
-      if (!result.uncertainty->determined(k)) {
-        char text[64];
-        std::snprintf(text, sizeof text, "%s%s (%.0f%% of texels)", undetermined.empty() ? "" : ", ", parameter_name(k),
-                      100 * result.uncertainty->determined_share[std::size_t(k)]);
-        undetermined += text;
-      }
-    if (!undetermined.empty())
-      std::fprintf(stderr, "capture: these photographs determine on most texels every parameter but %s; uncertainty/ holds each "
-                   "parameter's standard deviation per texel\n", undetermined.c_str());
-  }
+  print_undetermined(result, o);
 
   // Every result file is staged under a temporary name and all are renamed into place together at
   // the end: a failure while producing any of them leaves the folder's earlier results as they were.
   const auto t_write = std::chrono::steady_clock::now();
-  const material_maps& maps = result.maps;  // canonical (capture_material)
-  create_output_folder(s.out);
   file_transaction files;
-  std::vector<fs::path> stale_maps = stage_maps(maps, s.out, files);
-  std::optional<tileable_change> tile_change;
-  if (s.tileable) {
-    const material_maps tile = make_tileable(maps, s.tile);
-    tile_change = compare_tile(maps, tile);
-    const std::vector<fs::path> stale_tile = stage_maps(tile, s.out / "tileable", files);
-    stale_maps.insert(stale_maps.end(), stale_tile.begin(), stale_tile.end());
-  }
-  if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files);
-  if (s.view) {
-    viewer_options view{s.out.filename().string()};
-    const std::optional<material_maps> ratio = result.uncertainty ? std::optional(result.uncertainty->ratio()) : std::nullopt;
-    if (ratio) view.uncertainty = &*ratio;
-    files.stage(s.out / "material.html", viewer_html(maps, view));
-  }
-  const std::vector<image> rerenders = render(maps, in.cap);
-  stage_images(rerenders, in.cap, s.out / "renders", files, in.files);
-  write_png(make_capture_sheet(in.photos, rerenders, maps, in.truth ? &*in.truth : nullptr), s.out / "contact_sheet.png", files);
-  const capture novel = novel_view_set(1, maps.width(), maps.height());
-  stage_images(render(maps, novel), novel, s.out / "novel", files);
+  const staged_capture staged = stage_capture_files(s, in, result, files);
   const double write_seconds = seconds_since(t_write);
-
-  nlohmann::json report = capture_report(s, o, in, result, nets, novel);
+  nlohmann::json report = capture_report(s, o, in, result, nets, staged.novel);
   report["timings"] = {{"load", load_seconds}, {"stages", result.stage_seconds()}, {"write", write_seconds}, {"total", seconds_since(start)}};
   report["peak_memory_bytes"] = peak_resident_bytes();
-  if (tile_change) report["tileable"] = tileable_json(*tile_change, s.tile.overlap);
+  if (staged.tile_change) report["tileable"] = tileable_json(*staged.tile_change, s.tile.overlap);
   files.stage(s.out / "report.json", report.dump(2) + "\n");
   files.commit();
-  remove_stale_files(stale_maps);
+  remove_stale_files(staged.stale_maps);
   cleanup.succeeded = true;
   std::error_code ec;
   fs::remove_all(s.out / ".checkpoint", ec);  // finished: nothing left to resume
   print_capture_summary(result, s.out, seconds_since(start), s.view);
-  if (tile_change) {
-    print_tileable_change(*tile_change);
+  if (staged.tile_change) {
+    print_tileable_change(*staged.tile_change);
     std::fprintf(stderr, "  seamless tile       %s/\n", (s.out / "tileable").c_str());
   }
   return report;

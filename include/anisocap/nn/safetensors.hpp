@@ -223,8 +223,9 @@ struct safetensors_header {
 
 namespace detail {
 
-/// Reads and validates the header of a safetensors file from `in` (opened at its end, binary).
-inline safetensors_header read_safetensors_header(const std::filesystem::path& file, std::ifstream& in) {
+/// The JSON text of a safetensors file's header from `in` (opened at its end, binary), checking
+/// its length against the file's; sets `data_size` to the bytes after it.
+inline std::string read_safetensors_header_text(const std::filesystem::path& file, std::ifstream& in, std::uint64_t& data_size) {
   if (!in) safetensors_fail(file, "cannot open the file");
   const std::uint64_t file_size = std::uint64_t(in.tellg());
   in.seekg(0);
@@ -241,64 +242,53 @@ inline safetensors_header read_safetensors_header(const std::filesystem::path& f
   std::string header(header_length, '\0');
   in.read(header.data(), std::streamsize(header_length));
   if (!in) safetensors_fail(file, "read error");
-  const std::uint64_t data_size = file_size - 8 - header_length;
+  data_size = file_size - 8 - header_length;
+  return header;
+}
 
-  json root;
-  try {
-    root = parse_json(header, file.string() + " (header)");
-  } catch (const json_error& e) {
-    safetensors_fail(file, std::string("bad JSON header: ") + e.what());
+/// One tensor's header entry `v` named `name`, checked: its three keys, a known dtype, integer
+/// dimensions, offsets in order and within the `data_size` bytes, and as many bytes as dtype and
+/// shape need.
+inline safetensors_file::entry parse_safetensors_entry(const std::filesystem::path& file, const std::string& name, const json& o,
+                                                       std::uint64_t data_size) {
+  const std::string where = "tensor '" + name + "'";
+  if (!o.is_object()) safetensors_fail(file, where + " is not a JSON object");
+  for (const char* key : {"dtype", "shape", "data_offsets"})
+    if (!o.contains(key)) safetensors_fail(file, where + " has no \"" + key + "\"");
+  if (o.size() != 3) safetensors_fail(file, where + " has keys other than dtype, shape and data_offsets");
+  safetensors_file::entry e;
+  e.name = name;
+  if (!o.at("dtype").is_string()) safetensors_fail(file, where + ": dtype is not a string");
+  e.dtype = o.at("dtype").get<std::string>();
+  const std::size_t element = safetensors_dtype_size(e.dtype);
+  if (!element) safetensors_fail(file, where + " has unknown dtype '" + e.dtype + "'");
+  if (!o.at("shape").is_array()) safetensors_fail(file, where + ": shape is not an array");
+  for (const auto& d : o.at("shape")) e.shape.push_back(std::int64_t(detail::safetensors_integer(file, d, where + ": a dimension")));
+  if (!o.at("data_offsets").is_array() || o.at("data_offsets").size() != 2)
+    safetensors_fail(file, where + ": data_offsets is not an array of two integers");
+  e.begin = detail::safetensors_integer(file, o.at("data_offsets")[0], where + ": data_offsets[0]");
+  e.end = detail::safetensors_integer(file, o.at("data_offsets")[1], where + ": data_offsets[1]");
+  if (e.begin > e.end) safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] are reversed");
+  if (e.end > data_size)
+    safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
+                               "] out of range: the data region has " + std::to_string(data_size) + " bytes (truncated?)");
+  // Overflow-safe count * element == end - begin.
+  std::size_t count = 1;
+  bool overflow = false;
+  for (auto d : e.shape) {
+    if (d != 0 && count > (std::size_t(-1) / element) / std::size_t(d)) overflow = true;
+    count *= std::size_t(d);
   }
-  if (!root.is_object()) safetensors_fail(file, std::string("the header is a JSON ") + json_kind_name(root) + ", expected an object");
+  if (overflow || count * element != e.end - e.begin)
+    safetensors_fail(file, where + ": " + std::to_string(e.end - e.begin) + " bytes of data, but dtype " + e.dtype + " and shape " +
+                               detail::shape_string(e.shape) + " need " + (overflow ? std::string("more than 2^64") : std::to_string(count * element)));
+  return e;
+}
 
-  std::vector<safetensors_file::entry> entries;
-  std::vector<std::pair<std::string, std::string>> metadata;
-  for (const auto& [name, v] : root.items()) {
-    if (name == "__metadata__") {
-      if (!v.is_object()) safetensors_fail(file, "__metadata__ is not an object");
-      for (const auto& [key, text] : v.items()) {
-        if (!text.is_string()) safetensors_fail(file, "__metadata__ value '" + key + "' is not a string");
-        metadata.emplace_back(key, text.get<std::string>());
-      }
-      continue;
-    }
-    const std::string where = "tensor '" + name + "'";
-    if (!v.is_object()) safetensors_fail(file, where + " is not a JSON object");
-    const json& o = v;
-    for (const char* key : {"dtype", "shape", "data_offsets"})
-      if (!o.contains(key)) safetensors_fail(file, where + " has no \"" + key + "\"");
-    if (o.size() != 3) safetensors_fail(file, where + " has keys other than dtype, shape and data_offsets");
-    safetensors_file::entry e;
-    e.name = name;
-    if (!o.at("dtype").is_string()) safetensors_fail(file, where + ": dtype is not a string");
-    e.dtype = o.at("dtype").get<std::string>();
-    const std::size_t element = safetensors_dtype_size(e.dtype);
-    if (!element) safetensors_fail(file, where + " has unknown dtype '" + e.dtype + "'");
-    if (!o.at("shape").is_array()) safetensors_fail(file, where + ": shape is not an array");
-    for (const auto& d : o.at("shape"))
-      e.shape.push_back(std::int64_t(detail::safetensors_integer(file, d, where + ": a dimension")));
-    if (!o.at("data_offsets").is_array() || o.at("data_offsets").size() != 2)
-      safetensors_fail(file, where + ": data_offsets is not an array of two integers");
-    e.begin = detail::safetensors_integer(file, o.at("data_offsets")[0], where + ": data_offsets[0]");
-    e.end = detail::safetensors_integer(file, o.at("data_offsets")[1], where + ": data_offsets[1]");
-    if (e.begin > e.end) safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] are reversed");
-    if (e.end > data_size)
-      safetensors_fail(file, where + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
-                                 "] out of range: the data region has " + std::to_string(data_size) + " bytes (truncated?)");
-    // Overflow-safe count * element == end - begin.
-    std::size_t count = 1;
-    bool overflow = false;
-    for (auto d : e.shape) {
-      if (d != 0 && count > (std::size_t(-1) / element) / std::size_t(d)) overflow = true;
-      count *= std::size_t(d);
-    }
-    if (overflow || count * element != e.end - e.begin)
-      safetensors_fail(file, where + ": " + std::to_string(e.end - e.begin) + " bytes of data, but dtype " + e.dtype +
-                                 " and shape " + detail::shape_string(e.shape) + " need " +
-                                 (overflow ? std::string("more than 2^64") : std::to_string(count * element)));
-    entries.push_back(std::move(e));
-  }
-  // The tensors must tile the data region: sorted by offset, each starts where the previous ends.
+/// Checks that the tensors tile the data region of `data_size` bytes: sorted by offset, each starts
+/// where the previous ends, and the last ends at its end.
+inline void check_safetensors_tiling(const std::filesystem::path& file, const std::vector<safetensors_file::entry>& entries,
+                                     std::uint64_t data_size) {
   std::vector<const safetensors_file::entry*> by_offset;
   for (const auto& e : entries) by_offset.push_back(&e);
   std::sort(by_offset.begin(), by_offset.end(), [](auto* a, auto* b) { return a->begin != b->begin ? a->begin < b->begin : a->end < b->end; });
@@ -309,8 +299,34 @@ inline safetensors_header read_safetensors_header(const std::filesystem::path& f
                                  std::to_string(position) + (e->begin < position ? " (overlapping tensors)" : " (a gap)"));
     position = e->end;
   }
-  if (position != data_size)
-    safetensors_fail(file, std::to_string(data_size - position) + " bytes of data after the last tensor");
+  if (position != data_size) safetensors_fail(file, std::to_string(data_size - position) + " bytes of data after the last tensor");
+}
+
+/// Reads and validates the header of a safetensors file from `in` (opened at its end, binary).
+inline safetensors_header read_safetensors_header(const std::filesystem::path& file, std::ifstream& in) {
+  std::uint64_t data_size = 0;
+  const std::string header = read_safetensors_header_text(file, in, data_size);
+  json root;
+  try {
+    root = parse_json(header, file.string() + " (header)");
+  } catch (const json_error& e) {
+    safetensors_fail(file, std::string("bad JSON header: ") + e.what());
+  }
+  if (!root.is_object()) safetensors_fail(file, std::string("the header is a JSON ") + json_kind_name(root) + ", expected an object");
+  std::vector<safetensors_file::entry> entries;
+  std::vector<std::pair<std::string, std::string>> metadata;
+  for (const auto& [name, v] : root.items()) {
+    if (name != "__metadata__") {
+      entries.push_back(parse_safetensors_entry(file, name, v, data_size));
+      continue;
+    }
+    if (!v.is_object()) safetensors_fail(file, "__metadata__ is not an object");
+    for (const auto& [key, text] : v.items()) {
+      if (!text.is_string()) safetensors_fail(file, "__metadata__ value '" + key + "' is not a string");
+      metadata.emplace_back(key, text.get<std::string>());
+    }
+  }
+  check_safetensors_tiling(file, entries, data_size);
   return {std::move(entries), std::move(metadata), data_size};
 }
 
