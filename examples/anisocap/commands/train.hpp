@@ -37,8 +37,8 @@ std::vector<std::string> preset_choices() {
   return names;
 }
 
-inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
-  training::train_options& o = s.options;
+/// --preset, with the presets of the network the command trains.
+inline void add_preset_option(CLI::App* cmd, train_settings& s, bool autoencoder) {
   if (autoencoder)
     cmd->add_option("--preset", s.preset, "network widths: compact, paper, or the experimental compact-wide (twice the compact latent), "
                    "compact-fine (a latent cell per 16 x 16 texels instead of 32 x 32), compact-fine-wide (compact-fine with a "
@@ -53,11 +53,10 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
                     "read from a doubled-angle vector), compact-orientation (each photo's structure-tensor orientation as 3 "
                     "more input channels) and compact-orientation-doubled-angle (both)")
         ->check(CLI::IsMember(preset_choices<estimator_paper, program_estimator_presets>()));
-  cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
-  cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
-  cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for the compact-fine presets)"
-                                          : "material size in texels (square; multiple of 64)");
-  cmd->add_option("--batch", o.batch, "materials per step");
+}
+
+/// The learning rate and its schedule: --lr, its decay, warm-up and re-warm-up.
+inline void add_learning_rate_options(CLI::App* cmd, training::train_options& o) {
   cmd->add_option("--lr", o.learning_rate, "Adam learning rate (0: the paper's, 5e-5 estimator / 1e-3 auto-encoder; on --resume, the run's saved rate, "
                   "and another rate is logged and recorded in checkpoint.json)");
   cmd->add_option("--lr-decay-from", o.lr_decay_from,
@@ -81,6 +80,67 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   cmd->add_option("--lr-rewarmup-from", o.lr_rewarmup_from, "the optimiser step at which --lr-rewarmup starts (with it)")
       ->check(CLI::NonNegativeNumber)
       ->default_str("");  // unset (-1) until given
+}
+
+/// The training loss's weights: --render-weight, --lobe-weight, --sigma-weight, --mse-weight,
+/// --diffuse-weight, --normal-weight.
+inline void add_loss_weight_options(CLI::App* cmd, training::train_options& o) {
+  cmd->add_option("--render-weight", o.render_weight,
+                  "weight of the render loss against the L1 term in the training loss (validation always uses 1)");
+  cmd->add_option("--lobe-weight", o.lobe_weight,
+                  "weight of the lobe widths' and rotation's L1 against the other maps' in the training loss (validation always uses 1)");
+  cmd->add_option("--sigma-weight", o.sigma_weight,
+                  "weight of the lobe widths' squared error in the original range (what evaluations measure) added to the training loss "
+                  "(0: none; validation always uses 0)");
+  cmd->add_option("--mse-weight", o.mse_weight,
+                  "weight of a_d's, a'_s', F0's and the normal's squared error in the original ranges (what evaluations measure) added "
+                  "to the training loss (0: none; validation always uses 0)");
+  cmd->add_option("--diffuse-weight", o.diffuse_weight,
+                  "weight of a_d's L1 and squared error against the other maps' in the training loss (validation always uses 1)");
+  cmd->add_option("--normal-weight", o.normal_weight,
+                  "weight of the normal's L1 and squared error against the other maps' in the training loss (validation always "
+                  "uses 1)");
+}
+
+/// train-autoencoder's own options: the smoothness term, the trainable part and the encoder's inputs.
+inline void add_autoencoder_options(CLI::App* cmd, train_settings& s) {
+  training::train_options& o = s.options;
+  cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");
+  cmd->add_option("--latent-noise", o.latent_noise, "standard deviation of the latent step delta");
+  cmd->add_option_function<std::string>(
+         "--trainable", [&o](const std::string& part) { o.encoder_only = part == "encoder"; },
+         "what the run trains: all (default) or encoder (the decoder of the --init weights stays as it is, "
+         "for the pipeline's fine-tune)")
+      ->check(CLI::IsMember({"all", "encoder"}));
+  cmd->add_option("--inputs", s.inputs,
+                  "what the encoder reads: truth (the true maps, default) or estimates (the --input-estimator's estimates "
+                  "of the materials' photos, which is what the pipeline encodes); the loss compares with the truth either way")
+      ->check(CLI::IsMember({"truth", "estimates"}));
+  cmd->add_option("--input-estimator", s.input_estimator, "estimator weights for --inputs estimates (default: the shipped ones)")
+      ->check(CLI::ExistingFile);
+}
+
+/// train-estimator's own options: the training photographs' sensor noise.
+inline void add_estimator_options(CLI::App* cmd, training::train_options& o) {
+  cmd->add_option("--shot-noise", o.input_noise.shot,
+                  "sensor shot noise on the training photographs: each material's get noise at a fraction, uniform in [0, 1], "
+                  "of this level (relative standard deviation at pixel value 1; validation photographs stay exact)")
+      ->check(finite_number(false));
+  cmd->add_option("--read-noise", o.input_noise.read,
+                  "sensor read noise on the training photographs, scaled by the same fraction as --shot-noise")
+      ->check(finite_number(false));
+}
+
+/// The options both trainers share (and each one's own).
+inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
+  training::train_options& o = s.options;
+  add_preset_option(cmd, s, autoencoder);
+  cmd->add_option("--out", o.out_dir, "output folder (checkpoints, weights, validation.csv)")->required();
+  cmd->add_option("--steps", o.steps, "total optimiser steps (a resumed run continues up to this)");
+  cmd->add_option("--size", o.size, autoencoder ? "material size in texels (square; a multiple of the preset's latent cell: 32, or 16 for the compact-fine presets)"
+                                          : "material size in texels (square; multiple of 64)");
+  cmd->add_option("--batch", o.batch, "materials per step");
+  add_learning_rate_options(cmd, o);
   cmd->add_option("--seed", o.seed, "run seed (initial weights and training materials)");
   cmd->add_option("--checkpoint-minutes", o.checkpoint_minutes, "minutes between checkpoints");
   cmd->add_option("--validate-every", o.validate_every, "steps between validations");
@@ -106,45 +166,10 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
       ->check(family_list_check());
   cmd->add_option("--emphasis-share", o.emphasis_share, "fraction of the materials drawn from the --emphasis families")
       ->check(CLI::Range(0.0, 1.0));
-  cmd->add_option("--render-weight", o.render_weight,
-                  "weight of the render loss against the L1 term in the training loss (validation always uses 1)");
-  cmd->add_option("--lobe-weight", o.lobe_weight,
-                  "weight of the lobe widths' and rotation's L1 against the other maps' in the training loss (validation always uses 1)");
-  cmd->add_option("--sigma-weight", o.sigma_weight,
-                  "weight of the lobe widths' squared error in the original range (what evaluations measure) added to the training loss "
-                  "(0: none; validation always uses 0)");
-  cmd->add_option("--mse-weight", o.mse_weight,
-                  "weight of a_d's, a'_s', F0's and the normal's squared error in the original ranges (what evaluations measure) added "
-                  "to the training loss (0: none; validation always uses 0)");
-  cmd->add_option("--diffuse-weight", o.diffuse_weight,
-                  "weight of a_d's L1 and squared error against the other maps' in the training loss (validation always uses 1)");
-  cmd->add_option("--normal-weight", o.normal_weight,
-                  "weight of the normal's L1 and squared error against the other maps' in the training loss (validation always "
-                  "uses 1)");
+  add_loss_weight_options(cmd, o);
   cmd->add_option("--init", o.init_weights, "start a fresh run from these weights (safetensors) instead of random ones")->check(CLI::ExistingFile);
-  if (autoencoder) {
-    cmd->add_option("--smoothness", o.smoothness_weight, "weight of the latent smoothness term");
-    cmd->add_option("--latent-noise", o.latent_noise, "standard deviation of the latent step delta");
-    cmd->add_option_function<std::string>(
-           "--trainable", [&o](const std::string& part) { o.encoder_only = part == "encoder"; },
-           "what the run trains: all (default) or encoder (the decoder of the --init weights stays as it is, "
-           "for the pipeline's fine-tune)")
-        ->check(CLI::IsMember({"all", "encoder"}));
-    cmd->add_option("--inputs", s.inputs,
-                    "what the encoder reads: truth (the true maps, default) or estimates (the --input-estimator's estimates "
-                    "of the materials' photos, which is what the pipeline encodes); the loss compares with the truth either way")
-        ->check(CLI::IsMember({"truth", "estimates"}));
-    cmd->add_option("--input-estimator", s.input_estimator, "estimator weights for --inputs estimates (default: the shipped ones)")
-        ->check(CLI::ExistingFile);
-  } else {
-    cmd->add_option("--shot-noise", o.input_noise.shot,
-                    "sensor shot noise on the training photographs: each material's get noise at a fraction, uniform in [0, 1], "
-                    "of this level (relative standard deviation at pixel value 1; validation photographs stay exact)")
-        ->check(finite_number(false));
-    cmd->add_option("--read-noise", o.input_noise.read,
-                    "sensor read noise on the training photographs, scaled by the same fraction as --shot-noise")
-        ->check(finite_number(false));
-  }
+  if (autoencoder) add_autoencoder_options(cmd, s);
+  else add_estimator_options(cmd, o);
 }
 
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
