@@ -430,6 +430,131 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
 
 }  // namespace capture_detail
 
+namespace capture_detail {
+
+/// Throws std::invalid_argument for what capture_once cannot run: no photograph per configuration,
+/// network stages without networks, start maps beside the estimate, impossible stage options.
+inline void validate_once(const capture_options& o, std::size_t photos, std::size_t configurations, bool has_networks, bool start) {
+  if (photos == 0 || photos != configurations) throw std::invalid_argument("capture_once: need one photograph per configuration");
+  if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_once: the estimate and encode stages need networks");
+  if (start && o.stages.estimate) throw std::invalid_argument("capture_once: start maps replace the estimate stage");
+  o.refine.validate();
+  if (o.stages.estimate) o.estimate.validate();
+  if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
+    throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
+  for (int r : o.neighbour_restarts)
+    if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
+  if (o.stages.finetune) o.finetune.validate();
+  o.validate_precision();
+}
+
+/// The kernel a capture fits with, and the F0 it keeps where that kernel leaves Fresnel out.
+struct kernel_choice {
+  brdf_features features;       ///< the kernel's features
+  std::vector<float> prior_f0;  ///< per texel: the estimate's (or the start's) F0, else the prior
+  /// Writes prior_f0 into `m` where the kernel has no Fresnel term.
+  void keep_prior_f0(material_maps& m) const {
+    if (!features.fresnel) std::copy(prior_f0.begin(), prior_f0.end(), m.plane(fresnel_f0));
+  }
+};
+
+/// Chooses the kernel for `maps` under `cap`: o.kernel's features, or with auto_tolerance the
+/// cheapest that renders them as the full one does. The kernel is chosen on the maps as they will
+/// be written (F0 the estimate's where `estimated_f0`, else the prior), so that the full kernel
+/// renders them on these configurations as the reduced one does.
+inline kernel_choice choose_kernel(const material_maps& maps, const capture& cap, const capture_options& o, bool estimated_f0) {
+  kernel_choice k;
+  k.prior_f0 = estimated_f0 ? std::vector<float>(maps.plane(fresnel_f0), maps.plane(fresnel_f0) + maps.texel_count())
+                            : std::vector<float>(maps.texel_count(), o.kernel.prior_f0);
+  if (o.kernel.auto_tolerance > 0 && estimated_f0) {
+    k.features = analyse_kernel(maps, cap, o.kernel.auto_tolerance).features;  // F0 as written already
+  } else if (o.kernel.auto_tolerance > 0) {
+    material_maps analysed = maps;
+    std::copy(k.prior_f0.begin(), k.prior_f0.end(), analysed.plane(fresnel_f0));
+    k.features = analyse_kernel(analysed, cap, o.kernel.auto_tolerance).features;
+  } else {
+    k.features = o.kernel.features;
+  }
+  return k;
+}
+
+/// A stage's progress callback: o.progress with the stage's name, or none.
+inline std::function<void(const optimisation_progress&)> stage_reporter(const capture_options& o, const char* stage) {
+  return o.progress ? std::function<void(const optimisation_progress&)>([&o, stage](const optimisation_progress& p) { o.progress(stage, p); })
+                    : nullptr;
+}
+
+/// 4. The per-texel refine of `maps` (8.4) with `features`, its second start and neighbour restarts
+/// as `o` asks; returns its report.
+inline stage_report refine_stage(material_maps& maps, const capture& cap, const loss_targets& targets, const capture_options& o,
+                                 brdf_features features) {
+  refine_options ro = o.refine;
+  ro.render = o.render;
+  ro.ranks = o.ranks;  // the texel groups shared over the ranks
+  if (!ro.progress) ro.progress = stage_reporter(o, "refine");
+  stage_report r{"refine", true};
+  if (o.second_start_lobe_width > 0) {
+    const two_start_result tr = with_features(features, [&]<brdf_features F>() {
+      return refine_two_starts<F>(maps, cap, targets, o.second_start_lobe_width, ro);
+    });
+    r = {"refine", true, false, tr.first.steps + tr.second.steps, tr.final_loss, tr.seconds,
+         0.5 * (tr.first.evaluated_fraction + tr.second.evaluated_fraction)};
+    r.replaced_fraction = tr.replaced_fraction;
+  } else {
+    const refine_result rr = with_features(features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
+    r = {"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction};
+  }
+  if (!o.neighbour_restarts.empty()) {
+    refine_options rounds = ro;
+    if (!o.refine.progress) rounds.progress = stage_reporter(o, "restart");  // each round's refine
+    const neighbour_restart_result nr = with_features(features, [&]<brdf_features F>() {
+      return refine_neighbour_restarts<F>(maps, cap, targets, o.neighbour_restarts, rounds);
+    });
+    r.steps += nr.steps;
+    r.loss = nr.final_loss;
+    r.seconds += nr.seconds;
+    r.restart_replaced_fractions = nr.replaced_fraction;
+  }
+  return r;
+}
+
+/// 2. Encode (8.2) and 3. fine-tune the decoder (8.3) as `o.stages` asks, from `maps` (replaced by
+/// the decoding, then the fine-tuned maps), appending their reports to `result`. Returns false when
+/// the fine-tune stopped early as if killed (finetune_options::stop_after): its check-point holds the rest.
+template <class AutoEncoderNet>
+bool network_stages(AutoEncoderNet& autoencoder, material_maps& maps, const capture& cap, const loss_targets& targets,
+                    const capture_options& o, const kernel_choice& kernel, const communicator& comm, capture_result& result) {
+  if (!o.stages.encode) return true;
+  const int W = targets.width, H = targets.height;  // the photographs' size
+  auto image_loss = [&](const material_maps& m) {
+    return with_features(kernel.features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
+  };
+  stage_report enc{"encode", true};
+  const auto t1 = std::chrono::steady_clock::now();
+  const auto z = encode(autoencoder, maps);
+  // The residual start keeps the estimate as the fine-tune's start (D(z) + r = the estimate).
+  std::optional<tensor<parameter_count, float>> residual;
+  if (o.stages.finetune && o.finetune.residual) residual = decoder_residual(autoencoder, z, maps);
+  enc.seconds = seconds_since(t1);
+  maps = decode(autoencoder, z, W, H, residual ? &*residual : nullptr);
+  enc.loss = image_loss(maps);
+  result.stages.push_back(enc);
+  if (!o.stages.finetune) return true;
+  finetune_options fo = o.finetune;
+  if (!fo.progress) fo.progress = stage_reporter(o, "finetune");
+  checkpoint_options co = o.checkpoint;
+  if (!co.folder.empty()) co.folder /= "finetune";
+  finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, kernel.features, o.render, enc.loss, fo, co,
+                                residual ? &*residual : nullptr, comm);
+  maps = std::move(fr.maps);
+  kernel.keep_prior_f0(maps);
+  result.after_finetune = maps;
+  result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});
+  return !fr.stopped;
+}
+
+}  // namespace capture_detail
+
 /// One run of exactly the stages and options in `o` (capture_material, the entry point, resolves
 /// the schedules and adds the second runs): the map set of one material from its photographs (one
 /// per configuration of `cap`). `estimator` and `autoencoder` hold trained weights for the stages that use them; pass
@@ -443,20 +568,8 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
                             AutoEncoderNet& autoencoder, const capture_options& o, const material_maps* start = nullptr,
                             const std::vector<image>& masks = {}) {
   namespace fs = std::filesystem;
-  using clock = std::chrono::steady_clock;
-  if (given_photos.empty() || given_photos.size() != given_cap.images.size())
-    throw std::invalid_argument("capture_once: need one photograph per configuration");
   constexpr bool has_networks = !std::is_same_v<Estimator, no_networks> && !std::is_same_v<AutoEncoderNet, no_networks>;
-  if (o.stages.networks() && !has_networks) throw std::invalid_argument("capture_once: the estimate and encode stages need networks");
-  if (start && o.stages.estimate) throw std::invalid_argument("capture_once: start maps replace the estimate stage");
-  o.refine.validate();
-  if (o.stages.estimate) o.estimate.validate();
-  if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
-    throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
-  for (int r : o.neighbour_restarts)
-    if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
-  if (o.stages.finetune) o.finetune.validate();
-  o.validate_precision();
+  capture_detail::validate_once(o, given_photos.size(), given_cap.images.size(), has_networks, start != nullptr);
   const nn::precision_scope precision(o.network_precision);
   capture_result result;
   if (o.normalise_exposure) result.exposure_scale = exposure_scale(given_cap);
@@ -464,13 +577,8 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   const capture& cap = fitted.configurations;
   const std::vector<image>& photos = fitted.photographs;
   const loss_targets& targets = fitted.targets;
-  const int W = photos[0].width(), H = photos[0].height();
   auto image_loss = [&](const material_maps& m, brdf_features features) {
     return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
-  };
-  auto reporter = [&](const char* stage) {
-    return o.progress ? std::function<void(const optimisation_progress&)>([&o, stage](const optimisation_progress& p) { o.progress(stage, p); })
-                      : nullptr;
   };
   const communicator& comm = o.ranks ? *o.ranks : serial_communicator();
   const bool checkpoints = !o.checkpoint.folder.empty();
@@ -483,108 +591,40 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
       comm.root_decides([&] { return checkpoints && o.checkpoint.resume && fs::exists(estimate_folder / "diffuse.exr"); });
 
   // 1. Estimate (8.1), or the first guess.
-  const auto t0 = clock::now();
+  const auto t0 = std::chrono::steady_clock::now();
   stage_report first{o.stages.estimate ? "estimate" : "first_guess", o.stages.estimate};
   material_maps maps;
   if (resume_estimate) {
     maps = read_maps(estimate_folder);
     first.resumed = true;
   } else if (o.stages.estimate) {
-    if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, reporter("estimate"), comm);
+    if constexpr (has_networks) maps = estimate(photos, estimator, o.estimate, capture_detail::stage_reporter(o, "estimate"), comm);
     if (checkpoints && comm.root()) write_maps(maps, estimate_folder, false);
   } else {
     maps = start ? *start : initial_guess(cap, photos, {}, masks);
     first.ran = !start;
   }
-  // F0 where the kernel leaves Fresnel out: the estimate's (or the start's), else the prior. The
-  // kernel is chosen on the maps as they will be written, so that the full kernel renders them on
-  // these configurations as the reduced one does.
+  // F0 where the kernel leaves Fresnel out: the estimate's (or the start's), else the prior.
   const bool estimated_f0 = o.stages.estimate || start;
-  const std::vector<float> prior_f0 = estimated_f0 ? std::vector<float>(maps.plane(fresnel_f0), maps.plane(fresnel_f0) + maps.texel_count())
-                                                   : std::vector<float>(maps.texel_count(), o.kernel.prior_f0);
-  auto keep_prior_f0 = [&](material_maps& m) {
-    if (!result.features.fresnel) std::copy(prior_f0.begin(), prior_f0.end(), m.plane(fresnel_f0));
-  };
-  if (o.kernel.auto_tolerance > 0 && estimated_f0) {
-    result.features = analyse_kernel(maps, cap, o.kernel.auto_tolerance).features;  // F0 as written already
-  } else if (o.kernel.auto_tolerance > 0) {
-    material_maps analysed = maps;
-    std::copy(prior_f0.begin(), prior_f0.end(), analysed.plane(fresnel_f0));
-    result.features = analyse_kernel(analysed, cap, o.kernel.auto_tolerance).features;
-  } else {
-    result.features = o.kernel.features;
-  }
+  const capture_detail::kernel_choice kernel = capture_detail::choose_kernel(maps, cap, o, estimated_f0);
+  result.features = kernel.features;
   if (!result.features.fresnel) result.f0_source = estimated_f0 ? "estimate" : "prior";
   first.loss = image_loss(maps, result.features);
   first.seconds = seconds_since(t0);
   result.stages.push_back(first);
 
-  // 2. Encode (8.2) and 3. fine-tune the decoder (8.3).
+  // 2. Encode and 3. fine-tune the decoder.
   if constexpr (has_networks) {
-    if (o.stages.encode) {
-      stage_report enc{"encode", true};
-      const auto t1 = clock::now();
-      const auto z = encode(autoencoder, maps);
-      // The residual start keeps the estimate as the fine-tune's start (D(z) + r = the estimate).
-      std::optional<tensor<parameter_count, float>> residual;
-      if (o.stages.finetune && o.finetune.residual) residual = decoder_residual(autoencoder, z, maps);
-      enc.seconds = seconds_since(t1);
-      maps = decode(autoencoder, z, W, H, residual ? &*residual : nullptr);
-      enc.loss = image_loss(maps, result.features);
-      result.stages.push_back(enc);
-      if (o.stages.finetune) {
-        finetune_options fo = o.finetune;
-        if (!fo.progress) fo.progress = reporter("finetune");
-        checkpoint_options co = o.checkpoint;
-        if (checkpoints) co.folder /= "finetune";
-        finetune_result fr = finetune(autoencoder, z, W, H, cap, targets, result.features, o.render, enc.loss, fo, co,
-                                      residual ? &*residual : nullptr, comm);
-        maps = std::move(fr.maps);
-        keep_prior_f0(maps);
-        result.after_finetune = maps;
-        result.stages.push_back({"finetune", true, fr.resumed, fr.steps, fr.loss, fr.seconds, 1.0, fr.restarts});
-        if (fr.stopped) {  // as if killed: the check-point holds the rest
-          result.stopped = true;
-          result.loss = image_loss(maps, all_features);
-          result.maps = std::move(maps);
-          return result;
-        }
-      }
+    if (!capture_detail::network_stages(autoencoder, maps, cap, targets, o, kernel, comm, result)) {
+      result.stopped = true;  // as if killed: the check-point holds the rest
+      result.loss = image_loss(maps, all_features);
+      result.maps = std::move(maps);
+      return result;
     }
   }
-
-  // 4. Refine per texel (8.4).
-  if (o.stages.refine) {
-    refine_options ro = o.refine;
-    ro.render = o.render;
-    ro.ranks = o.ranks;  // the texel groups shared over the ranks
-    if (!ro.progress) ro.progress = reporter("refine");
-    if (o.second_start_lobe_width > 0) {
-      const two_start_result tr = with_features(result.features, [&]<brdf_features F>() {
-        return refine_two_starts<F>(maps, cap, targets, o.second_start_lobe_width, ro);
-      });
-      stage_report r{"refine", true, false, tr.first.steps + tr.second.steps, tr.final_loss, tr.seconds,
-                     0.5 * (tr.first.evaluated_fraction + tr.second.evaluated_fraction)};
-      r.replaced_fraction = tr.replaced_fraction;
-      result.stages.push_back(r);
-    } else {
-      const refine_result rr = with_features(result.features, [&]<brdf_features F>() { return refine<F>(maps, cap, targets, ro); });
-      result.stages.push_back({"refine", true, false, rr.steps, rr.final_loss, rr.seconds, rr.evaluated_fraction});
-    }
-    if (!o.neighbour_restarts.empty()) {
-      refine_options rounds = ro;
-      if (!o.refine.progress) rounds.progress = reporter("restart");  // each round's refine
-      const neighbour_restart_result nr = with_features(result.features, [&]<brdf_features F>() {
-        return refine_neighbour_restarts<F>(maps, cap, targets, o.neighbour_restarts, rounds);
-      });
-      stage_report& r = result.stages.back();
-      r.steps += nr.steps;
-      r.loss = nr.final_loss;
-      r.seconds += nr.seconds;
-      r.restart_replaced_fractions = nr.replaced_fraction;
-    }
-  }
-  keep_prior_f0(maps);
+  // 4. Refine per texel.
+  if (o.stages.refine) result.stages.push_back(capture_detail::refine_stage(maps, cap, targets, o, result.features));
+  kernel.keep_prior_f0(maps);
   result.loss = image_loss(maps, all_features);
   result.maps = std::move(maps);
   return result;
