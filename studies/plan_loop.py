@@ -18,11 +18,9 @@ markdown table of the means.
 
     studies/plan_loop.py build/anisocap OUT [--size 64] [--start 6] [--seeds 1] [--families plain,...]
 """
-import argparse
 import json
 import math
 import pathlib
-import subprocess
 import sys
 
 import numpy as np
@@ -30,15 +28,10 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent / "reference"))
 from exr import read_rgb  # noqa: E402
 
-FAMILIES = ["plain", "basket", "twill", "herringbone", "satin", "velvet", "brushed", "spun"]
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from program_runs import FAMILIES, parse_arguments, run  # noqa: E402
+
 STRATEGIES = ["start", "plan", "rule", "random"]
-
-
-def run(args, cwd):
-    r = subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"plan_loop: {' '.join(map(str, args))} failed:\n{r.stdout}{r.stderr}")
-    return r.stdout + r.stderr
 
 
 def plan_file(capture_json, indices, path):
@@ -73,17 +66,7 @@ def grazing_error(binary, maps, truth_views, grazing, out, cwd):
 
 
 def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("binary")
-    p.add_argument("out")
-    p.add_argument("--size", type=int, default=64)
-    p.add_argument("--start", type=int, default=6)
-    p.add_argument("--seeds", type=int, default=1)
-    p.add_argument("--families", default=",".join(FAMILIES))
-    a = p.parse_args()
-    binary = pathlib.Path(a.binary).resolve()
-    out = pathlib.Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    a, binary, out = parse_arguments(__doc__, 1, lambda p: p.add_argument("--start", type=int, default=6))
     grazing = grazing_capture(out).resolve()
     sums = {s: np.zeros(3) for s in STRATEGIES}
     wins = {s: np.zeros(3, dtype=int) for s in STRATEGIES[1:]}

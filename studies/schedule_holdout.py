@@ -11,11 +11,9 @@ Prints one line per material and a markdown table of the means per family group.
 
     studies/schedule_holdout.py build/anisocap OUT [--size 64] [--seeds 2] [--families plain,...]
 """
-import argparse
 import json
 import pathlib
 import struct
-import subprocess
 import sys
 import zlib
 
@@ -24,16 +22,11 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent / "reference"))
 from exr import read_rgb  # noqa: E402
 
-FAMILIES = ["plain", "basket", "twill", "herringbone", "satin", "velvet", "brushed", "spun"]
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from program_runs import FAMILIES, parse_arguments, run  # noqa: E402
+
 METALS = {"brushed", "spun"}
 SCHEDULES = ["fast", "auto", "thorough"]
-
-
-def run(args, cwd):
-    r = subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"schedule_holdout: {' '.join(map(str, args))} failed:\n{r.stdout}{r.stderr}")
-    return r.stdout + r.stderr
 
 
 def read_png_gray(path):
@@ -91,16 +84,7 @@ def heldout_error(rendered, photo, mask, floor):
 
 
 def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("binary")
-    p.add_argument("out")
-    p.add_argument("--size", type=int, default=64)
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--families", default=",".join(FAMILIES))
-    a = p.parse_args()
-    binary = pathlib.Path(a.binary).resolve()
-    out = pathlib.Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    a, binary, out = parse_arguments(__doc__, 2)
     rows = []
     for family in a.families.split(","):
         for s in range(a.seeds):

@@ -131,15 +131,23 @@ inline json camera_to_json(const camera_description& c) {
 
 }  // namespace photos_detail
 
-/// Parses the text of photos.json; `path` names it in errors (io_error). Does not read the images.
-inline photos_description parse_photos_description(std::string_view text, const std::filesystem::path& path) {
-  using photos_detail::json;
-  json root;
+namespace photos_detail {
+
+/// Parses the JSON text of the file `path`; malformed JSON is an io_error naming it.
+inline json parse_file_text(std::string_view text, const std::filesystem::path& path) {
   try {
-    root = json::parse(text);
+    return json::parse(text);
   } catch (const json::parse_error& e) {
     throw io_error(path, std::string("malformed JSON: ") + e.what());
   }
+}
+
+}  // namespace photos_detail
+
+/// Parses the text of photos.json; `path` names it in errors (io_error). Does not read the images.
+inline photos_description parse_photos_description(std::string_view text, const std::filesystem::path& path) {
+  using photos_detail::json;
+  const json root = photos_detail::parse_file_text(text, path);
   const photos_detail::object_reader top{root, path, "top level"};
   top.only({"sample", "camera", "photos"});
   for (const char* key : {"sample", "camera", "photos"})

@@ -55,12 +55,7 @@ inline std::string plan_to_json(const plan_result& plan, const std::string& resu
 /// photograph whose light is not at its camera.
 inline std::vector<plan_candidate> parse_plan_photos(std::string_view text, const std::filesystem::path& path) {
   using photos_detail::json;
-  json root;
-  try {
-    root = json::parse(text);
-  } catch (const json::parse_error& e) {
-    throw io_error(path, std::string("malformed JSON: ") + e.what());
-  }
+  const json root = photos_detail::parse_file_text(text, path);
   const photos_detail::object_reader top{root, path, "top level"};
   if (!root.is_object()) top.fail(std::string("expected an object, got ") + root.type_name());
   const json* list = top.find("photos");
