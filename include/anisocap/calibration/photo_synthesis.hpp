@@ -218,10 +218,69 @@ inline planar_pose configuration_pose(const vec3f& camera, double longest_mm) {
   return look_at(c, Eigen::Vector3d::Zero(), up);
 }
 
+namespace photo_synthesis_detail {
+
+/// The focal length (pixels) that fits every corner of the sample into `fill` of a width x height
+/// frame seen from `pose`; throws std::invalid_argument naming configuration `index` when the
+/// sample is behind the camera.
+inline double framing_focal_length(const planar_pose& pose, const std::array<Eigen::Vector3d, 4>& corners, const photo_synthesis_options& o,
+                                   std::size_t index) {
+  double focal = 1e30;
+  for (const auto& p : corners) {
+    const Eigen::Vector3d q = pose.rotation * p + pose.translation;
+    if (!(q.z() > 0)) throw std::invalid_argument("photograph: configuration " + std::to_string(index) + " has the sample behind the camera");
+    const double ax = std::abs(q.x() / q.z()), ay = std::abs(q.y() / q.z());
+    if (ax > 0) focal = std::min(focal, o.fill * 0.5 * o.width / ax);
+    if (ay > 0) focal = std::min(focal, o.fill * 0.5 * o.height / ay);
+  }
+  return focal;
+}
+
+/// The exposure that maps the white_fraction quantile of the photo's brightest channel (over the
+/// pixels that see anything) to 1; 1 for a black photo.
+inline double photo_exposure(const image& photo, double white_fraction) {
+  std::vector<float> values;
+  for (std::size_t k = 0; k < photo.pixel_count(); ++k) {
+    const float v = std::max({photo.plane(0)[k], photo.plane(1)[k], photo.plane(2)[k]});
+    if (v > 0) values.push_back(v);
+  }
+  if (values.empty()) return 1;
+  const std::size_t q = std::min(values.size() - 1, std::size_t(white_fraction * double(values.size())));
+  std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(q), values.end());
+  return values[q] > 0 ? 1.0 / values[q] : 1.0;
+}
+
+/// The file bytes of an exposed linear photo in o.format: linear EXR clipped at 1, or 8-bit sRGB
+/// JPEG or PNG clipped to [0, 1]. `name` names it in errors.
+inline std::vector<unsigned char> encode_photo(image photo, const photo_synthesis_options& o, const std::string& name) {
+  if (o.format == photo_format::linear_exr) {
+    for (int c = 0; c < 3; ++c)
+      for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = std::min(photo.plane(c)[k], 1.0f);
+    return detail::encode_exr(photo, name);
+  }
+  std::vector<unsigned char> pixels(photo.pixel_count() * 3), bytes;
+  for (std::size_t k = 0; k < photo.pixel_count(); ++k)
+    for (int c = 0; c < 3; ++c)
+      pixels[k * 3 + std::size_t(c)] =
+          static_cast<unsigned char>(std::lround(255.0 * linear_to_srgb(std::clamp(double(photo.plane(c)[k]), 0.0, 1.0))));
+  auto append = [](void* context, void* data, int size) {
+    auto* b = static_cast<std::vector<unsigned char>*>(context);
+    b->insert(b->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
+  };
+  const bool written = o.format == photo_format::jpeg
+                           ? stbi_write_jpg_to_func(append, &bytes, photo.width(), photo.height(), 3, pixels.data(), o.jpeg_quality)
+                           : stbi_write_png_to_func(append, &bytes, photo.width(), photo.height(), 3, pixels.data(), photo.width() * 3);
+  if (!written) throw std::runtime_error("photograph: image encoding failed");
+  return bytes;
+}
+
+}  // namespace photo_synthesis_detail
+
 /// Photographs `maps` from every configuration of `configurations` (capture units, e.g. set_alpha)
 /// with a pinhole camera whose focal length frames the sample (options.fill); see the file comment.
 inline synthetic_photographs photograph_capture(const material_maps& maps, const capture& configurations,
                                                 const photo_synthesis_options& o) {
+  using namespace photo_synthesis_detail;
   if (o.width < 2 || o.height < 2) throw std::invalid_argument("photograph: photo size must be at least 2 x 2");
   if (!(o.fill > 0 && o.fill <= 1)) throw std::invalid_argument("photograph: fill must be in (0, 1]");
   if (!(o.white_fraction > 0 && o.white_fraction <= 1)) throw std::invalid_argument("photograph: white fraction must be in (0, 1]");
@@ -241,16 +300,7 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
     photo_setup setup;
     setup.pose = configuration_pose(config.camera, o.longest_mm);
     setup.camera.principal_point = {0.5 * (o.width - 1), 0.5 * (o.height - 1)};
-    // The focal length that fits every corner into `fill` of the frame.
-    double focal = 1e30;
-    for (const auto& p : corners) {
-      const Eigen::Vector3d q = setup.pose.rotation * p + setup.pose.translation;
-      if (!(q.z() > 0)) throw std::invalid_argument("photograph: configuration " + std::to_string(i) + " has the sample behind the camera");
-      const double ax = std::abs(q.x() / q.z()), ay = std::abs(q.y() / q.z());
-      if (ax > 0) focal = std::min(focal, o.fill * 0.5 * o.width / ax);
-      if (ay > 0) focal = std::min(focal, o.fill * 0.5 * o.height / ay);
-    }
-    setup.camera.focal_length = focal;
+    setup.camera.focal_length = framing_focal_length(setup.pose, corners, o, i);
     capture_image texture_config = config;
     photo_entry entry;
     char name[32];
@@ -273,52 +323,21 @@ inline synthetic_photographs photograph_capture(const material_maps& maps, const
       entry.light.position_mm = {setup.light_mm.x(), setup.light_mm.y(), setup.light_mm.z()};
     }
     image photo = render_photograph(maps, o.longest_mm, setup, o.width, o.height, o.samples_per_axis, o.lookup, o.surround.get());
-    // Exposure: the white_fraction quantile of the sample's brightest channel maps to 1.
-    std::vector<float> values;
-    for (std::size_t k = 0; k < photo.pixel_count(); ++k) {
-      const float v = std::max({photo.plane(0)[k], photo.plane(1)[k], photo.plane(2)[k]});
-      if (v > 0) values.push_back(v);
-    }
-    double exposure = 1;
-    if (!values.empty()) {
-      const std::size_t q = std::min(values.size() - 1, std::size_t(o.white_fraction * double(values.size())));
-      std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(q), values.end());
-      if (values[q] > 0) exposure = 1.0 / values[q];
-    }
+    const double exposure = photo_exposure(photo, o.white_fraction);
     for (int c = 0; c < 3; ++c)
       for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] *= float(exposure);
     add_sensor_noise(photo, o.noise, hash64(o.seed + 0x70686f746fULL * (i + 1)));
-    std::vector<unsigned char> bytes;
-    if (o.format == photo_format::linear_exr) {
-      for (int c = 0; c < 3; ++c)
-        for (std::size_t k = 0; k < photo.pixel_count(); ++k) photo.plane(c)[k] = std::min(photo.plane(c)[k], 1.0f);
-      bytes = detail::encode_exr(photo, entry.file);
-    } else {
-      std::vector<unsigned char> pixels(photo.pixel_count() * 3);
-      for (std::size_t k = 0; k < photo.pixel_count(); ++k)
-        for (int c = 0; c < 3; ++c)
-          pixels[k * 3 + std::size_t(c)] =
-              static_cast<unsigned char>(std::lround(255.0 * linear_to_srgb(std::clamp(double(photo.plane(c)[k]), 0.0, 1.0))));
-      auto append = [](void* context, void* data, int size) {
-        auto* b = static_cast<std::vector<unsigned char>*>(context);
-        b->insert(b->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
-      };
-      const bool written = o.format == photo_format::jpeg
-                               ? stbi_write_jpg_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.jpeg_quality)
-                               : stbi_write_png_to_func(append, &bytes, o.width, o.height, 3, pixels.data(), o.width * 3);
-      if (!written) throw std::runtime_error("photograph: image encoding failed");
-    }
     corner_pixels c;
     for (int k = 0; k < 4; ++k) c[std::size_t(k)] = project(setup.camera, setup.pose, corners[std::size_t(k)]);
     entry.corners = c;
     const float scaled = float(exposure);
     entry.intensity = {setup.intensity[0] * scaled, setup.intensity[1] * scaled, setup.intensity[2] * scaled};
     camera_description camera;
-    camera.focal_length_px = focal;
+    camera.focal_length_px = setup.camera.focal_length;
     entry.camera = camera;
     texture_config.file = config.file;
     out.description.photos.push_back(entry);
-    out.encoded.push_back(std::move(bytes));
+    out.encoded.push_back(encode_photo(std::move(photo), o, entry.file));
     out.setups.push_back(setup);
     out.exposures.push_back(exposure);
     out.texture_capture.images.push_back(texture_config);
