@@ -428,10 +428,6 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
   write_file_atomically(file, now.text());
 }
 
-}  // namespace capture_detail
-
-namespace capture_detail {
-
 /// Throws std::invalid_argument for what capture_once cannot run: no photograph per configuration,
 /// network stages without networks, start maps beside the estimate, impossible stage options.
 inline void validate_once(const capture_options& o, std::size_t photos, std::size_t configurations, bool has_networks, bool start) {
