@@ -149,10 +149,12 @@ inline void run_photograph_command(const photograph_settings& s) {
   o.format = s.format == "png" ? photo_format::png : s.format == "exr" ? photo_format::linear_exr : photo_format::jpeg;
   const material_maps truth = photograph_material(s);
   const capture configurations = photograph_configurations(s, truth, o);
+  std::optional<marker_frame> frame;
   if (s.marker_frame) {
+    frame = photograph_frame(s, truth, o.longest_mm);
     // The sheet as printed at 4 dots per mm, lying flat around the sample.
     auto sheet = std::make_shared<printed_surround>();
-    sheet->albedo = draw_marker_frame(photograph_frame(s, truth, o.longest_mm), 4.0);
+    sheet->albedo = draw_marker_frame(*frame, 4.0);
     sheet->width_mm = sheet->albedo.width() / 4.0;
     sheet->height_mm = sheet->albedo.height() / 4.0;
     o.surround = sheet;
@@ -162,13 +164,12 @@ inline void run_photograph_command(const photograph_settings& s) {
   const texture_space_captures texture_space = render_texture_space(truth, photos, o.noise, noise_seed, s.floor);
   write_maps(truth, s.out / "truth");
   write_synthetic_photographs(photos, s.out / "photos");
-  if (s.marker_frame) {
+  if (frame) {
     // As a user would: "corners" left out where the tags are found in the photograph, given
     // (here: exact) where they are not, e.g. in grazing views.
-    const marker_frame frame = photograph_frame(s, truth, o.longest_mm);
     for (auto& entry : photos.description.photos) {
       try {
-        find_corners_from_markers(read_photo(s.out / "photos" / entry.file), frame, entry.file);
+        find_corners_from_markers(read_photo(s.out / "photos" / entry.file), *frame, entry.file);
         entry.corners.reset();
       } catch (const calibration_error&) {
         std::fprintf(stderr, "photograph: %s: too few of the frame's tags found, its corners stay in photos.json\n", entry.file.c_str());

@@ -522,9 +522,6 @@ bool network_stages(AutoEncoderNet& autoencoder, material_maps& maps, const capt
                     const capture_options& o, const kernel_choice& kernel, const communicator& comm, capture_result& result) {
   if (!o.stages.encode) return true;
   const int W = targets.width, H = targets.height;  // the photographs' size
-  auto image_loss = [&](const material_maps& m) {
-    return with_features(kernel.features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
-  };
   stage_report enc{"encode", true};
   const auto t1 = std::chrono::steady_clock::now();
   const auto z = encode(autoencoder, maps);
@@ -533,7 +530,7 @@ bool network_stages(AutoEncoderNet& autoencoder, material_maps& maps, const capt
   if (o.stages.finetune && o.finetune.residual) residual = decoder_residual(autoencoder, z, maps);
   enc.seconds = seconds_since(t1);
   maps = decode(autoencoder, z, W, H, residual ? &*residual : nullptr);
-  enc.loss = image_loss(maps);
+  enc.loss = image_loss(maps, cap, targets, kernel.features, o.render);
   result.stages.push_back(enc);
   if (!o.stages.finetune) return true;
   finetune_options fo = o.finetune;
@@ -573,9 +570,6 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   const capture& cap = fitted.configurations;
   const std::vector<image>& photos = fitted.photographs;
   const loss_targets& targets = fitted.targets;
-  auto image_loss = [&](const material_maps& m, brdf_features features) {
-    return with_features(features, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap, targets, nullptr, {}, o.render); });
-  };
   const communicator& comm = o.ranks ? *o.ranks : serial_communicator();
   const bool checkpoints = !o.checkpoint.folder.empty();
   if (checkpoints && comm.root())
@@ -605,7 +599,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   const capture_detail::kernel_choice kernel = capture_detail::choose_kernel(maps, cap, o, estimated_f0);
   result.features = kernel.features;
   if (!result.features.fresnel) result.f0_source = estimated_f0 ? "estimate" : "prior";
-  first.loss = image_loss(maps, result.features);
+  first.loss = image_loss(maps, cap, targets, result.features, o.render);
   first.seconds = seconds_since(t0);
   result.stages.push_back(first);
 
@@ -613,7 +607,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   if constexpr (has_networks) {
     if (!capture_detail::network_stages(autoencoder, maps, cap, targets, o, kernel, comm, result)) {
       result.stopped = true;  // as if killed: the check-point holds the rest
-      result.loss = image_loss(maps, all_features);
+      result.loss = image_loss(maps, cap, targets, all_features, o.render);
       result.maps = std::move(maps);
       return result;
     }
@@ -621,7 +615,7 @@ capture_result capture_once(const capture& given_cap, const std::vector<image>& 
   // 4. Refine per texel.
   if (o.stages.refine) result.stages.push_back(capture_detail::refine_stage(maps, cap, targets, o, result.features));
   kernel.keep_prior_f0(maps);
-  result.loss = image_loss(maps, all_features);
+  result.loss = image_loss(maps, cap, targets, all_features, o.render);
   result.maps = std::move(maps);
   return result;
 }

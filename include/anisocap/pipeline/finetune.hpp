@@ -504,9 +504,9 @@ class run {
     shard_parts_.start(int(shards.size()));
     const double window_area = finetune_crops::texels_in(win, M, W_, H_);
     const double area = whole ? window_area : double(crop_y_) * crop_x_ * M * M;
+    adam_.zero_grad();  // once: take() leaves the gradients at zero after each shard
     for (int k = shard_parts_.first(); k < shard_parts_.last(); ++k) {
       t_.clear();
-      adam_.zero_grad();
       const auto& shard = shards[std::size_t(k)];
       const double shard_loss = with_features(features_, [&]<brdf_features F>() {
         return finetune_crops::window_step<F>(t_, ae_, z_, shard, area, W_, H_, cap_, targets_, render_, scratch_, residual_);
@@ -542,7 +542,7 @@ class run {
   }
 
   double image_loss(const material_maps& m) const {
-    return with_features(features_, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap_, targets_, nullptr, {}, render_); });
+    return anisocap::image_loss(m, cap_, targets_, features_, render_);
   }
 
   /// The decoder's maps (restricted to the kernel's features: what a reduced kernel fitted, as

@@ -692,4 +692,13 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
   return loss;
 }
 
+/// The image loss of `loss_and_gradient` over whole maps, without a gradient, for a feature set chosen at run
+/// time: the kernel specialised for `features` (with_features), so a stage that disabled a feature is scored
+/// the way it was fitted.
+inline double image_loss(const material_maps& maps, const capture& cap, const loss_targets& targets,
+                         const brdf_features& features, const render_options& options = {}) {
+  return with_features(features,
+                       [&]<brdf_features F>() { return loss_and_gradient<F>(maps, cap, targets, nullptr, {}, options); });
+}
+
 }  // namespace anisocap
