@@ -123,6 +123,7 @@ forward_pass<T> conv_pass(const padded_source<T>& a, tensor<Cb, T>& out, std::pt
   ps.a = a.data;
   ps.a_batch = a.batch_stride;
   ps.a_row = S * a.row_stride;
+  ps.a_col = S * Ca;
   ps.o = out.data();
   ps.o_batch = out.batch_stride();
   ps.o_row = out.row_stride();
@@ -155,6 +156,7 @@ int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdif
       p.a = a.data;
       p.a_batch = a.batch_stride;
       p.a_row = a.row_stride;
+      p.a_col = Ca;
       p.o = out.data() + py * out.row_stride() + px * Cb;
       p.o_batch = out.batch_stride();
       p.o_row = 2 * out.row_stride();
@@ -196,16 +198,18 @@ void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bi
                       MakePasses&& make_passes) {
   constexpr int NV = vectors_per_tile<T>(Cb);
   constexpr int block = NV * lanes<T>;
+  // The passes' column step (ACOL) compiled in only for one-register tiles (see forward_pass).
+  constexpr int A = NV == 1 ? ACOL : 0;
   forward_pass<T> ps[4];
   if constexpr (Cb % block == 0) {
     const int n = make_passes(out, ps);
-    if (n) run_forward<NV, ACOL>(ps, n, Ca, Cb, w, bias, accumulate);
+    if (n) run_forward<NV, A>(ps, n, Ca, Cb, w, bias, accumulate);
   } else {
     constexpr int Cp = (Cb + block - 1) / block * block;
     const int B = out.batch(), H = out.height(), W = out.width();
     auto padded_out = tensor<Cp, T>::wrap(scratch<T>(6, std::size_t(B) * H * W * Cp), B, H, W);
     const int n = make_passes(padded_out, ps);
-    if (n) run_forward<NV, ACOL>(ps, n, Ca, Cb, w, bias, false, true);
+    if (n) run_forward<NV, A>(ps, n, Ca, Cb, w, bias, false, true);
 #pragma omp parallel for schedule(static) if (out.size() > (1u << 16))
     for (int r = 0; r < B * H; ++r) {
       const int b = r / H, y = r % H;

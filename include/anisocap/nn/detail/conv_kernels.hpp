@@ -79,11 +79,14 @@ inline void store_partial(T* p, const batch<T>& v, int n) {
 // ---- forward-type pass ------------------------------------------------------------------------
 
 /// One pass of `run_forward`: a grid batch x rows x cols of output pixels, where pixel (b, r, c)
-/// reads A at a + b*a_batch + r*a_row + c*ACOL and writes out at o + b*o_batch + r*o_row + c*o_col.
+/// reads A at a + b*a_batch + r*a_row + c*a_col and writes out at o + b*o_batch + r*o_row + c*o_col.
+/// The kernels take a_col at run time, so that one kernel per register block serves every layer
+/// shape, except with one-register tiles (ACOL > 0, see run_forward): their 24 pixel offsets fit
+/// no general registers and stay compile-time displacements.
 template <class T>
 struct forward_pass {
   const T* a = nullptr;
-  std::ptrdiff_t a_batch = 0, a_row = 0;
+  std::ptrdiff_t a_batch = 0, a_row = 0, a_col = 0;
   T* o = nullptr;
   std::ptrdiff_t o_batch = 0, o_row = 0, o_col = 0;
   int batch = 0, rows = 0, cols = 0;
@@ -126,12 +129,13 @@ ANISOCAP_ALWAYS_INLINE void tile_finish(const batch<T> (&acc)[NX][NV], T* out, s
     }
 }
 
-/// The register tile: NX pixels (A step ACOL apart) x NV registers of output channels.
-/// `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
+/// The register tile: NX pixels (A step ACOL apart, or a_col when ACOL is 0) x NV registers of
+/// output channels. `init`: 0 = zero, 1 = bias vector, 2 = accumulate onto out.
 template <int NX, int NV, int ACOL, class T>
-inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, T* out, std::ptrdiff_t o_col, int last_lanes,
-                         const T* bias, int init) {
+inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps, int n, std::ptrdiff_t ldw, std::ptrdiff_t a_col, T* out,
+                         std::ptrdiff_t o_col, int last_lanes, const T* bias, int init) {
   constexpr int W = lanes<T>;
+  const std::ptrdiff_t step = ACOL > 0 ? ACOL : a_col;
   batch<T> acc[NX][NV];
   tile_start<NX, NV>(acc, out, o_col, last_lanes, bias, init);
   for (int t = 0; t < taps; ++t) {
@@ -143,7 +147,7 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
       for (int v = 0; v < NV; ++v) wv[v] = batch<T>::load_unaligned(w + v * W);
       #pragma GCC unroll 32
       for (int p = 0; p < NX; ++p) {
-        const batch<T> x(a[p * ACOL + ci]);
+        const batch<T> x(a[p * step + ci]);
         #pragma GCC unroll 32
         for (int v = 0; v < NV; ++v) acc[p][v] = xsimd::fma(x, wv[v], acc[p][v]);
       }
@@ -269,8 +273,9 @@ struct forward_items {
 /// side), block = NV x 16.
 template <int NX, int NV, int ACOL>
 inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint16_t* const* w_tap, int taps, int pairs,
-                              float* out, std::ptrdiff_t o_col, int last_lanes, const float* bias, int init) {
+                              std::ptrdiff_t a_col, float* out, std::ptrdiff_t o_col, int last_lanes, const float* bias, int init) {
   constexpr int W = lanes<float>;
+  const std::ptrdiff_t step = ACOL > 0 ? ACOL : a_col;
   batch<float> acc[NX][NV];
   tile_start<NX, NV>(acc, out, o_col, last_lanes, bias, init);
   for (int t = 0; t < taps; ++t) {
@@ -282,7 +287,7 @@ inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint
       for (int v = 0; v < NV; ++v) wv[v] = simd::load_bf16_pairs(w + 2 * v * W);
       #pragma GCC unroll 32
       for (int p = 0; p < NX; ++p) {
-        const simd::bf16_pairs x = simd::broadcast_bf16_pair(a + p * ACOL + 2 * q);
+        const simd::bf16_pairs x = simd::broadcast_bf16_pair(a + p * step + 2 * q);
         #pragma GCC unroll 32
         for (int v = 0; v < NV; ++v) acc[p][v] = simd::dot_bf16_pairs(acc[p][v], x, wv[v]);
       }
@@ -353,7 +358,7 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
     std::ptrdiff_t last_tap = 0;
     for (int t = 0; t < ps.taps; ++t) last_tap = std::max(last_tap, ps.a_tap[t]);
     lo = std::min(lo, ps.a);
-    hi = std::max(hi, ps.a + (ps.batch - 1) * ps.a_batch + (ps.rows - 1) * ps.a_row + std::ptrdiff_t(ps.cols - 1) * ACOL + last_tap + Ca);
+    hi = std::max(hi, ps.a + (ps.batch - 1) * ps.a_batch + (ps.rows - 1) * ps.a_row + std::ptrdiff_t(ps.cols - 1) * ps.a_col + last_tap + Ca);
   }
   const std::ptrdiff_t span = hi - lo;
   // Two zeros past the end: an odd channel count's last pair reads one value beyond (its weight is 0).
@@ -420,16 +425,16 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
         const auto [b, r, x, nx] = work.tile_of(ps, pi, tile);
-        const std::uint16_t* abase = a_base + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
+        const std::uint16_t* abase = a_base + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ps.a_col + c0;
         float* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const std::uint16_t* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
         if (nx == NX1)
-          forward_tile_bf16<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile_bf16<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
         else if (nx == NX2)
-          forward_tile_bf16<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile_bf16<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
         else
-          forward_tile_bf16<1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile_bf16<1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
@@ -438,7 +443,8 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
 #endif  // ANISOCAP_BF16_DOT
 
 /// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels, in blocks of
-/// NV registers; bias: readable for whole blocks, or null; accumulate: add onto out instead of
+/// NV registers; ACOL: every pass's a_col when it is a compile-time constant (one-register tiles),
+/// else 0; bias: readable for whole blocks, or null; accumulate: add onto out instead of
 /// overwriting it.
 template <int NV, int ACOL, class T>
 void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
@@ -505,16 +511,16 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
       const int init = c0 > 0 || accumulate ? 2 : (bias_block ? 1 : 0);
       for (long long tile = t0; tile < t1; ++tile) {
         const auto [b, r, x, nx] = work.tile_of(ps, pi, tile);
-        const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ACOL + c0;
+        const T* abase = ps.a + b * ps.a_batch + r * ps.a_row + std::ptrdiff_t(x) * ps.a_col + c0;
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
         if (nx == NX1)
-          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
         else if (nx == NX2)
-          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
         else
-          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, obase, ps.o_col, lanes_here, bias_block, init);
+          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
