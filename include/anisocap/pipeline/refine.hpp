@@ -157,6 +157,64 @@ inline void maps_from_unconstrained(const material_maps& u, material_maps& maps,
   }
 }
 
+/// The refine's freezing check: each active group whose loss fell by less than `tolerance` (a
+/// fraction) since its last check (none at step 0) stops; the others keep this loss for the next.
+/// Returns the number of groups frozen.
+inline std::size_t freeze_converged_groups(std::vector<std::uint8_t>& active, const std::vector<double>& loss,
+                                           std::vector<double>& loss_checked, int step, double tolerance) {
+  std::size_t frozen = 0;
+  for (std::size_t g = 0; g < active.size(); ++g) {
+    if (!active[g]) continue;
+    if (step > 0 && loss_checked[g] - loss[g] < tolerance * loss_checked[g]) {
+      active[g] = 0;
+      ++frozen;
+    } else {
+      loss_checked[g] = loss[g];
+    }
+  }
+  return frozen;
+}
+
+/// One Adam step (nn/adam.hpp's kernel) on the unconstrained variables u, SIMD over texels, from the
+/// maps' gradient through the parameterisation: elementwise Jacobians for the `active` planes, the
+/// normal's 2x2 Jacobian recomputed here. Only texel groups in [first_group, last_group) that
+/// `group_active` (when not null) marks active move.
+template <brdf_features F>
+void adam_step_unconstrained(material_maps& u, material_maps& m1, material_maps& m2, const material_maps& grad, const material_maps& jac,
+                             const std::vector<int>& active, const nn::adam_coefficients<float>& coefficients,
+                             const std::uint8_t* group_active, std::size_t first_group, std::size_t last_group) {
+  using V = simd::batch<float>;
+  constexpr std::size_t L = simd::lanes_v<V>;
+  auto adam = [&](int k, std::size_t i, const V& g) { nn::adam_update(u.plane(k) + i, g, m1.plane(k) + i, m2.plane(k) + i, coefficients); };
+  const std::ptrdiff_t blocks = std::ptrdiff_t((u.texel_count() + L - 1) / L);
+#pragma omp parallel for schedule(static)
+  for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
+    const std::size_t i = std::size_t(bi) * L;
+    const std::size_t g = i / texel_group_size;
+    if ((group_active && !group_active[g]) || g < first_group || g >= last_group) continue;  // frozen, or another rank's
+    for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
+    if constexpr (F.normal_map) {
+      const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
+      const V kk = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy), k3 = kk * kk * kk;
+      const V gx = simd::load<V>(grad.plane(normal_x) + i), gy = simd::load<V>(grad.plane(normal_y) + i);
+      adam(normal_x, i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3);
+      adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux));
+    }
+  }
+}
+
+/// Every rank's texels [first_texel, last_texel) of every plane of u to every rank (the refine's
+/// share over ranks, put together at its end).
+inline void gather_texels(const communicator& ranks, material_maps& u, std::size_t first_texel, std::size_t last_texel) {
+  std::vector<float> all;
+  const std::size_t group_count = texel_groups::count(u);
+  const std::vector<std::size_t> counts = group_share_counts(ranks, group_count, texel_group_size, u.texel_count());
+  for (int k = 0; k < parameter_count; ++k) {
+    ranks.all_gather(std::span<const float>(u.plane(k) + first_texel, last_texel - first_texel), all, counts);
+    std::copy(all.begin(), all.end(), u.plane(k));
+  }
+}
+
 }  // namespace detail
 
 /// Unconstrained variables whose image under the refine parameterisation is (close to) `maps`.
@@ -220,51 +278,17 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     for (double l : group_loss) loss += l;
     result.losses.push_back(loss);
     evaluated_groups += active_count;
-    if (freezing && step % options.freeze_every == 0) {
-      // Freeze before this step's update, so a frozen group's maps are those its cached loss belongs to.
-      for (std::size_t g = 0; g < group_count; ++g) {
-        if (!group_active[g]) continue;
-        if (step > 0 && group_loss_checked[g] - group_loss[g] < options.freeze_tolerance * group_loss_checked[g]) {
-          group_active[g] = 0;
-          --active_count;
-        } else {
-          group_loss_checked[g] = group_loss[g];
-        }
-      }
-    }
-    // Adam on u (nn/adam.hpp's kernel), SIMD over texels.
-    using V = simd::batch<float>;
-    constexpr std::size_t L = simd::lanes_v<V>;
+    // Freeze before this step's update, so a frozen group's maps are those its cached loss belongs to.
+    if (freezing && step % options.freeze_every == 0)
+      active_count -= detail::freeze_converged_groups(group_active, group_loss, group_loss_checked, step, options.freeze_tolerance);
     const nn::adam_coefficients<float> coefficients(options.beta1, options.beta2, options.epsilon, options.learning_rate, step + 1);
-    auto adam = [&](int k, std::size_t i, const V& g) { nn::adam_update(u.plane(k) + i, g, m1.plane(k) + i, m2.plane(k) + i, coefficients); };
-    const std::ptrdiff_t blocks = std::ptrdiff_t((n + L - 1) / L);
-#pragma omp parallel for schedule(static)
-    for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
-      const std::size_t i = std::size_t(bi) * L;
-      if (freezing && !group_active[i / texel_group_size]) continue;
-      if (shared && (i / texel_group_size < first_group || i / texel_group_size >= last_group)) continue;  // another rank's
-      for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
-      if constexpr (F.normal_map) {
-        const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
-        const V kk = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy), k3 = kk * kk * kk;
-        const V gx = simd::load<V>(grad.plane(normal_x) + i), gy = simd::load<V>(grad.plane(normal_y) + i);
-        adam(normal_x, i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3);
-        adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux));
-      }
-    }
+    detail::adam_step_unconstrained<F>(u, m1, m2, grad, jac, active, coefficients, freezing ? group_active.data() : nullptr, first_group, last_group);
     result.steps = step + 1;
     if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0)
       options.progress(optimisation_progress::at(step + 1, options.steps, loss, seconds_since(start)));
     if (stopper.stop_after(step, loss) && step + 1 >= options.min_steps) break;
   }
-  if (shared) {  // every rank's texels to every rank
-    std::vector<float> all;
-    const std::vector<std::size_t> counts = detail::group_share_counts(*options.ranks, group_count, texel_group_size, n);
-    for (int k = 0; k < parameter_count; ++k) {
-      options.ranks->all_gather(std::span<const float>(u.plane(k) + first_texel, last_texel - first_texel), all, counts);
-      std::copy(all.begin(), all.end(), u.plane(k));
-    }
-  }
+  if (shared) detail::gather_texels(*options.ranks, u, first_texel, last_texel);  // every rank's texels to every rank
   detail::maps_from_unconstrained(u, maps, jac);
   restrict_to_features(maps, F);
   if (result.steps > 0) result.evaluated_fraction = double(evaluated_groups) / (double(group_count) * result.steps);
