@@ -147,6 +147,63 @@ inline double median_of(std::vector<float>& v) {
   if (v.size() % 2 == 1) return v[m];
   return 0.5 * (double(v[m]) + double(*std::max_element(v.begin(), v.begin() + std::ptrdiff_t(m))));
 }
+
+/// A texel's footprint in the photo: its extent in pixels along u and v, half the sampled extent in
+/// texels once the margin is left out, and the samples per axis.
+struct texel_footprint {
+  double pu = 0, pv = 0, hu = 0, hv = 0;
+  int su = 1, sv = 1;
+};
+
+/// The footprint of texel (x, y), `to_pixel(u, v)` mapping texture coordinates to pixels.
+template <class ToPixel>
+texel_footprint footprint_of(const ToPixel& to_pixel, int x, int y, const resampling_options& resampling) {
+  texel_footprint f;
+  // The texel's extent in pixels along u and v (finite differences across the texel).
+  const Eigen::Vector2d du = to_pixel(x + 1.0, y + 0.5) - to_pixel(x, y + 0.5);
+  const Eigen::Vector2d dv = to_pixel(x + 0.5, y + 1.0) - to_pixel(x + 0.5, y);
+  f.pu = du.norm(), f.pv = dv.norm();
+  f.hu = std::max(0.0, 0.5 - resampling.margin_px / std::max(f.pu, 1e-9));
+  f.hv = std::max(0.0, 0.5 - resampling.margin_px / std::max(f.pv, 1e-9));
+  f.su = std::clamp(int(std::ceil(2 * f.hu * f.pu)), 1, resampling.max_samples_per_axis);
+  f.sv = std::clamp(int(std::ceil(2 * f.hv * f.pv)), 1, resampling.max_samples_per_axis);
+  return f;
+}
+
+/// One footprint sample at pixel position p (inside the photo): adds its bilinear reading to `raw`
+/// and its reading over usable pixels (their weights renormalised) to `sum`, and where `median`
+/// the nearest pixel's values to `values`. Sets `clip` when the pixel it lies in is unusable or
+/// none of its neighbours is usable.
+inline void add_footprint_sample(const image& photo, const image& usable, const Eigen::Vector2d& p, bool median, double (&raw)[3],
+                                 double (&sum)[3], std::vector<float> (&values)[3], bool& clip) {
+  const int pw = photo.width(), ph = photo.height();
+  const int x0 = std::min(int(p.x()), pw - 2 < 0 ? 0 : pw - 2), y0 = std::min(int(p.y()), ph - 2 < 0 ? 0 : ph - 2);
+  const int x1 = std::min(x0 + 1, pw - 1), y1 = std::min(y0 + 1, ph - 1);
+  const double fx = p.x() - x0, fy = p.y() - y0;
+  const double w[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+  const std::size_t k[4] = {std::size_t(y0) * pw + x0, std::size_t(y0) * pw + x1, std::size_t(y1) * pw + x0, std::size_t(y1) * pw + x1};
+  // The sample is clipped when the pixel it lies in is; its neighbours' clipped values are left out
+  // of the bilinear reading (the weights of the usable ones renormalised).
+  const std::size_t nearest = std::size_t(std::lround(p.y())) * pw + std::size_t(std::lround(p.x()));
+  if (!usable.empty() && usable.plane(0)[nearest] == 0.0f) clip = true;
+  double kept = 0, part[3] = {0, 0, 0};
+  for (int t = 0; t < 4; ++t) {
+    if (w[t] <= 0) continue;
+    const bool ok = usable.empty() || usable.plane(0)[k[t]] != 0.0f;
+    for (int c = 0; c < 3; ++c) {
+      raw[c] += w[t] * photo.plane(c)[k[t]];
+      if (ok) part[c] += w[t] * photo.plane(c)[k[t]];
+    }
+    if (ok) kept += w[t];
+  }
+  if (kept > 0) {
+    for (int c = 0; c < 3; ++c) sum[c] += part[c] / kept;
+    if (median)  // a clipped nearest pixel has set `clip`: the texel is left out, its median unused
+      for (int c = 0; c < 3; ++c) values[c].push_back(photo.plane(c)[nearest]);
+  } else {
+    clip = true;
+  }
+}
 }  // namespace detail
 
 /// Resamples one linear photo onto a width x height texture of a sample whose longest side is
@@ -166,7 +223,6 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
   out.radiance = image(width, height, 3);
   out.mask = image(width, height, 1);
   out.confidence = image(width, height, 1);
-  const int max_samples_per_axis = resampling.max_samples_per_axis;
   // The homography from sample (X, Y, 1) in mm to homogeneous pixels: K [r1 r2 t].
   Eigen::Matrix3d h;
   h.col(0) = pose.rotation.col(0);
@@ -186,55 +242,22 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
   for (int y = 0; y < height; ++y) {
     std::vector<float> values[3];  // the median's samples per channel, reused along the row
     for (int x = 0; x < width; ++x) {
-      // The texel's extent in pixels along u and v (finite differences across the texel).
-      const Eigen::Vector2d du = to_pixel(x + 1.0, y + 0.5) - to_pixel(x, y + 0.5);
-      const Eigen::Vector2d dv = to_pixel(x + 0.5, y + 1.0) - to_pixel(x + 0.5, y);
-      const double pu = du.norm(), pv = dv.norm();
-      // Half the sampled extent, in texels, once the margin is left out.
-      const double hu = std::max(0.0, 0.5 - resampling.margin_px / std::max(pu, 1e-9));
-      const double hv = std::max(0.0, 0.5 - resampling.margin_px / std::max(pv, 1e-9));
-      const int su = std::clamp(int(std::ceil(2 * hu * pu)), 1, max_samples_per_axis);
-      const int sv = std::clamp(int(std::ceil(2 * hv * pv)), 1, max_samples_per_axis);
+      const detail::texel_footprint f = detail::footprint_of(to_pixel, x, y, resampling);
+      const int su = f.su, sv = f.sv;
       const double full = resampling.full_confidence_px;
-      const double narrow = full > 0 ? std::min(1.0, std::min(pu, pv) / full) : 1.0;
+      const double narrow = full > 0 ? std::min(1.0, std::min(f.pu, f.pv) / full) : 1.0;
       const double confidence = narrow * narrow;
       double sum[3] = {0, 0, 0}, raw[3] = {0, 0, 0};
       bool inside = true, clip = false;
       for (auto& v : values) v.clear();
       for (int j = 0; j < sv && inside; ++j)
         for (int i = 0; i < su && inside; ++i) {
-          const Eigen::Vector2d p = to_pixel(x + 0.5 + hu * (2.0 * (i + 0.5) / su - 1.0), y + 0.5 + hv * (2.0 * (j + 0.5) / sv - 1.0));
+          const Eigen::Vector2d p = to_pixel(x + 0.5 + f.hu * (2.0 * (i + 0.5) / su - 1.0), y + 0.5 + f.hv * (2.0 * (j + 0.5) / sv - 1.0));
           if (!(p.x() >= 0 && p.y() >= 0 && p.x() <= pw - 1 && p.y() <= ph - 1)) {
             inside = false;
             break;
           }
-          const int x0 = std::min(int(p.x()), pw - 2 < 0 ? 0 : pw - 2), y0 = std::min(int(p.y()), ph - 2 < 0 ? 0 : ph - 2);
-          const int x1 = std::min(x0 + 1, pw - 1), y1 = std::min(y0 + 1, ph - 1);
-          const double fx = p.x() - x0, fy = p.y() - y0;
-          const double w[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
-          const std::size_t k[4] = {std::size_t(y0) * pw + x0, std::size_t(y0) * pw + x1, std::size_t(y1) * pw + x0,
-                                    std::size_t(y1) * pw + x1};
-          // The sample is clipped when the pixel it lies in is; its neighbours' clipped values
-          // are left out of the bilinear reading (the weights of the usable ones renormalised).
-          const std::size_t nearest = std::size_t(std::lround(p.y())) * pw + std::size_t(std::lround(p.x()));
-          if (!usable.empty() && usable.plane(0)[nearest] == 0.0f) clip = true;
-          double kept = 0, part[3] = {0, 0, 0};
-          for (int t = 0; t < 4; ++t) {
-            if (w[t] <= 0) continue;
-            const bool ok = usable.empty() || usable.plane(0)[k[t]] != 0.0f;
-            for (int c = 0; c < 3; ++c) {
-              raw[c] += w[t] * photo.plane(c)[k[t]];
-              if (ok) part[c] += w[t] * photo.plane(c)[k[t]];
-            }
-            if (ok) kept += w[t];
-          }
-          if (kept > 0) {
-            for (int c = 0; c < 3; ++c) sum[c] += part[c] / kept;
-            if (median)  // a clipped nearest pixel has set `clip`: the texel is left out, its median unused
-              for (int c = 0; c < 3; ++c) values[c].push_back(photo.plane(c)[nearest]);
-          } else {
-            clip = true;
-          }
+          detail::add_footprint_sample(photo, usable, p, median, raw, sum, values, clip);
         }
       if (median && inside && !clip)
         for (int c = 0; c < 3; ++c)
@@ -243,7 +266,7 @@ inline rectified_photo rectify_photo(const image& photo, const image& usable, co
       const bool use = inside && !clip;
       if (!inside) ++outside;
       else if (clip) ++clipped_count;
-      if (inside && std::min(pu, pv) < 1.0) ++underresolved;
+      if (inside && std::min(f.pu, f.pv) < 1.0) ++underresolved;
       out.mask.plane(0)[index] = use ? 1.0f : 0.0f;
       out.confidence.plane(0)[index] = use ? float(confidence) : 0.0f;
       for (int c = 0; c < 3; ++c) out.radiance.plane(c)[index] = !inside ? 0.0f : float((use ? sum[c] : raw[c]) / (su * sv));
