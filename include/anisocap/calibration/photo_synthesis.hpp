@@ -82,6 +82,70 @@ inline void lookup_parameters(const material_maps& maps, double u, double v, flo
   out[rotation] = float(0.5 * std::atan2(s, c));
 }
 
+namespace photo_synthesis_detail {
+
+/// The parameters seen at point (sx, sy) of the sample's plane (mm, centre at 0): the maps' where
+/// the point lies on the sample, read by `lookup`, else the surround's albedo where it lies on the
+/// print. Returns false (params untouched) where the point misses both.
+inline bool parameters_at(const material_maps& maps, double longest_mm, double sx, double sy, texture_lookup lookup,
+                          const printed_surround* surround, float (&params)[parameter_count]) {
+  const double n = std::max(maps.width(), maps.height());
+  const double u = sx / longest_mm * n + 0.5 * maps.width(), v = 0.5 * maps.height() - sy / longest_mm * n;
+  if (u >= 0 && v >= 0 && u <= maps.width() && v <= maps.height()) {
+    if (lookup == texture_lookup::bilinear) {
+      lookup_parameters(maps, u, v, params);
+    } else {
+      const int tx = std::min(int(u), maps.width() - 1), ty = std::min(int(v), maps.height() - 1);
+      for (int k = 0; k < parameter_count; ++k) params[k] = maps.at(k, tx, ty);
+    }
+    return true;
+  }
+  if (!surround) return false;
+  const double fx = (sx / surround->width_mm + 0.5) * surround->albedo.width();
+  const double fy = (0.5 - sy / surround->height_mm) * surround->albedo.height();
+  if (!(fx >= 0 && fy >= 0 && fx < surround->albedo.width() && fy < surround->albedo.height())) return false;
+  const float a = surround->albedo.at(0, int(fx), int(fy));
+  params[diffuse_r] = params[diffuse_g] = params[diffuse_b] = a;
+  return true;
+}
+
+/// The renderer's configuration of `setup`, in its units (the sample's longest side).
+inline capture_image photo_configuration(const photo_setup& setup, double longest_mm) {
+  const Eigen::Vector3d centre = setup.pose.camera_centre();
+  capture_image config;
+  config.camera = {float(centre.x() / longest_mm), float(centre.y() / longest_mm), float(centre.z() / longest_mm)};
+  config.light = {float(setup.light_mm.x() / longest_mm), float(setup.light_mm.y() / longest_mm), float(setup.light_mm.z() / longest_mm)};
+  config.intensity = setup.intensity;
+  return config;
+}
+
+/// Adds `weight` times the radiance of each pixel that is `on_sample` into photo: the renderer's
+/// texel kernel evaluated on the pixels' parameters `hit` at their points (px, py) of the plane.
+template <class Configuration>
+void add_shaded_pixels(const material_maps& hit, const aligned_buffer<float>& px, const aligned_buffer<float>& py,
+                       const std::vector<std::uint8_t>& on_sample, const Configuration& configuration, float weight, image& photo) {
+  using V = simd::batch<float>;
+  constexpr std::size_t L = simd::lanes_v<V>;
+  const float inv_pi = 1.0f / std::numbers::pi_v<float>;
+  const std::size_t blocks = (photo.pixel_count() + L - 1) / L;
+#pragma omp parallel for schedule(static)
+  for (std::ptrdiff_t b = 0; b < std::ptrdiff_t(blocks); ++b) {
+    const std::size_t i = std::size_t(b) * L;
+    detail::texel_state<all_features, V, 0> t;
+    t.load(hit, i, simd::load<V>(px.data() + i), simd::load<V>(py.data() + i));
+    const auto s = detail::shade<all_features, V, 0>(t, configuration, -1e31f);
+    alignas(simd::alignment) float values[L];
+    for (int c = 0; c < 3; ++c) {
+      const V radiance = (t.diffuse[c] * V(inv_pi) + t.specular[c] * s.lobe) * s.geometry.value * V(configuration.intensity[c]);
+      simd::store<V>(values, radiance);
+      for (std::size_t l = 0; l < L && i + l < photo.pixel_count(); ++l)
+        if (on_sample[i + l]) photo.plane(c)[i + l] += weight * values[l];
+    }
+  }
+}
+
+}  // namespace photo_synthesis_detail
+
 /// Renders the linear photograph (width x height, 3 channels, in the renderer's radiance units)
 /// of a sample carrying `maps` whose longest side is `longest_mm`, with `samples_per_axis`^2
 /// samples per pixel (box filter), reading the maps by `lookup`. Pixels that miss the sample see
@@ -89,19 +153,11 @@ inline void lookup_parameters(const material_maps& maps, double u, double v, flo
 inline image render_photograph(const material_maps& maps, double longest_mm, const photo_setup& setup, int width, int height,
                                int samples_per_axis = 2, texture_lookup lookup = texture_lookup::bilinear,
                                const printed_surround* surround = nullptr) {
-  using V = simd::batch<float>;
-  constexpr std::size_t L = simd::lanes_v<V>;
   if (width < 1 || height < 1 || samples_per_axis < 1) throw std::invalid_argument("render_photograph: sizes must be positive");
   const Eigen::Matrix3d k_inverse = setup.camera.matrix().inverse();
   const Eigen::Vector3d centre = setup.pose.camera_centre();
-  const double n = std::max(maps.width(), maps.height());
-  // The renderer's configuration, in its units (the sample's longest side).
   capture one;
-  capture_image config;
-  config.camera = {float(centre.x() / longest_mm), float(centre.y() / longest_mm), float(centre.z() / longest_mm)};
-  config.light = {float(setup.light_mm.x() / longest_mm), float(setup.light_mm.y() / longest_mm), float(setup.light_mm.z() / longest_mm)};
-  config.intensity = setup.intensity;
-  one.images.push_back(config);
+  one.images.push_back(photo_synthesis_detail::photo_configuration(setup, longest_mm));
   const auto configuration = detail::to_constants(one)[0];
   image photo(width, height, 3);
   for (int c = 0; c < 3; ++c) std::fill_n(photo.plane(c), photo.pixel_count(), 0.0f);
@@ -110,7 +166,6 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
   material_maps hit(width, height);
   aligned_buffer<float> px(hit.plane_stride()), py(hit.plane_stride());
   std::vector<std::uint8_t> on_sample(photo.pixel_count());
-  const float inv_pi = 1.0f / std::numbers::pi_v<float>;
   const float weight = 1.0f / float(samples_per_axis * samples_per_axis);
   for (int sj = 0; sj < samples_per_axis; ++sj)
     for (int si = 0; si < samples_per_axis; ++si) {
@@ -129,45 +184,14 @@ inline image render_photograph(const material_maps& maps, double longest_mm, con
             const double s = -centre.z() / ray.z();
             sx = centre.x() + s * ray.x();
             sy = centre.y() + s * ray.y();
-            const double u = sx / longest_mm * n + 0.5 * maps.width(), v = 0.5 * maps.height() - sy / longest_mm * n;
-            if (u >= 0 && v >= 0 && u <= maps.width() && v <= maps.height()) {
-              hits = true;
-              if (lookup == texture_lookup::bilinear) {
-                lookup_parameters(maps, u, v, params);
-              } else {
-                const int tx = std::min(int(u), maps.width() - 1), ty = std::min(int(v), maps.height() - 1);
-                for (int k = 0; k < parameter_count; ++k) params[k] = maps.at(k, tx, ty);
-              }
-            } else if (surround) {
-              const double fx = (sx / surround->width_mm + 0.5) * surround->albedo.width();
-              const double fy = (0.5 - sy / surround->height_mm) * surround->albedo.height();
-              if (fx >= 0 && fy >= 0 && fx < surround->albedo.width() && fy < surround->albedo.height()) {
-                hits = true;
-                const float a = surround->albedo.at(0, int(fx), int(fy));
-                params[diffuse_r] = params[diffuse_g] = params[diffuse_b] = a;
-              }
-            }
+            hits = photo_synthesis_detail::parameters_at(maps, longest_mm, sx, sy, lookup, surround, params);
           }
           on_sample[i] = hits;
           for (int k = 0; k < parameter_count; ++k) hit.plane(k)[i] = params[k];
           px[i] = float(sx / longest_mm);
           py[i] = float(sy / longest_mm);
         }
-      const std::size_t blocks = (photo.pixel_count() + L - 1) / L;
-#pragma omp parallel for schedule(static)
-      for (std::ptrdiff_t b = 0; b < std::ptrdiff_t(blocks); ++b) {
-        const std::size_t i = std::size_t(b) * L;
-        detail::texel_state<all_features, V, 0> t;
-        t.load(hit, i, simd::load<V>(px.data() + i), simd::load<V>(py.data() + i));
-        const auto s = detail::shade<all_features, V, 0>(t, configuration, -1e31f);
-        alignas(simd::alignment) float values[L];
-        for (int c = 0; c < 3; ++c) {
-          const V radiance = (t.diffuse[c] * V(inv_pi) + t.specular[c] * s.lobe) * s.geometry.value * V(configuration.intensity[c]);
-          simd::store<V>(values, radiance);
-          for (std::size_t l = 0; l < L && i + l < photo.pixel_count(); ++l)
-            if (on_sample[i + l]) photo.plane(c)[i + l] += weight * values[l];
-        }
-      }
+      photo_synthesis_detail::add_shaded_pixels(hit, px, py, on_sample, configuration, weight, photo);
     }
   return photo;
 }
