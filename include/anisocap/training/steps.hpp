@@ -44,6 +44,86 @@ inline void draw_smoothness_deltas(const train_options& o, long step, float* out
   for (std::size_t i = 0; i < count; ++i) out[i] = float(o.latent_noise * rng.normal());
 }
 
+/// Per-channel sums over a data-parallel batch of `batch` materials, `count` of them on this rank
+/// (`cell` values of Z channels each): each local material's, and the batch's added over the ranks
+/// in ordered_sum's tree.
+template <int Z, class PerValue>
+std::pair<std::vector<double>, std::vector<double>> batch_channel_sums(const communicator& comm, int batch, int count, std::size_t cell,
+                                                                       PerValue per_value) {
+  std::vector<double> local_sums(std::size_t(count) * Z, 0.0), total(Z);
+  for (int k = 0; k < count; ++k)
+    for (std::size_t i = 0; i < cell; ++i)
+      for (int c = 0; c < Z; ++c) local_sums[std::size_t(k) * Z + std::size_t(c)] += per_value(k, i, c);
+  ordered_sum<double>(comm, batch, Z, local_sums, total);
+  return std::pair{local_sums, total};
+}
+
+/// A batch norm synchronised over a data-parallel batch (autoencoder_gradient_parts): the batch's
+/// statistics of this rank's `features` (its mean, then its centred variance, each summed in
+/// ordered_sum's tree), the normalised values, and the backward pass.
+template <int Z>
+struct synced_norm {
+  std::vector<float> mean, variance, rstd;  ///< per channel
+  double n = 0;                             ///< values per channel over the batch
+  int batch = 0;
+  std::size_t cell = 0;                     ///< latent cells of one material
+
+  synced_norm(const std::vector<ad::variable<Z>>& features, int batch_size, std::size_t cells, float epsilon, const communicator& comm)
+      : mean(Z), variance(Z), rstd(Z), n(double(batch_size) * double(cells)), batch(batch_size), cell(cells) {
+    if (n < 2) throw std::invalid_argument("nn::batch_norm: training needs more than one value per channel");
+    const int count = int(features.size());
+    const auto [unused_mean_parts, sum] = batch_channel_sums<Z>(
+        comm, batch, count, cell, [&](int k, std::size_t i, int c) { return double(features[std::size_t(k)].value.data()[i * Z + c]); });
+    (void)unused_mean_parts;
+    std::vector<double> mean_d(Z);
+    for (int c = 0; c < Z; ++c) mean_d[std::size_t(c)] = sum[std::size_t(c)] / n;
+    const auto [unused_variance_parts, squares] = batch_channel_sums<Z>(comm, batch, count, cell, [&](int k, std::size_t i, int c) {
+      const double d = double(features[std::size_t(k)].value.data()[i * Z + c]) - mean_d[std::size_t(c)];
+      return d * d;
+    });
+    (void)unused_variance_parts;
+    for (int c = 0; c < Z; ++c) {
+      const double v = squares[std::size_t(c)] / n;
+      mean[std::size_t(c)] = float(mean_d[std::size_t(c)]);
+      variance[std::size_t(c)] = float(v);
+      rstd[std::size_t(c)] = float(1 / std::sqrt(v + double(epsilon)));
+    }
+  }
+
+  /// Material k's normalised value at cell i, channel c.
+  float z_hat(const std::vector<ad::variable<Z>>& features, int k, std::size_t i, int c) const {
+    return (features[std::size_t(k)].value.data()[i * Z + c] - mean[std::size_t(c)]) * rstd[std::size_t(c)];
+  }
+
+  /// The backward pass from dL/dz (`dz`, per material): the scale's and shift's gradients of each
+  /// material into `norm`, dL/d(features) from the sums over the batch, each material's encoder
+  /// backward on its own tape, and its gradient taken into part first + k.
+  void backward(nn::batch_norm<Z>& norm, std::vector<ad::variable<Z>>& features, std::vector<std::unique_ptr<ad::tape>>& tapes,
+                const std::vector<std::vector<float>>& dz, const communicator& comm, nn::part_gradients<loss_terms>& parts, int first) const {
+    const int count = int(features.size());
+    const auto [scale_parts, scale_sum] = batch_channel_sums<Z>(
+        comm, batch, count, cell, [&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]) * z_hat(features, k, i, c); });
+    const auto [shift_parts, shift_sum] =
+        batch_channel_sums<Z>(comm, batch, count, cell, [&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]); });
+    for (int k = 0; k < count; ++k) {
+      if (norm.weight.trainable())
+        for (int c = 0; c < Z; ++c) norm.weight.grad[c] += float(scale_parts[std::size_t(k) * Z + std::size_t(c)]);
+      if (norm.bias.trainable())
+        for (int c = 0; c < Z; ++c) norm.bias.grad[c] += float(shift_parts[std::size_t(k) * Z + std::size_t(c)]);
+      auto& f = features[std::size_t(k)];
+      if (f.requires_grad) {
+        for (std::size_t i = 0; i < cell; ++i)
+          for (int c = 0; c < Z; ++c) {
+            const double g = dz[std::size_t(k)][i * Z + c] - shift_sum[std::size_t(c)] / n - z_hat(features, k, i, c) * scale_sum[std::size_t(c)] / n;
+            f.grad.data()[i * Z + c] = float(double(norm.weight.value[c]) * rstd[std::size_t(c)] * g);
+          }
+        tapes[std::size_t(k)]->backward();
+      }
+      parts.take(first + k);
+    }
+  }
+};
+
 }  // namespace detail
 
 /// The estimator's gradient on a batch (make_batch with photos; docs/method.md section 7): the
@@ -192,36 +272,9 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     std::copy_n(in.data(), in.size(), x.value.data());
     features.push_back(net.encode_features(*tapes.back(), x));
   }
-  const double n = double(batch) * h * w;
-  if (n < 2) throw std::invalid_argument("nn::batch_norm: training needs more than one value per channel");
   const std::size_t cell = std::size_t(h) * w;
-  // Per-channel sums of each material, added over the batch in the tree.
-  auto channel_sums = [&](auto per_value) {
-    std::vector<double> local_sums(std::size_t(count) * Z, 0.0), total(Z);
-    for (int k = 0; k < count; ++k)
-      for (std::size_t i = 0; i < cell; ++i)
-        for (int c = 0; c < Z; ++c) local_sums[std::size_t(k) * Z + std::size_t(c)] += per_value(k, i, c);
-    ordered_sum<double>(comm, batch, Z, local_sums, total);
-    return std::pair{local_sums, total};
-  };
-  const auto [unused_mean_parts, sum] = channel_sums([&](int k, std::size_t i, int c) { return double(features[std::size_t(k)].value.data()[i * Z + c]); });
-  (void)unused_mean_parts;
-  std::vector<double> mean(Z);
-  for (int c = 0; c < Z; ++c) mean[std::size_t(c)] = sum[std::size_t(c)] / n;
-  const auto [unused_variance_parts, squares] = channel_sums([&](int k, std::size_t i, int c) {
-    const double d = double(features[std::size_t(k)].value.data()[i * Z + c]) - mean[std::size_t(c)];
-    return d * d;
-  });
-  (void)unused_variance_parts;
-  std::vector<float> mean_f(Z), variance_f(Z), rstd(Z);
-  for (int c = 0; c < Z; ++c) {
-    const double variance = squares[std::size_t(c)] / n;
-    mean_f[std::size_t(c)] = float(mean[std::size_t(c)]);
-    variance_f[std::size_t(c)] = float(variance);
-    rstd[std::size_t(c)] = float(1 / std::sqrt(variance + double(norm.epsilon)));
-  }
-  norm.track(mean_f.data(), variance_f.data(), std::size_t(n));
-  auto z_hat = [&](int k, std::size_t i, int c) { return (features[std::size_t(k)].value.data()[i * Z + c] - mean_f[std::size_t(c)]) * rstd[std::size_t(c)]; };
+  const detail::synced_norm<Z> stats(features, batch, cell, norm.epsilon, comm);
+  norm.track(stats.mean.data(), stats.variance.data(), std::size_t(stats.n));
   // The batch's smoothness deltas, drawn as autoencoder_gradient draws them; material k's slice.
   std::vector<float> deltas;
   if (o.smoothness_weight > 0) {
@@ -234,7 +287,7 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     t.clear();
     auto z = t.make_variable<Z>(1, h, w, true);
     for (std::size_t i = 0; i < cell; ++i)
-      for (int c = 0; c < Z; ++c) z.value.data()[i * Z + c] = z_hat(k, i, c) * norm.weight.value[c] + norm.bias.value[c];
+      for (int c = 0; c < Z; ++c) z.value.data()[i * Z + c] = stats.z_hat(features, k, i, c) * norm.weight.value[c] + norm.bias.value[c];
     auto y = net.decode(t, z);
     loss_terms l = map_losses(y.value, local.subspan(std::size_t(k), 1), &y.grad, o.loss(), batch);
     if (o.smoothness_weight > 0) {
@@ -250,26 +303,7 @@ loss_terms autoencoder_gradient_parts(ad::tape& t, auto_encoder<Preset>& net, st
     parts.loss(first + k) = l;
     parts.take(first + k);  // the decoder's gradient of this material
   }
-  // The batch norm's backward pass: its scale's and shift's gradients per material, and the sums
-  // over the batch that dL/d(features) needs.
-  const auto [scale_parts, scale_sum] = channel_sums([&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]) * z_hat(k, i, c); });
-  const auto [shift_parts, shift_sum] = channel_sums([&](int k, std::size_t i, int c) { return double(dz[std::size_t(k)][i * Z + c]); });
-  for (int k = 0; k < count; ++k) {
-    if (norm.weight.trainable())
-      for (int c = 0; c < Z; ++c) norm.weight.grad[c] += float(scale_parts[std::size_t(k) * Z + std::size_t(c)]);
-    if (norm.bias.trainable())
-      for (int c = 0; c < Z; ++c) norm.bias.grad[c] += float(shift_parts[std::size_t(k) * Z + std::size_t(c)]);
-    auto& f = features[std::size_t(k)];
-    if (f.requires_grad) {
-      for (std::size_t i = 0; i < cell; ++i)
-        for (int c = 0; c < Z; ++c) {
-          const double g = dz[std::size_t(k)][i * Z + c] - shift_sum[std::size_t(c)] / n - z_hat(k, i, c) * scale_sum[std::size_t(c)] / n;
-          f.grad.data()[i * Z + c] = float(double(norm.weight.value[c]) * rstd[std::size_t(c)] * g);
-        }
-      tapes[std::size_t(k)]->backward();
-    }
-    parts.take(first + k);
-  }
+  stats.backward(norm, features, tapes, dz, comm, parts, first);
   return finish_parts(parts);
 }
 
