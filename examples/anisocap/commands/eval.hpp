@@ -23,29 +23,49 @@ struct eval_settings {
   std::string stages = "all";  // the pipeline stages each capture runs (pipeline_stages::parse)
 };
 
-/// eval's work once its options are checked and e.out is locked: captures each material (of
-/// `families`, e.families read), writing table.md and table.csv into e.out (atomically) after
-/// every material.
-inline void evaluate_materials(const eval_settings& e, const std::vector<material_kind>& families, const networks& nets,
-                               const capture_options& options) {
-  struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
-  std::map<std::string, row_sum> rows;
-  std::map<std::string, std::vector<material_errors>> family_rows;  // same keys: per-material errors for the per-family table
-  std::vector<std::string> order;
-  std::ostringstream csv;
-  csv << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,novel_view_loss,seconds,family,photo_loss,estimate_photo_loss,encode_photo_loss\n";
-  auto add = [&](const std::string& key, const parameter_errors& pe, double novel, double sec) {
-    if (!rows.count(key)) order.push_back(key);
-    auto& r = rows[key];
-    r.e.diffuse += pe.diffuse; r.e.specular += pe.specular; r.e.normal += pe.normal; r.e.lobes += pe.lobes;
-    r.e.rotation += pe.rotation; r.e.fresnel += pe.fresnel; r.novel += novel; r.seconds += sec; ++r.n;
+/// eval's tables: per (N, stage, set) key the errors summed over the materials, per key the
+/// materials' errors for the per-family table, and one CSV row per material and stage; written
+/// (atomically) as table.md and table.csv.
+class eval_tables {
+ public:
+  /// One material's capture of one key: where it came from and what it gave.
+  struct entry {
+    int material = 0;
+    std::uint64_t seed = 0;
+    int width = 0, height = 0, images = 0;
+    std::string set;
+    material_kind kind{};
+    double seconds = 0;
   };
-  // Rewritten (atomically) after every material, so a long run that is stopped keeps its rows so far.
-  auto write_tables = [&]() -> std::string {
+
+  eval_tables() {
+    csv_ << "material,seed,width,height,images,set,stage,diffuse,specular,normal,lobes,rotation,rotation_anisotropic,fresnel,"
+            "novel_view_loss,seconds,family,photo_loss,estimate_photo_loss,encode_photo_loss\n";
+  }
+
+  /// Records the maps of `stage` (whose image loss the capture reports as `report`) of entry x.
+  void record(const entry& x, const char* stage, const char* report, const material_maps& maps, const material_maps& truth,
+              const capture& novel, const capture_result& pr) {
+    const parameter_errors pe = compare_maps(maps, truth);
+    const double nv = novel_view_error(maps, truth, novel);
+    const std::string key = std::to_string(x.images) + "|" + stage + "|" + x.set;
+    if (!rows_.count(key)) order_.push_back(key);
+    row_sum& r = rows_[key];
+    r.e.diffuse += pe.diffuse; r.e.specular += pe.specular; r.e.normal += pe.normal; r.e.lobes += pe.lobes;
+    r.e.rotation += pe.rotation; r.e.fresnel += pe.fresnel; r.novel += nv; r.seconds += x.seconds; ++r.n;
+    family_rows_[key].push_back({x.kind, pe, nv});
+    csv_ << x.material << ',' << x.seed << ',' << x.width << ',' << x.height << ',' << x.images << ',' << x.set << ',' << stage << ','
+         << pe.diffuse << ',' << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic
+         << ',' << pe.fresnel << ',' << nv << ',' << x.seconds << ',' << material_kind_name(x.kind) << ',' << pr.stage_loss(report) << ','
+         << pr.stage_loss("estimate") << ',' << pr.stage_loss("encode") << '\n';
+  }
+
+  /// table.md's text: the means per key, then per key and family.
+  std::string markdown() const {
     std::ostringstream md;
     md << "| N | stage | set | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss | s / material |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
-    for (const auto& key : order) {
-      const auto& r = rows[key];
+    for (const auto& key : order_) {
+      const row_sum& r = rows_.at(key);
       const double k = r.n;
       const auto p1 = key.find('|'), p2 = key.rfind('|');
       char line[400];
@@ -56,9 +76,9 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
     }
     md << "\nPer family (held out of training: leather, printed)\n\n| N | stage | set | family | materials | a_d | a_s | n_s | sigma | alpha | F0 | novel-view loss |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
-    for (const auto& key : order) {
+    for (const auto& key : order_) {
       const auto p1 = key.find('|'), p2 = key.rfind('|');
-      for (const family_errors& f : errors_by_family(family_rows[key])) {
+      for (const family_errors& f : errors_by_family(family_rows_.at(key))) {
         char line[400];
         std::snprintf(line, sizeof line, "| %s | %s | %s | %s%s | %d | %.4f | %.4f | %.4f | %.4f | %.3f | %.4f | %.4f |\n",
                       key.substr(0, p1).c_str(), key.substr(p1 + 1, p2 - p1 - 1).c_str(), key.substr(p2 + 1).c_str(),
@@ -67,14 +87,34 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         md << line;
       }
     }
-    fs::create_directories(e.out);
+    return md.str();
+  }
+
+  /// Writes table.md and table.csv into `out` together; returns table.md's text.
+  std::string write(const fs::path& out) const {
+    fs::create_directories(out);
     file_transaction files_out;
-    const std::string table = md.str(), rows_csv = csv.str();
-    files_out.stage(e.out / "table.md", table.data(), table.size());
-    files_out.stage(e.out / "table.csv", rows_csv.data(), rows_csv.size());
+    const std::string table = markdown(), rows_csv = csv_.str();
+    files_out.stage(out / "table.md", table.data(), table.size());
+    files_out.stage(out / "table.csv", rows_csv.data(), rows_csv.size());
     files_out.commit();
     return table;
-  };
+  }
+
+ private:
+  struct row_sum { parameter_errors e{}; double novel = 0, seconds = 0; int n = 0; };
+  std::map<std::string, row_sum> rows_;
+  std::map<std::string, std::vector<material_errors>> family_rows_;  // same keys: per-material errors for the per-family table
+  std::vector<std::string> order_;
+  std::ostringstream csv_;
+};
+
+/// eval's work once its options are checked and e.out is locked: captures each material (of
+/// `families`, e.families read), writing table.md and table.csv into e.out (atomically) after
+/// every material, so that a long run that is stopped keeps its rows so far.
+inline void evaluate_materials(const eval_settings& e, const std::vector<material_kind>& families, const networks& nets,
+                               const capture_options& options) {
+  eval_tables tables;
   for (int m = 0; m < e.count; ++m) {
     const std::uint64_t seed = e.first_seed + std::uint64_t(m);
     random_generator rng(hash64(seed ^ 0x6576616cULL));
@@ -92,31 +132,20 @@ inline void evaluate_materials(const eval_settings& e, const std::vector<materia
         add_sensor_noise(photos, e.noise, seed ^ hash64(std::uint64_t(n) * 2 + (set == "beta")));
         const auto t0 = std::chrono::steady_clock::now();
         const capture_result pr = capture_material(cap, photos, nets, options);
-        const double sec = seconds_since(t0);
+        const eval_tables::entry x{m, seed, w, h, n, set, *material_options.kind, seconds_since(t0)};
         std::fprintf(stderr, "eval: material %d/%d (seed %llu, %dx%d, %s) N=%d set %s: %.1f s\n", m + 1, e.count,
-                     static_cast<unsigned long long>(seed), w, h, material_kind_name(*material_options.kind), n, set.c_str(), sec);
+                     static_cast<unsigned long long>(seed), w, h, material_kind_name(x.kind), n, set.c_str(), x.seconds);
         // Each row's photo_loss is the stage's image loss against the input photographs: what a
         // capture of real photographs can measure, beside the errors that need the truth. Every row
         // also carries the (kept run's) estimate's and its auto-encoder projection's losses, the
         // starts the fine-tune can take (docs/method.md section 8.3).
-        auto record = [&](const char* stage, const char* report, const material_maps& maps) {
-          const parameter_errors pe = compare_maps(maps, truth);
-          const double nv = novel_view_error(maps, truth, novel);
-          const std::string key = std::to_string(n) + "|" + stage + "|" + set;
-          add(key, pe, nv, sec);
-          family_rows[key].push_back({*material_options.kind, pe, nv});
-          csv << m << ',' << seed << ',' << w << ',' << h << ',' << n << ',' << set << ',' << stage << ',' << pe.diffuse << ','
-              << pe.specular << ',' << pe.normal << ',' << pe.lobes << ',' << pe.rotation << ',' << pe.rotation_anisotropic << ','
-              << pe.fresnel << ',' << nv << ',' << sec << ',' << material_kind_name(*material_options.kind) << ','
-              << pr.stage_loss(report) << ',' << pr.stage_loss("estimate") << ',' << pr.stage_loss("encode") << '\n';
-        };
-        if (pr.after_finetune) record("fine-tuned", "finetune", *pr.after_finetune);
-        record("refined", "refine", pr.maps);
+        if (pr.after_finetune) tables.record(x, "fine-tuned", "finetune", *pr.after_finetune, truth, novel, pr);
+        tables.record(x, "refined", "refine", pr.maps, truth, novel, pr);
       }
-    write_tables();
+    tables.write(e.out);
     std::fprintf(stderr, "eval: %d/%d materials done, tables in %s\n", m + 1, e.count, e.out.c_str());
   }
-  const std::string table = write_tables();
+  const std::string table = tables.write(e.out);
   std::printf("%s\n(%d materials, %d to %d texels a side; per-material rows in %s)\n", table.c_str(), e.count, e.min_size, e.max_size,
               (e.out / "table.csv").c_str());
 }
