@@ -223,16 +223,11 @@ inline std::string row(const char* name, const parameter_errors& e) {
   return line;
 }
 
-/// eval-networks with an estimator and an auto-encoder of the given presets.
-template <class EstimatorPreset, class AutoEncoderPreset>
-void evaluate_networks_with(const network_eval_settings& s) {
-  const std::vector<material_kind> families = material_kinds_from_names(s.families);
-  estimation_network<EstimatorPreset> estimator;
-  auto_encoder<AutoEncoderPreset> autoencoder;
-  nn::load_weights(s.estimator, estimator);
-  nn::load_weights(s.autoencoder, autoencoder);
+/// eval-networks' validation materials (their kinds in `kinds`), with the settings' sensor noise on
+/// their photographs.
+inline std::vector<training::sample> network_eval_samples(const network_eval_settings& s, const std::vector<material_kind>& families,
+                                                          std::vector<material_kind>& kinds) {
   std::vector<training::sample> samples;
-  std::vector<material_kind> kinds;
   for (int i = 0; i < s.count; ++i) {
     const std::uint64_t seed = training::validation_seed(i);
     procedural_options options;
@@ -242,38 +237,31 @@ void evaluate_networks_with(const network_eval_settings& s) {
     samples.push_back(training::make_sample(seed, s.size, true, options));
     add_sensor_noise(samples.back().photos, s.noise, hash64(seed ^ 0x6e6574776f726b73ULL));
   }
-  // The baseline: the per-texel mean of the validation set's true maps.
-  material_maps mean(s.size, s.size);
+  return samples;
+}
+
+/// The per-texel mean of the samples' true maps (size x size): eval-networks' baseline.
+inline material_maps mean_of_truths(const std::vector<training::sample>& samples, int size) {
+  material_maps mean(size, size);
   for (int k = 0; k < parameter_count; ++k)
     for (std::size_t j = 0; j < mean.texel_count(); ++j) {
       double sum = 0;
       for (const auto& x : samples) sum += x.truth.plane(k)[j];
-      mean.plane(k)[j] = float(sum / s.count);
+      mean.plane(k)[j] = float(sum / double(samples.size()));
     }
-  std::vector<material_errors> est_all, base_all, ae_all, start_all;
-  for (std::size_t i = 0; i < samples.size(); ++i) {
-    const auto& x = samples[i];
-    tensor<parameter_count> u;
-    if (s.window > 0) {
-      const material_maps m = estimate(x.photos, estimator, s.windows());
-      u = tensor<parameter_count>(1, s.size, s.size);
-      network_space::maps_to_network(m, u, 0);
-    } else {
-      u = training::estimator_output(estimator, x);
-    }
-    const parameter_errors e = compare_maps(network_space::network_to_maps(u, 0), x.truth), b = compare_maps(mean, x.truth);
-    const auto r = training::autoencoder_output(autoencoder, x);
-    const parameter_errors a = compare_maps(network_space::network_to_maps(r, 0), x.truth);
-    // The fine-tune's start: the decoder's maps of the estimate's latent code (docs/method.md section 8.2).
-    const auto d = training::autoencoder_output(autoencoder, x, &u);
-    const parameter_errors st = compare_maps(network_space::network_to_maps(d, 0), x.truth);
-    est_all.push_back({kinds[i], e});
-    base_all.push_back({kinds[i], b});
-    ae_all.push_back({kinds[i], a});
-    start_all.push_back({kinds[i], st});
-  }
-  const parameter_errors est = average_errors(est_all).mean, base = average_errors(base_all).mean,
-                         ae = average_errors(ae_all).mean, start = average_errors(start_all).mean;
+  return mean;
+}
+
+/// Each validation material's errors for eval-networks' four rows.
+struct network_eval_errors {
+  std::vector<material_errors> estimator, baseline, autoencoder, start;
+};
+
+/// eval-networks' report (Markdown): the settings, the four rows' mean errors, then per family.
+inline std::string network_eval_report(const network_eval_settings& s, const std::vector<material_kind>& families, const char* estimator_name,
+                                       const char* autoencoder_name, const network_eval_errors& errors) {
+  const parameter_errors est = average_errors(errors.estimator).mean, base = average_errors(errors.baseline).mean,
+                         ae = average_errors(errors.autoencoder).mean, start = average_errors(errors.start).mean;
   const auto number = [](double v) {
     char text[32];
     std::snprintf(text, sizeof text, "%g", v);
@@ -291,14 +279,14 @@ void evaluate_networks_with(const network_eval_settings& s) {
                    "; MSE in the original ranges (compare_maps; alpha modulo pi over all texels, "
                    "and over the anisotropic texels of the materials that have them)\n\n";
   md += "| model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|\n";
-  md += row(("estimator (" + std::string(EstimatorPreset::name) + ")").c_str(), est);
+  md += row(("estimator (" + std::string(estimator_name) + ")").c_str(), est);
   md += row("mean-map baseline", base);
-  md += row(("auto-encoder reconstruction (" + std::string(AutoEncoderPreset::name) + ")").c_str(), ae);
+  md += row(("auto-encoder reconstruction (" + std::string(autoencoder_name) + ")").c_str(), ae);
   md += row("estimate through the auto-encoder (the fine-tune's start)", start);
   md += "\nPer family (held out of training: leather, printed; the baseline is the mean map of all materials above)\n\n";
   md += "| family | materials | model | a_d | a'_s | n_s | sigma | alpha (mod pi) | alpha, anisotropic | F0 |\n|---|---|---|---|---|---|---|---|---|---|\n";
-  const auto est_rows = errors_by_family(est_all), base_rows = errors_by_family(base_all), ae_rows = errors_by_family(ae_all),
-             start_rows = errors_by_family(start_all);
+  const auto est_rows = errors_by_family(errors.estimator), base_rows = errors_by_family(errors.baseline),
+             ae_rows = errors_by_family(errors.autoencoder), start_rows = errors_by_family(errors.start);
   for (std::size_t k = 0; k < est_rows.size(); ++k) {
     const std::string prefix = std::string(material_kind_name(est_rows[k].kind)) + (is_held_out(est_rows[k].kind) ? " (held out)" : "") +
                                " | " + std::to_string(est_rows[k].count);
@@ -307,12 +295,42 @@ void evaluate_networks_with(const network_eval_settings& s) {
     md += row((prefix + " | auto-encoder").c_str(), ae_rows[k].mean);
     md += row((prefix + " | estimate through the auto-encoder").c_str(), start_rows[k].mean);
   }
-  std::printf("%s", md.c_str());
-  if (!s.markdown.empty()) {
-    std::ofstream out(s.markdown);
-    out << md;
-    if (!out) throw std::runtime_error(s.markdown + ": cannot write");
+  return md;
+}
+
+/// eval-networks with an estimator and an auto-encoder of the given presets.
+template <class EstimatorPreset, class AutoEncoderPreset>
+void evaluate_networks_with(const network_eval_settings& s) {
+  const std::vector<material_kind> families = material_kinds_from_names(s.families);
+  estimation_network<EstimatorPreset> estimator;
+  auto_encoder<AutoEncoderPreset> autoencoder;
+  nn::load_weights(s.estimator, estimator);
+  nn::load_weights(s.autoencoder, autoencoder);
+  std::vector<material_kind> kinds;
+  const std::vector<training::sample> samples = network_eval_samples(s, families, kinds);
+  const material_maps mean = mean_of_truths(samples, s.size);
+  network_eval_errors errors;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const auto& x = samples[i];
+    tensor<parameter_count> u;
+    if (s.window > 0) {
+      const material_maps m = estimate(x.photos, estimator, s.windows());
+      u = tensor<parameter_count>(1, s.size, s.size);
+      network_space::maps_to_network(m, u, 0);
+    } else {
+      u = training::estimator_output(estimator, x);
+    }
+    errors.estimator.push_back({kinds[i], compare_maps(network_space::network_to_maps(u, 0), x.truth)});
+    errors.baseline.push_back({kinds[i], compare_maps(mean, x.truth)});
+    const auto r = training::autoencoder_output(autoencoder, x);
+    errors.autoencoder.push_back({kinds[i], compare_maps(network_space::network_to_maps(r, 0), x.truth)});
+    // The fine-tune's start: the decoder's maps of the estimate's latent code (docs/method.md section 8.2).
+    const auto d = training::autoencoder_output(autoencoder, x, &u);
+    errors.start.push_back({kinds[i], compare_maps(network_space::network_to_maps(d, 0), x.truth)});
   }
+  const std::string md = network_eval_report(s, families, EstimatorPreset::name, AutoEncoderPreset::name, errors);
+  std::printf("%s", md.c_str());
+  if (!s.markdown.empty()) write_file_atomically(s.markdown, md);
 }
 
 /// Estimator against the mean-map baseline, and auto-encoder reconstruction, on validation
