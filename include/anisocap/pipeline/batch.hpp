@@ -738,13 +738,62 @@ inline void append(const std::filesystem::path& log, const std::string& line) {
 
 }  // namespace batch_detail
 
+namespace batch_detail {
+
+/// The second half of run_batch_unit, under the unit's lock: writes the marker (state "running"),
+/// runs the capture (resuming when `resume`) with its output appended to the unit's log while
+/// refreshing the lock, and writes the marker's final state ("done", "stopped" or "failed") into
+/// `out` and the unit's folder.
+inline void capture_unit(const batch_sample& s, const batch_unit_files& f, const batch_record& record, const batch_options& o, batch_lock& lock,
+                         bool resume, batch_outcome& out) {
+  namespace fs = std::filesystem;
+  using clock = std::chrono::steady_clock;
+  std::vector<std::string> argv{o.program.string()};
+  argv.insert(argv.end(), o.program_arguments.begin(), o.program_arguments.end());
+  const auto args = batch_capture_arguments(s, record, resume);
+  argv.insert(argv.end(), args.begin(), args.end());
+  std::string command;
+  for (const auto& a : argv) command += (command.empty() ? "" : " ") + a;
+  write_marker(f, s.name, record, "running");
+  append(f.log(), "== batch: sample " + s.name + " on host " + host_name() + " pid " + std::to_string(::getpid()) +
+                      (resume ? ", resuming" : "") + ": " + command);
+  const auto start = clock::now();
+  auto last_refresh = start;
+  const int status = run_logged_process(argv, f.log(), [&] {
+    if (std::chrono::duration<double>(clock::now() - last_refresh).count() >= o.refresh_seconds) {
+      lock.refresh();
+      last_refresh = clock::now();
+    }
+  });
+  out.seconds = std::chrono::duration<double>(clock::now() - start).count();
+  out.exit_status = status;
+  const std::string last = last_line(f.log());  // what the capture said last, before the trailer
+  char took[64];
+  std::snprintf(took, sizeof took, "%.1f s", out.seconds);
+  append(f.log(), "== batch: sample " + s.name + ": exit status " + std::to_string(status) + " after " + took);
+  std::error_code ec;
+  if (status == 0 && fs::exists(f.report(), ec)) {
+    write_marker(f, s.name, record, "done", {{"seconds", out.seconds}, {"resumed", resume}});
+    out.result = batch_result::captured;
+    return;
+  }
+  const int sig = batch_stop_requested();
+  out.result = sig != 0 ? batch_result::stopped : batch_result::failed;
+  write_marker(f, s.name, record, sig != 0 ? "stopped" : "failed", {{"seconds", out.seconds}, {"exit_status", status}});
+  out.message = (sig != 0 ? "stopped by signal " + std::to_string(sig) : status == 0 ? std::string("the capture wrote no report.json")
+                                                                                      : "the capture failed (exit status " + std::to_string(status) + ")") +
+                (fs::exists(f.checkpoint(), ec) ? "; its check-point is kept and the next run resumes it" : "") + "; see " + f.log().string() +
+                (last.empty() || sig != 0 ? "" : ": " + last);
+}
+
+}  // namespace batch_detail
+
 /// Runs one unit, sample `i` of `m` with its record (check_batch_sample): skips it when done, leaves
 /// it when another process holds its lock, else takes the lock, writes the marker (state
 /// "running"), runs the capture (resuming an interrupted one) with its output appended to the
 /// unit's log, and on success writes the marker with state "done" last, atomically.
 inline batch_outcome run_batch_unit(const batch_manifest& m, std::size_t i, const batch_record& record, const batch_options& o) {
   namespace fs = std::filesystem;
-  using clock = std::chrono::steady_clock;
   const batch_sample& s = m.samples[i];
   const batch_unit_files f{s.out};
   batch_outcome out;
@@ -788,42 +837,7 @@ inline batch_outcome run_batch_unit(const batch_manifest& m, std::size_t i, cons
   const bool resume = out.state == batch_state::interrupted;
   if (out.state == batch_state::changed) say("captured again: " + reason + " changed since its outputs were made");
   say(resume ? "resuming from " + f.checkpoint().string() : "capturing");
-  std::vector<std::string> argv{o.program.string()};
-  argv.insert(argv.end(), o.program_arguments.begin(), o.program_arguments.end());
-  const auto args = batch_capture_arguments(s, record, resume);
-  argv.insert(argv.end(), args.begin(), args.end());
-  std::string command;
-  for (const auto& a : argv) command += (command.empty() ? "" : " ") + a;
-  batch_detail::write_marker(f, s.name, record, "running");
-  batch_detail::append(f.log(), "== batch: sample " + s.name + " on host " + batch_detail::host_name() + " pid " + std::to_string(::getpid()) +
-                                    (resume ? ", resuming" : "") + ": " + command);
-  const auto start = clock::now();
-  auto last_refresh = start;
-  const int status = run_logged_process(argv, f.log(), [&] {
-    if (std::chrono::duration<double>(clock::now() - last_refresh).count() >= o.refresh_seconds) {
-      lock.refresh();
-      last_refresh = clock::now();
-    }
-  });
-  out.seconds = std::chrono::duration<double>(clock::now() - start).count();
-  out.exit_status = status;
-  const std::string last = batch_detail::last_line(f.log());  // what the capture said last, before the trailer
-  char took[64];
-  std::snprintf(took, sizeof took, "%.1f s", out.seconds);
-  batch_detail::append(f.log(), "== batch: sample " + s.name + ": exit status " + std::to_string(status) + " after " + took);
-  std::error_code ec;
-  if (status == 0 && fs::exists(f.report(), ec)) {
-    batch_detail::write_marker(f, s.name, record, "done", {{"seconds", out.seconds}, {"resumed", resume}});
-    out.result = batch_result::captured;
-    return out;
-  }
-  const int sig = batch_stop_requested();
-  out.result = sig != 0 ? batch_result::stopped : batch_result::failed;
-  batch_detail::write_marker(f, s.name, record, sig != 0 ? "stopped" : "failed", {{"seconds", out.seconds}, {"exit_status", status}});
-  out.message = (sig != 0 ? "stopped by signal " + std::to_string(sig) : status == 0 ? std::string("the capture wrote no report.json")
-                                                                                      : "the capture failed (exit status " + std::to_string(status) + ")") +
-                (fs::exists(f.checkpoint(), ec) ? "; its check-point is kept and the next run resumes it" : "") + "; see " + f.log().string() +
-                (last.empty() || sig != 0 ? "" : ": " + last);
+  batch_detail::capture_unit(s, f, record, o, lock, resume, out);
   return out;
 }
 
