@@ -172,7 +172,7 @@ TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights
   auto fresh = tiny_options(fresh_folder("networks_enc_no_init"), 32);
   fresh.encoder_only = true;
   auto_encoder<testing::autoencoder_tiny> none(14);
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(fresh, none), doctest::Contains("--init"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(fresh, none), doctest::Contains("train_options::init_weights"), std::invalid_argument);
   CHECK_FALSE(fs::exists(fresh.out_dir));
   for (const auto& d : {src, a, b}) fs::remove_all(d);
 }
@@ -629,7 +629,7 @@ TEST_CASE("training materials: an emphasis draws its share of the materials from
   CHECK_THROWS_WITH_AS(training::train_autoencoder(bad, net), doctest::Contains("held-out family 'leather'"), std::invalid_argument);
   bad.emphasis = {material_kind::spun_metal};
   bad.emphasis_share = 1.5;
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(bad, net), doctest::Contains("--emphasis-share"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(bad, net), doctest::Contains("train_options::emphasis_share"), std::invalid_argument);
   CHECK_FALSE(fs::exists(dir));
 }
 
@@ -866,11 +866,11 @@ TEST_CASE("training: a learning-rate decay resumes exactly, is kept on resume, a
   auto bad = decaying(fresh_folder("networks_decay_bad"));
   bad.lr_decay_to = 2;
   estimation_network<testing::estimator_tiny> unused(3);
-  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-decay-to"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("train_options::lr_decay_to"), std::invalid_argument);
   CHECK_FALSE(fs::exists(bad.out_dir));
   bad.lr_decay_to = 4;
   bad.lr_end = 2;
-  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-end"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("train_options::lr_end"), std::invalid_argument);
   for (const fs::path& dir : {straight, resumed, added, constant}) fs::remove_all(dir);
 }
 
@@ -919,7 +919,7 @@ TEST_CASE("training: a learning-rate warm-up ramps the schedule's first steps, r
   auto bad = warming(fresh_folder("networks_warmup_bad"));
   bad.lr_warmup = -1;
   estimation_network<testing::estimator_tiny> unused(3);
-  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-warmup"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("train_options::lr_warmup"), std::invalid_argument);
   CHECK_FALSE(fs::exists(bad.out_dir));
   for (const fs::path& dir : {straight, resumed, cold_dir}) fs::remove_all(dir);
 }
@@ -987,11 +987,11 @@ TEST_CASE("training: a re-warm-up ramps the rate again from a given step, resume
   auto bad = tiny_options(fresh_folder("networks_rewarmup_bad"), 64);
   bad.lr_rewarmup = 3;
   estimation_network<testing::estimator_tiny> unused(3);
-  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-rewarmup-from"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("train_options::lr_rewarmup_from"), std::invalid_argument);
   CHECK_FALSE(fs::exists(bad.out_dir));
   bad.lr_rewarmup = -1;
   bad.lr_rewarmup_from = 0;
-  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("--lr-rewarmup"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(training::train_estimator(bad, unused), doctest::Contains("train_options::lr_rewarmup"), std::invalid_argument);
   CHECK_FALSE(fs::exists(bad.out_dir));
   // A saved re-warm-up or decay whose step numbers are not integers, or that lacks one, is refused on
   // a resume that does not name its own, naming checkpoint.json; the check-point stays as it was.

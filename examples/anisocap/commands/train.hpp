@@ -3,11 +3,17 @@
 // networks' evaluation (eval-networks); docs/model-card.md.
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <functional>
 #include <memory>
+#include <iterator>
 #include <optional>
+#include <stdexcept>
 #include <string>
+#include <string_view>
+#include <utility>
 #include <vector>
 
 #include "anisocap/training/training.hpp"
@@ -172,6 +178,38 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   else add_estimator_options(cmd, o);
 }
 
+/// The flag that sets each train_options field a library message names (as train_options::<field>):
+/// the one table between the two.
+inline constexpr std::pair<std::string_view, std::string_view> train_option_flags[] = {
+    {"steps", "--steps"}, {"size", "--size"}, {"batch", "--batch"}, {"learning_rate", "--lr"},
+    {"checkpoint_minutes", "--checkpoint-minutes"}, {"validate_every", "--validate-every"},
+    {"validation_count", "--validation-count"}, {"resume", "--resume"}, {"init_weights", "--init"},
+    {"smoothness_weight", "--smoothness"}, {"latent_noise", "--latent-noise"}, {"render_weight", "--render-weight"},
+    {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
+    {"diffuse_weight", "--diffuse-weight"}, {"normal_weight", "--normal-weight"}, {"encoder_only", "--trainable encoder"},
+    {"inputs_are_estimates", "--inputs estimates"}, {"mix", "--materials"}, {"emphasis", "--emphasis"},
+    {"emphasis_share", "--emphasis-share"}, {"input_noise.shot", "--shot-noise"}, {"input_noise.read", "--read-noise"},
+    {"lr_decay_from", "--lr-decay-from"}, {"lr_decay_to", "--lr-decay-to"}, {"lr_end", "--lr-end"},
+    {"lr_warmup", "--lr-warmup"}, {"lr_rewarmup", "--lr-rewarmup"}, {"lr_rewarmup_from", "--lr-rewarmup-from"},
+    {"data_parallel", "--data-parallel"}, {"prefetch", "--prefetch"}, {"precision", "--network-precision"}};
+
+/// `message` with each train_options::<field> that train_option_flags lists replaced by its flag.
+inline std::string with_train_flags(const std::string& message) {
+  static constexpr std::string_view prefix = "train_options::";
+  std::string out;
+  std::size_t at = 0;
+  for (std::size_t found; (found = message.find(prefix, at)) != std::string::npos;) {
+    std::size_t end = found + prefix.size();
+    while (end < message.size() && (std::islower(static_cast<unsigned char>(message[end])) || message[end] == '_' || message[end] == '.')) ++end;
+    const std::string_view field = std::string_view(message).substr(found + prefix.size(), end - found - prefix.size());
+    const auto* flag = std::find_if(std::begin(train_option_flags), std::end(train_option_flags), [&](const auto& e) { return e.first == field; });
+    out.append(message, at, found - at);
+    out += flag != std::end(train_option_flags) ? std::string(flag->second) : message.substr(found, end - found);
+    at = end;
+  }
+  return out + message.substr(at);
+}
+
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
 /// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
 /// folder's lock; a run refused before writing anything leaves no folder behind. Under an MPI
@@ -194,6 +232,13 @@ void train_in_locked_folder(const train_settings& settings, Train train) {
       run.template operator()<Paper>();
     else
       Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + Paper::name + ", " + Compact::joined(); });
+  } catch (const std::invalid_argument& e) {  // the library names train_options fields: name the flags
+    if (lock) lock->release_empty();
+    throw std::invalid_argument(with_train_flags(e.what()));
+  } catch (const std::runtime_error& e) {
+    if (lock) lock->release_empty();
+    if (std::string(e.what()).find("train_options::") == std::string::npos) throw;
+    throw std::runtime_error(with_train_flags(e.what()));
   } catch (...) {
     if (lock) lock->release_empty();
     throw;

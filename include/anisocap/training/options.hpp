@@ -115,49 +115,50 @@ struct train_options {
   nn::precision precision = nn::precision::fp32;
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
-  /// Throws std::invalid_argument for impossible values (before a run creates anything).
+  /// Throws std::invalid_argument for impossible values (before a run creates anything), naming the
+  /// fields as train_options::<field> (the program maps them to its flags).
   void validate() const {
-    if (steps < 1) throw std::invalid_argument("training steps (--steps) must be at least 1, got " + std::to_string(steps));
-    nn::require_available(precision, "--network-precision");
-    if (batch < 1) throw std::invalid_argument("the batch (--batch) must hold at least 1 material, got " + std::to_string(batch));
+    if (steps < 1) throw std::invalid_argument("train_options::steps must be at least 1, got " + std::to_string(steps));
+    nn::require_available(precision, "train_options::precision");
+    if (batch < 1) throw std::invalid_argument("train_options::batch (materials per step) must be at least 1, got " + std::to_string(batch));
     if (!(learning_rate >= 0) || !std::isfinite(learning_rate))
-      throw std::invalid_argument("the learning rate (--lr) must be finite and not negative (0: the paper's)");
+      throw std::invalid_argument("train_options::learning_rate must be finite and not negative (0: the paper's)");
     if (!(checkpoint_minutes > 0) || validate_every < 1 || validation_count < 1)
-      throw std::invalid_argument("--checkpoint-minutes, --validate-every and --validation-count must be positive");
+      throw std::invalid_argument("train_options::checkpoint_minutes, train_options::validate_every and train_options::validation_count must be positive");
     if (!(smoothness_weight >= 0) || !std::isfinite(smoothness_weight) || !(latent_noise >= 0) || !std::isfinite(latent_noise))
-      throw std::invalid_argument("--smoothness and --latent-noise must be finite and not negative");
+      throw std::invalid_argument("train_options::smoothness_weight and train_options::latent_noise must be finite and not negative");
     if (!(render_weight >= 0) || !std::isfinite(render_weight))
-      throw std::invalid_argument("the render-loss weight (--render-weight) must be finite and not negative");
+      throw std::invalid_argument("the render-loss weight (train_options::render_weight) must be finite and not negative");
     if (!(lobe_weight > 0) || !std::isfinite(lobe_weight))
-      throw std::invalid_argument("the lobe L1 weight (--lobe-weight) must be finite and positive");
+      throw std::invalid_argument("the lobe L1 weight (train_options::lobe_weight) must be finite and positive");
     if (!(sigma_weight >= 0) || !std::isfinite(sigma_weight))
-      throw std::invalid_argument("the lobe-width squared-error weight (--sigma-weight) must be finite and not negative");
+      throw std::invalid_argument("the lobe-width squared-error weight (train_options::sigma_weight) must be finite and not negative");
     if (!(mse_weight >= 0) || !std::isfinite(mse_weight))
-      throw std::invalid_argument("the maps' squared-error weight (--mse-weight) must be finite and not negative");
+      throw std::invalid_argument("the maps' squared-error weight (train_options::mse_weight) must be finite and not negative");
     if (!(diffuse_weight > 0) || !std::isfinite(diffuse_weight))
-      throw std::invalid_argument("a_d's loss weight (--diffuse-weight) must be finite and positive");
+      throw std::invalid_argument("a_d's loss weight (train_options::diffuse_weight) must be finite and positive");
     if (!(normal_weight > 0) || !std::isfinite(normal_weight))
-      throw std::invalid_argument("the normal's loss weight (--normal-weight) must be finite and positive");
+      throw std::invalid_argument("the normal's loss weight (train_options::normal_weight) must be finite and positive");
     if (lr_decay_to != 0 || lr_decay_from != 0) {
       if (!(lr_decay_from >= 0 && lr_decay_to > lr_decay_from))
-        throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= --lr-decay-from < --lr-decay-to), got " +
+        throw std::invalid_argument("the learning-rate decay must end after it starts (0 <= train_options::lr_decay_from < train_options::lr_decay_to), got " +
                                     std::to_string(lr_decay_from) + " and " + std::to_string(lr_decay_to));
       if (!(lr_end >= 0 && lr_end <= 1))
-        throw std::invalid_argument("the final learning-rate fraction (--lr-end) must be between 0 and 1");
+        throw std::invalid_argument("the final learning-rate fraction (train_options::lr_end) must be between 0 and 1");
     }
     if (lr_warmup < 0)
-      throw std::invalid_argument("the learning-rate warm-up (--lr-warmup) must not be negative, got " + std::to_string(lr_warmup));
+      throw std::invalid_argument("the learning-rate warm-up (train_options::lr_warmup) must not be negative, got " + std::to_string(lr_warmup));
     if (lr_rewarmup < 0)
-      throw std::invalid_argument("the learning-rate re-warm-up (--lr-rewarmup) must not be negative, got " + std::to_string(lr_rewarmup));
+      throw std::invalid_argument("the learning-rate re-warm-up (train_options::lr_rewarmup) must not be negative, got " + std::to_string(lr_rewarmup));
     if (lr_rewarmup > 0 && lr_rewarmup_from < 0)
-      throw std::invalid_argument("a learning-rate re-warm-up (--lr-rewarmup) needs its first step (--lr-rewarmup-from)");
+      throw std::invalid_argument("a learning-rate re-warm-up (train_options::lr_rewarmup) needs its first step (train_options::lr_rewarmup_from)");
     if (!(emphasis_share >= 0 && emphasis_share <= 1))
-      throw std::invalid_argument("the emphasis share (--emphasis-share) must be between 0 and 1");
+      throw std::invalid_argument("the emphasis share (train_options::emphasis_share) must be between 0 and 1");
     if (!(input_noise.shot >= 0 && std::isfinite(input_noise.shot)) || !(input_noise.read >= 0 && std::isfinite(input_noise.read)))
-      throw std::invalid_argument("the training inputs' sensor noise (--shot-noise, --read-noise) must be finite and not negative");
+      throw std::invalid_argument("the training inputs' sensor noise (train_options::input_noise.shot, train_options::input_noise.read) must be finite and not negative");
     for (material_kind k : emphasis)
       if (is_held_out(k))
-        throw std::invalid_argument(std::string("training: --emphasis names the held-out family '") + material_kind_name(k) +
+        throw std::invalid_argument(std::string("training: train_options::emphasis names the held-out family '") + material_kind_name(k) +
                                     "', which training never draws");
   }
 

@@ -140,7 +140,7 @@ void start_from_init(const train_options& o, const std::string& kind, Net& net, 
     // keeps an auto-encoder's weights out of an estimator and the reverse.
     for (const auto& [key, value] : nn::read_safetensors_header(o.init_weights).metadata)
       if (key == "network" && value != kind)
-        throw std::runtime_error(o.init_weights.string() + ": holds " + value + " weights, not " + kind + " weights (--init)");
+        throw std::runtime_error(o.init_weights.string() + ": holds " + value + " weights, not " + kind + " weights (train_options::init_weights)");
     const std::vector<std::string> fresh = nn::load_matching_weights(o.init_weights, net);
     std::string note;
     for (const auto& name : fresh) note += (note.empty() ? "" : ", ") + name;
@@ -257,7 +257,7 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
 /// with the same options and the same starting weights.
 template <class Preset>
 void train_estimator(const train_options& o, estimation_network<Preset>& net, const communicator& comm = serial_communicator()) {
-  if (o.size <= 0 || o.size % 64 != 0) throw std::invalid_argument("train-estimator: --size must be a positive multiple of 64");
+  if (o.size <= 0 || o.size % 64 != 0) throw std::invalid_argument("train-estimator: train_options::size must be a positive multiple of 64");
   o.validate();  // before the schedule is built from the options
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 5e-5, o));
   opt.add_parameters(net);
@@ -285,16 +285,16 @@ void train_autoencoder_on(const train_options& options, auto_encoder<Preset>& ne
   train_options o = options;
   o.inputs_are_estimates = from_estimates;
   if (from_estimates && (o.size <= 0 || o.size % 64 != 0))
-    throw std::invalid_argument("train-autoencoder: with estimates as inputs --size must be a positive multiple of 64 (the estimator's)");
+    throw std::invalid_argument("train-autoencoder: with estimates as inputs (train_options::inputs_are_estimates) train_options::size must be a positive multiple of 64 (the estimator's)");
   constexpr int cell = auto_encoder<Preset>::size_multiple;  // texels per latent cell along each side
   if (o.size <= 0 || o.size % cell != 0)
-    throw std::invalid_argument("train-autoencoder: --size must be a positive multiple of " + std::to_string(cell) +
+    throw std::invalid_argument("train-autoencoder: train_options::size must be a positive multiple of " + std::to_string(cell) +
                                 " (one latent cell of this preset)");
   if (o.batch < 2 && o.size <= cell) throw std::invalid_argument("train-autoencoder: batch norm needs more than one latent value");
   o.validate();  // before the schedule is built from the options
   if (o.encoder_only && o.init_weights.empty() && !o.resume)
-    throw std::invalid_argument("train-autoencoder: --trainable encoder trains against the decoder of the weights it starts from: "
-                                "give them with --init (or --resume such a run)");
+    throw std::invalid_argument("train-autoencoder: train_options::encoder_only trains against the decoder of the weights it starts from: "
+                                "give them with train_options::init_weights (or train_options::resume such a run)");
   nn::adam opt(training_schedule(o.learning_rate > 0 ? o.learning_rate : 1e-3, o));
   opt.add_parameters(net);
   net.freeze_decoder(o.encoder_only);
