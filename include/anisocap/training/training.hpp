@@ -152,6 +152,62 @@ void start_from_init(const train_options& o, const std::string& kind, Net& net, 
   }
 }
 
+/// A run's first step: a resumed run's (resume_run; rank 0 cuts validation.csv back to it), or 0
+/// for a fresh one (start_from_init; rank 0 creates out_dir and starts validation.csv afresh).
+template <class Net>
+long begin_run(const train_options& o, const std::string& kind, Net& net, nn::adam& opt, json& info,
+               const std::function<void(const std::string&)>& log, bool root, const std::filesystem::path& csv) {
+  if (o.resume) {
+    const long step = resume_run(o, kind, net, opt, info, log);
+    if (root) {
+      truncate_csv(csv, step);
+      log(kind + ": resumed at step " + std::to_string(step));
+    }
+    return step;
+  }
+  start_from_init(o, kind, net, log);
+  if (root) {
+    std::filesystem::create_directories(o.out_dir);
+    std::filesystem::remove(csv);
+  }
+  return 0;
+}
+
+/// The training loop's loss sums: over the progress line's window of steps, and since the last
+/// validation (the CSV's train_loss).
+struct loss_tally {
+  double window = 0, since_validation = 0;
+  long window_count = 0, since_validation_count = 0;
+  void add(double loss) {
+    window += loss;
+    ++window_count;
+    since_validation += loss;
+    ++since_validation_count;
+  }
+  /// The window's mean loss; starts the next window.
+  double take_window() {
+    const double mean = window / double(window_count);
+    window = 0;
+    window_count = 0;
+    return mean;
+  }
+  /// The mean loss since the last validation; starts the next span.
+  double take_since_validation() {
+    const double mean = since_validation / double(since_validation_count);
+    since_validation = 0;
+    since_validation_count = 0;
+    return mean;
+  }
+};
+
+/// The progress line after `step` of `steps` at `rate` steps per second.
+inline std::string progress_line(const std::string& kind, long step, long steps, double loss, double rate, int batch) {
+  char line[256];
+  std::snprintf(line, sizeof line, "%s: step %ld/%ld  loss %.4f  %.3f steps/s  %.2f samples/s  %.0f s left", kind.c_str(), step, steps, loss,
+                rate, rate * batch, double(steps - step) / rate);
+  return line;
+}
+
 /// The loop shared by both trainers: `step_fn(step, samples)` runs one optimiser step on the step's
 /// batch (make_batch; prefetched on a second thread with o.prefetch) and returns its loss;
 /// `validate_fn()` the validation. Handles resume, progress, checkpoints and the CSV.
@@ -177,26 +233,12 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   const nn::precision_scope precision(o.precision);
   const auto csv = o.out_dir / "validation.csv";
   json info = run_description(o, kind, Net::preset::name, opt.schedule.base_rate());
-  long step = 0;
-  if (o.resume) {
-    step = resume_run(o, kind, net, opt, info, log);
-    if (root) {
-      truncate_csv(csv, step);
-      log(kind + ": resumed at step " + std::to_string(step));
-    }
-  } else {
-    start_from_init(o, kind, net, log);
-    if (root) {
-      std::filesystem::create_directories(o.out_dir);
-      std::filesystem::remove(csv);
-    }
-  }
+  long step = begin_run(o, kind, net, opt, info, log, root, csv);
   using clock = std::chrono::steady_clock;
   const auto start = clock::now();
   auto last_checkpoint = start, last_progress = start;
   const long first = step;
-  double window = 0, since_validation = 0;  // loss sums for the progress line and the CSV row
-  long window_count = 0, since_validation_count = 0;
+  loss_tally tally;
   auto checkpoint = [&] {
     if (!root) return;
     save_checkpoint(o.out_dir, net, opt, step, info);
@@ -211,30 +253,18 @@ void run(const train_options& o, const std::string& kind, Net& net, nn::adam& op
   prefetcher<std::vector<sample>> batches([&](long s) { return make_batch(o, s, with_photos, share.first, share.second); }, end,
                                           o.prefetch, omp_get_max_threads());
   while (step < o.steps) {
-    const double loss = step_fn(step, batches.take(step));
+    tally.add(step_fn(step, batches.take(step)));
     ++step;
-    window += loss;
-    ++window_count;
-    since_validation += loss;
-    ++since_validation_count;
     const auto now = clock::now();
-    const double elapsed = std::chrono::duration<double>(now - start).count();
     if (root && (std::chrono::duration<double>(now - last_progress).count() >= o.progress_seconds || step == o.steps)) {
-      const double rate = double(step - first) / std::max(elapsed, 1e-9);
-      char line[256];
-      std::snprintf(line, sizeof line, "%s: step %ld/%ld  loss %.4f  %.3f steps/s  %.2f samples/s  %.0f s left",
-                    kind.c_str(), step, o.steps, window / double(window_count), rate, rate * o.batch, double(o.steps - step) / rate);
-      log(line);
-      window = 0;
-      window_count = 0;
+      const double rate = double(step - first) / std::max(std::chrono::duration<double>(now - start).count(), 1e-9);
+      log(progress_line(kind, step, o.steps, tally.take_window(), rate, o.batch));
       last_progress = now;
     }
     if (root && ((o.validate_every > 0 && step % o.validate_every == 0) || step == o.steps)) {
       // The CSV's train_loss: mean over the steps since the previous validation (or the resume).
       const validation_result v = validate_fn();
-      append_validation(csv, step, since_validation / double(since_validation_count), v);
-      since_validation = 0;
-      since_validation_count = 0;
+      append_validation(csv, step, tally.take_since_validation(), v);
       char line[256];
       std::snprintf(line, sizeof line, "%s: validation at step %ld: loss %.4f (L1 %.4f, render %.4f)", kind.c_str(), step,
                     v.loss.total, v.loss.l1, v.loss.render);
