@@ -294,12 +294,16 @@ struct loop_state {
 /// (decoder.safetensors) and in state.safetensors Adam's state (nn/adam.hpp's key scheme, its own
 /// step counter included: after a guard restart it lags the loop's), the guard's snapshot of
 /// weights and moments, and the guard's and the loop's numbers, doubles written exactly. Both
-/// files carry the step, so a pair torn by a kill while saving is recognised.
+/// files carry the step, so a pair torn by a kill between the two renames is recognised.
 template <class P>
 void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
                      const divergence_guard& guard, const loop_state& loop) {
   std::filesystem::create_directories(folder);
-  nn::save_weights(folder / "decoder.safetensors", autoencoder, {{"step", std::to_string(step)}});
+  // Both files are written whole under other names first, then renamed into place back to back
+  // (the decoder first): a kill while writing leaves the previous pair intact, and the pair can be
+  // torn only between two renames.
+  const std::filesystem::path decoder_next = folder / "decoder.next.safetensors", state_next = folder / "state.next.safetensors";
+  nn::save_weights(decoder_next, autoencoder, {{"step", std::to_string(step)}});
   nn::safetensors_file state;
   adam.save_state(state);
   for (std::size_t i = 0; i < guard.snapshot.buffers.size(); ++i)
@@ -319,7 +323,9 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
   state.metadata.emplace_back("window_steps", std::to_string(loop.window_steps));
   state.metadata.emplace_back("stopping.best", exact(loop.stopping.best));
   state.metadata.emplace_back("stopping.sum", exact(loop.stopping.sum));
-  nn::write_safetensors(folder / "state.safetensors", state);
+  nn::write_safetensors(state_next, state);
+  std::filesystem::rename(decoder_next, folder / "decoder.safetensors");
+  std::filesystem::rename(state_next, folder / "state.safetensors");
 }
 
 /// Reads back save_checkpoint's files; returns the step to continue from. Throws
