@@ -736,9 +736,6 @@ inline void append(const std::filesystem::path& log, const std::string& line) {
   out << line << "\n";
 }
 
-}  // namespace batch_detail
-
-namespace batch_detail {
 
 /// The second half of run_batch_unit, under the unit's lock: writes the marker (state "running"),
 /// runs the capture (resuming when `resume`) with its output appended to the unit's log while
