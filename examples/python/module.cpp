@@ -33,6 +33,7 @@
 #include "anisocap/data/photo_io.hpp"
 #include "anisocap/data/procedural.hpp"
 #include "anisocap/export/export.hpp"
+#include "anisocap/core/option_names.hpp"
 #include "anisocap/pipeline/capture_material.hpp"
 #include "anisocap/render/configurations.hpp"
 #include "anisocap/render/renderer.hpp"
@@ -374,6 +375,19 @@ std::string feature_name(const brdf_features& f) {
   return "full";
 }
 
+/// The capture_options fields that capture() sets by its arguments, named as its users give them.
+constexpr option_name capture_argument_names[] = {
+    {"finetune_options::steps", "finetune_steps"},
+    {"finetune_options::learning_rate", "finetune_lr"},
+    {"refine_options::steps", "steps"},
+    {"refine_options::learning_rate", "lr"},
+    {"refine_options::min_relative_improvement", "refine_stop"},
+    {"capture_options::neighbour_restarts", "neighbour_restarts"},
+    {"capture_options::network_precision", "network_precision"},
+    {"pipeline_stages", "stages"},
+    {"kernel_options", "kernel"},
+};
+
 py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_image>& configurations, const py::object& masks_obj,
                     const std::optional<fs::path>& models, const std::string& preset, const std::optional<fs::path>& also_models,
                     const std::string& stages, const std::string& schedule, std::optional<int> estimate_window,
@@ -404,7 +418,6 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
   if (lr) o.refine.learning_rate = o.refine_alone.learning_rate = *lr;
   if (refine_stop) o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = *refine_stop;
   if (neighbour_restarts) o.neighbour_restarts = o.neighbour_restarts_alone = *neighbour_restarts;
-  o.kernel = kernel_options::parse(kernel);
   o.render = render_options_of(precision, o.render.cull_tolerance);
   try {
     o.network_precision = nn::parse_precision(network_precision);
@@ -413,10 +426,13 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
   }
   if (second_run) o.second_run.residual = o.second_run.second_prior = *second_run;
   const bool explicit_stages = stages != "auto";
-  if (explicit_stages) o.stages = pipeline_stages::parse(stages);
+  naming_options(capture_argument_names, [&] {
+    o.kernel = kernel_options::parse(kernel);
+    if (explicit_stages) o.stages = pipeline_stages::parse(stages);
+    o.validate();
+  });
   if (start && explicit_stages && o.stages.networks())
     throw py::value_error("start replaces the network stages: use it with stages='refine'");
-  o.validate();
   // The networks as the program chooses them: the weights where they are found ("auto" runs the
   // refine alone without them), those named by `models`, none with models=False (empty path).
   loaded_networks* nets = nullptr;
@@ -444,7 +460,8 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
     py::gil_scoped_release release;  // before the lock: a capture holding it takes the GIL to report progress
     std::unique_lock<std::mutex> lock;
     if (nets) lock = std::unique_lock<std::mutex>(nets->in_use);
-    result = capture_material(cap, photos, nets ? nets->nets : none, o, masks, start ? &*start : nullptr);
+    result = naming_options(capture_argument_names,
+                            [&] { return capture_material(cap, photos, nets ? nets->nets : none, o, masks, start ? &*start : nullptr); });
   }
   py::dict out;
   out["maps"] = from_maps(result.maps);

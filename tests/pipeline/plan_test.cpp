@@ -38,7 +38,7 @@ TEST_CASE("plan_candidates: every distance, elevation and azimuth, flash and lam
   CHECK_THROWS_AS(o.validate(), std::invalid_argument);
   o = {};
   o.photos = 5;
-  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("--photos"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("plan_options::photos"), std::invalid_argument);
 }
 
 TEST_CASE("plan_photographs: after flash photographs, a lamp photograph (F0 then determined somewhere); greedy and honest gains") {

@@ -110,7 +110,7 @@ inline capture_command_inputs read_capture_command_inputs(const capture_settings
 /// A failed capture leaves nothing but a check-point with completed stages, and says so.
 class capture_failure_cleanup {
  public:
-  capture_failure_cleanup(output_lock& lock, fs::path checkpoint) : lock_(lock), checkpoint_(std::move(checkpoint)) {}
+  explicit capture_failure_cleanup(fs::path checkpoint) : checkpoint_(std::move(checkpoint)) {}
   capture_failure_cleanup(const capture_failure_cleanup&) = delete;
   capture_failure_cleanup& operator=(const capture_failure_cleanup&) = delete;
   ~capture_failure_cleanup() {
@@ -120,13 +120,11 @@ class capture_failure_cleanup {
       std::fprintf(stderr, "capture: failed; the completed stages are kept in %s: after fixing the cause, the same command with "
                    "--resume continues from them\n", checkpoint_.c_str());
     else
-      fs::remove_all(checkpoint_, ec);
-    lock_.release_empty();
+      fs::remove_all(checkpoint_, ec);  // then the output lock removes OUT if it made it and it is empty
   }
   bool succeeded = false;
 
  private:
-  output_lock& lock_;
   fs::path checkpoint_;
 };
 
@@ -322,7 +320,7 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
   // Outputs stay inside OUT and never replace an input; checked before any work, as is --tileable.
   refuse_overwriting_inputs(capture_output_files(s, in), in.files);
   output_lock lock(s.out);
-  capture_failure_cleanup cleanup(lock, s.out / ".checkpoint");
+  capture_failure_cleanup cleanup(s.out / ".checkpoint");
   const double load_seconds = seconds_since(start);
 
   const networks nets = choose_networks(s, o, parsed, stages_text);
@@ -401,7 +399,7 @@ inline void add_capture_command(CLI::App& app) {
   add_tileable_options(c, s->tileable, s->tile, "also write a seamless tile of the maps to OUT/tileable/");
   c->add_flag_callback("--no-uncertainty", [s] { s->options.uncertainty.reset(); },
                        "do not compute the per-texel standard deviations (uncertainty/, report.json's uncertainty)");
-  c->callback([s, c] { run_on_ranks([&] { run_capture_command(*s, c); }); });
+  c->callback([s, c] { naming_options(capture_field_flags, [&] { run_on_ranks([&] { run_capture_command(*s, c); }); }); });
 }
 
 }  // namespace anisocap::commands

@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <filesystem>
 #include <initializer_list>
 #include <optional>
@@ -76,6 +77,7 @@
 #include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/progress_line.hpp"
 #include "anisocap/pipeline/refine.hpp"
+#include "field_flags.hpp"
 
 namespace anisocap::commands {
 
@@ -101,10 +103,10 @@ inline nlohmann::json errors_to_json(const parameter_errors& e) {
 /// An exclusive lock on an output folder for the life of a command (flock on the folder itself, so
 /// nothing is left behind and the kernel drops it when the process dies): a second run into the
 /// same folder fails at once instead of both writing there. Creates the folder; when the command
-/// fails, `release_empty` removes it again if it made it and it stayed empty.
+/// fails (the lock is destroyed by an exception), removes it again if it made it and it stayed empty.
 class output_lock {
  public:
-  explicit output_lock(const fs::path& folder) : folder_(folder) {
+  explicit output_lock(const fs::path& folder) : folder_(folder), exceptions_(std::uncaught_exceptions()) {
     created_ = !fs::exists(folder);
     fs::create_directories(folder);
     fd_ = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
@@ -118,6 +120,7 @@ class output_lock {
   output_lock(const output_lock&) = delete;
   output_lock& operator=(const output_lock&) = delete;
   ~output_lock() {
+    if (std::uncaught_exceptions() > exceptions_) release_empty();
     if (fd_ >= 0) ::close(fd_);
   }
   /// Removes the folder when this lock created it and nothing was written there.
@@ -128,6 +131,7 @@ class output_lock {
 
  private:
   fs::path folder_;
+  int exceptions_ = 0;  ///< std::uncaught_exceptions() when the lock was taken
   bool created_ = false;
   int fd_ = -1;
 };

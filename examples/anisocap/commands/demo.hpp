@@ -34,19 +34,21 @@ inline void add_demo_command(CLI::App& app) {
   add_model_options(c, cap->models);
   add_optimiser_options(c, cap->options);
   c->callback([syn, cap, c] {
-    syn->height = syn->width;
-    const fs::path root = syn->out;
-    output_lock lock(root);  // the whole demo folder: a second demo cannot rewrite the inputs this one reads
-    synthesize_settings input = *syn;
-    input.out = root / "input";
-    synthesize(input);
-    capture_settings run = *cap;
-    run.capture_file = input.out / "capture.json";
-    run.truth = input.out / "truth";
-    run.out = root / "result";
-    const auto report = run_capture_command(run, c);
-    print_error_table(report["errors"]);
-    std::printf("inputs and true maps: %s\nestimated maps, re-renders and report.json: %s\n", input.out.c_str(), run.out.c_str());
+    naming_options(capture_field_flags, [&] {
+      syn->height = syn->width;
+      const fs::path root = syn->out;
+      output_lock lock(root);  // the whole demo folder: a second demo cannot rewrite the inputs this one reads
+      synthesize_settings input = *syn;
+      input.out = root / "input";
+      synthesize(input);
+      capture_settings run = *cap;
+      run.capture_file = input.out / "capture.json";
+      run.truth = input.out / "truth";
+      run.out = root / "result";
+      const auto report = run_capture_command(run, c);
+      print_error_table(report["errors"]);
+      std::printf("inputs and true maps: %s\nestimated maps, re-renders and report.json: %s\n", input.out.c_str(), run.out.c_str());
+    });
   });
 }
 

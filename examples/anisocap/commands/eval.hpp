@@ -167,14 +167,9 @@ inline void eval_command(const eval_settings& e, const model_choice& models, con
     throw std::invalid_argument("--also-models chooses between the network stages' results, and these stages do not run (--stages)");
   const networks nets = options.stages.networks() ? load_program_networks(models) : networks{};
   output_lock lock(e.out);  // one run per output folder; its tables are rewritten after every material
-  try {
-    capture_options without_uncertainty = options;  // the tables do not use it
-    without_uncertainty.uncertainty.reset();
-    evaluate_materials(e, families, nets, without_uncertainty);
-  } catch (...) {
-    lock.release_empty();  // weights that fail to load (or hold NaN) leave no empty folder
-    throw;
-  }
+  capture_options without_uncertainty = options;  // the tables do not use it
+  without_uncertainty.uncertainty.reset();
+  evaluate_materials(e, families, nets, without_uncertainty);
 }
 
 /// Registers `anisocap eval`.
@@ -205,9 +200,11 @@ inline void add_eval_command(CLI::App& app) {
   add_model_options(c, *models);
   add_optimiser_options(c, *options);
   c->callback([e, models, options, c] {
-    capture_options o = *options;
-    o.stages = pipeline_stages::parse(e->stages);
-    eval_command(*e, *models, o, c->count("--also-models") > 0);
+    naming_options(capture_field_flags, [&] {
+      capture_options o = *options;
+      o.stages = pipeline_stages::parse(e->stages);
+      eval_command(*e, *models, o, c->count("--also-models") > 0);
+    });
   });
 }
 

@@ -17,6 +17,7 @@
 #include "anisocap/pipeline/capture.hpp"
 #include "anisocap/pipeline/plan.hpp"
 #include "anisocap/pipeline/plan_io.hpp"
+#include "field_flags.hpp"
 
 namespace anisocap::commands {
 
@@ -95,6 +96,9 @@ inline void run_plan_command(const plan_settings& s) {
                file.c_str());
 }
 
+/// The plan_options fields `plan` sets by flags.
+inline constexpr option_name plan_field_flags[] = {{"plan_options::photos", "--photos"}};
+
 /// Registers `plan`.
 inline void add_plan_command(CLI::App& app) {
   auto s = std::make_shared<plan_settings>();
@@ -106,7 +110,7 @@ inline void add_plan_command(CLI::App& app) {
       ->check(CLI::NonNegativeNumber);
   c->add_flag_callback("--flash-only", [s] { s->options.lamp = false; }, "propose only phone-with-flash photographs");
   c->add_flag_callback("--lamp-only", [s] { s->options.flash = false; }, "propose only camera-and-lamp photographs");
-  c->callback([s] { run_plan_command(*s); });
+  c->callback([s] { naming_options(plan_field_flags, [&] { run_plan_command(*s); }); });
 }
 
 }  // namespace anisocap::commands

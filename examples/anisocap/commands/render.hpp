@@ -26,12 +26,7 @@ inline void add_render_command(CLI::App& app) {
     // The cheapest kernel that renders these maps exactly (within 1e-4 relative): skips anisotropy,
     // Fresnel or the normal frame when the maps and configurations do not need them.
     const kernel_analysis kernel = analyse_kernel(maps, cap, 1e-4);
-    try {
-      write_renders(maps, cap, s->out, kernel.features, inputs);
-    } catch (...) {
-      lock.release_empty();
-      throw;
-    }
+    write_renders(maps, cap, s->out, kernel.features, inputs);
     std::fprintf(stderr, "rendered %zu images of %dx%d into %s (kernel: %s)\n", cap.images.size(), maps.width(), maps.height(),
                  s->out.c_str(), kernel.describe().c_str());
   });

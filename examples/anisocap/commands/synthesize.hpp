@@ -44,16 +44,11 @@ inline void synthesize(const synthesize_settings& a) {
   else throw std::invalid_argument("--set must be alpha or beta, got '" + a.set + "'");
   a.noise.validate();
   output_lock lock(a.out);  // one run per output folder
-  try {
-    write_maps(truth, a.out / "truth");
-    std::vector<image> photos = render(truth, cap);
-    add_sensor_noise(photos, a.noise, a.seed);
-    write_images(photos, cap, a.out);
-    write_capture(cap, a.out / "capture.json");
-  } catch (...) {
-    lock.release_empty();
-    throw;
-  }
+  write_maps(truth, a.out / "truth");
+  std::vector<image> photos = render(truth, cap);
+  add_sensor_noise(photos, a.noise, a.seed);
+  write_images(photos, cap, a.out);
+  write_capture(cap, a.out / "capture.json");
   std::fprintf(stderr, "synthesized %s (%s, seed %llu, %dx%d) with %d inputs (set %s) in %s\n",
                material_kind_name(draw_procedural_parameters(a.seed, options).kind), a.kind.empty() ? "kind from seed" : "forced",
                static_cast<unsigned long long>(a.seed), a.width, a.height, a.images, a.set.c_str(), a.out.c_str());

@@ -178,37 +178,42 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
   else add_estimator_options(cmd, o);
 }
 
-/// The flag that sets each train_options field a library message names (as train_options::<field>):
-/// the one table between the two.
-inline constexpr std::pair<std::string_view, std::string_view> train_option_flags[] = {
-    {"steps", "--steps"}, {"size", "--size"}, {"batch", "--batch"}, {"learning_rate", "--lr"},
-    {"checkpoint_minutes", "--checkpoint-minutes"}, {"validate_every", "--validate-every"},
-    {"validation_count", "--validation-count"}, {"resume", "--resume"}, {"init_weights", "--init"},
-    {"smoothness_weight", "--smoothness"}, {"latent_noise", "--latent-noise"}, {"render_weight", "--render-weight"},
-    {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
-    {"diffuse_weight", "--diffuse-weight"}, {"normal_weight", "--normal-weight"}, {"encoder_only", "--trainable encoder"},
-    {"inputs_are_estimates", "--inputs estimates"}, {"mix", "--materials"}, {"emphasis", "--emphasis"},
-    {"emphasis_share", "--emphasis-share"}, {"input_noise.shot", "--shot-noise"}, {"input_noise.read", "--read-noise"},
-    {"lr_decay_from", "--lr-decay-from"}, {"lr_decay_to", "--lr-decay-to"}, {"lr_end", "--lr-end"},
-    {"lr_warmup", "--lr-warmup"}, {"lr_rewarmup", "--lr-rewarmup"}, {"lr_rewarmup_from", "--lr-rewarmup-from"},
-    {"data_parallel", "--data-parallel"}, {"prefetch", "--prefetch"}, {"precision", "--network-precision"}};
-
-/// `message` with each train_options::<field> that train_option_flags lists replaced by its flag.
-inline std::string with_train_flags(const std::string& message) {
-  static constexpr std::string_view prefix = "train_options::";
-  std::string out;
-  std::size_t at = 0;
-  for (std::size_t found; (found = message.find(prefix, at)) != std::string::npos;) {
-    std::size_t end = found + prefix.size();
-    while (end < message.size() && (std::islower(static_cast<unsigned char>(message[end])) || message[end] == '_' || message[end] == '.')) ++end;
-    const std::string_view field = std::string_view(message).substr(found + prefix.size(), end - found - prefix.size());
-    const auto* flag = std::find_if(std::begin(train_option_flags), std::end(train_option_flags), [&](const auto& e) { return e.first == field; });
-    out.append(message, at, found - at);
-    out += flag != std::end(train_option_flags) ? std::string(flag->second) : message.substr(found, end - found);
-    at = end;
-  }
-  return out + message.substr(at);
-}
+/// The flag that sets each train_options field a library message names.
+inline constexpr option_name train_field_flags[] = {
+    {"train_options::steps", "--steps"},
+    {"train_options::size", "--size"},
+    {"train_options::batch", "--batch"},
+    {"train_options::learning_rate", "--lr"},
+    {"train_options::checkpoint_minutes", "--checkpoint-minutes"},
+    {"train_options::validate_every", "--validate-every"},
+    {"train_options::validation_count", "--validation-count"},
+    {"train_options::resume", "--resume"},
+    {"train_options::init_weights", "--init"},
+    {"train_options::smoothness_weight", "--smoothness"},
+    {"train_options::latent_noise", "--latent-noise"},
+    {"train_options::render_weight", "--render-weight"},
+    {"train_options::lobe_weight", "--lobe-weight"},
+    {"train_options::sigma_weight", "--sigma-weight"},
+    {"train_options::mse_weight", "--mse-weight"},
+    {"train_options::diffuse_weight", "--diffuse-weight"},
+    {"train_options::normal_weight", "--normal-weight"},
+    {"train_options::encoder_only", "--trainable encoder"},
+    {"train_options::inputs_are_estimates", "--inputs estimates"},
+    {"train_options::mix", "--materials"},
+    {"train_options::emphasis", "--emphasis"},
+    {"train_options::emphasis_share", "--emphasis-share"},
+    {"train_options::input_noise.shot", "--shot-noise"},
+    {"train_options::input_noise.read", "--read-noise"},
+    {"train_options::lr_decay_from", "--lr-decay-from"},
+    {"train_options::lr_decay_to", "--lr-decay-to"},
+    {"train_options::lr_end", "--lr-end"},
+    {"train_options::lr_warmup", "--lr-warmup"},
+    {"train_options::lr_rewarmup", "--lr-rewarmup"},
+    {"train_options::lr_rewarmup_from", "--lr-rewarmup-from"},
+    {"train_options::data_parallel", "--data-parallel"},
+    {"train_options::prefetch", "--prefetch"},
+    {"train_options::precision", "--network-precision"},
+};
 
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
 /// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
@@ -223,26 +228,16 @@ void train_in_locked_folder(const train_settings& settings, Train train) {
   if (mpi_job()) o.data_parallel = true;
   std::optional<output_lock> lock;
   if (ranks.root()) lock.emplace(o.out_dir);  // one run per output folder
-  try {
-    auto run = [&]<class P>() {
-      auto net = std::make_unique<Net<P>>(o.seed);
-      train(o, *net, ranks);
-    };
+  auto run = [&]<class P>() {
+    auto net = std::make_unique<Net<P>>(o.seed);
+    train(o, *net, ranks);
+  };
+  naming_options(train_field_flags, [&] {  // the library names train_options fields: name the flags
     if (s.preset == Paper::name)
       run.template operator()<Paper>();
     else
       Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + Paper::name + ", " + Compact::joined(); });
-  } catch (const std::invalid_argument& e) {  // the library names train_options fields: name the flags
-    if (lock) lock->release_empty();
-    throw std::invalid_argument(with_train_flags(e.what()));
-  } catch (const std::runtime_error& e) {
-    if (lock) lock->release_empty();
-    if (std::string(e.what()).find("train_options::") == std::string::npos) throw;
-    throw std::runtime_error(with_train_flags(e.what()));
-  } catch (...) {
-    if (lock) lock->release_empty();
-    throw;
-  }
+  });
 }
 
 /// Settings of eval-networks.

@@ -54,10 +54,10 @@ struct pipeline_stages {
       else if (name == "finetune" || name == "fine-tune") s.finetune = true;
       else if (name == "refine") s.refine = true;
       else if (name == "all") s = pipeline_stages{};
-      else throw std::invalid_argument("unknown stage '" + name + "' in --stages (estimate, encode, finetune, refine, all)");
+      else throw std::invalid_argument("pipeline_stages: unknown stage '" + name + "' (estimate, encode, finetune, refine, all)");
       start = end + 1;
     }
-    if (s.finetune && !s.encode) throw std::invalid_argument("--stages: finetune needs encode");
+    if (s.finetune && !s.encode) throw std::invalid_argument("pipeline_stages: finetune needs encode");
     return s;
   }
 };
@@ -86,7 +86,7 @@ struct kernel_options {
     if (name == "flat") return {{true, true, false}, 0};
     if (name == "isotropic-flat") return {{false, true, false}, 0};
     if (name == "lambert-like") return {{false, false, false}, 0};
-    throw std::invalid_argument("unknown --kernel '" + name + "' (full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like)");
+    throw std::invalid_argument("kernel_options: unknown kernel '" + name + "' (full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like)");
   }
 };
 
@@ -111,9 +111,9 @@ struct second_run_options {
   double residual_ratio = 1.4;
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (!(above >= 0) || !std::isfinite(above)) throw std::invalid_argument("second_run.above must be a finite number >= 0");
+    if (!(above >= 0) || !std::isfinite(above)) throw std::invalid_argument("capture_options::second_run.above must be a finite number >= 0");
     if (!(residual_ratio >= 0) || !std::isfinite(residual_ratio))
-      throw std::invalid_argument("second_run.residual_ratio must be a finite number >= 0");
+      throw std::invalid_argument("capture_options::second_run.residual_ratio must be a finite number >= 0");
   }
 };
 
@@ -231,7 +231,16 @@ struct capture_options {
     return *this;
   }
   /// Throws std::invalid_argument when network_precision is bf16 and this build lacks AVX-512 BF16.
-  void validate_precision() const { nn::require_available(network_precision, "network_precision"); }
+  void validate_precision() const { nn::require_available(network_precision, "capture_options::network_precision"); }
+  /// Throws std::invalid_argument for a second start or neighbour-restart radius out of range.
+  void validate_restarts() const {
+    if (!(second_start_lobe_width >= 0 && second_start_lobe_width <= 1))
+      throw std::invalid_argument("capture_options::second_start_lobe_width must be in [0, 1]");
+    for (const auto* radii : {&neighbour_restarts, &neighbour_restarts_alone})
+      for (int r : *radii)
+        if (r < 1)
+          throw std::invalid_argument("capture_options::neighbour_restarts: a radius must be at least 1 texel (got " + std::to_string(r) + ")");
+  }
   /// Throws std::invalid_argument naming the field for impossible values.
   void validate() const {
     refine.validate();
@@ -241,11 +250,7 @@ struct capture_options {
     second_run.validate();
     if (uncertainty) uncertainty->validate();
     validate_precision();
-    if (!(second_start_lobe_width >= 0 && second_start_lobe_width <= 1))
-      throw std::invalid_argument("second_start_lobe_width must be in [0, 1]");
-    for (const auto* radii : {&neighbour_restarts, &neighbour_restarts_alone})
-      for (int r : *radii)
-        if (r < 1) throw std::invalid_argument("a neighbour restart's radius must be at least 1 texel (got " + std::to_string(r) + ")");
+    validate_restarts();
   }
 };
 
@@ -416,11 +421,11 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
       std::string list;
       for (const auto& d : differences) list += (list.empty() ? "" : "; ") + d;
       throw std::runtime_error(folder.string() + ": the check-point is of another capture or other options: " + list +
-                               ". Run with the same inputs and options, or without --resume to start over");
+                               ". Run with the same inputs and options, or start over without resuming (checkpoint_options::resume)");
     }
   } else if (resume && has_stages) {
     throw std::runtime_error(folder.string() + ": the check-point has no fingerprint.txt, so it cannot be checked against "
-                             "these inputs; remove the folder or run without --resume to start over");
+                             "these inputs; remove the folder or start over without resuming (checkpoint_options::resume)");
   } else if (!resume) {
     fs::remove_all(folder / "estimate");
     fs::remove_all(folder / "finetune");
@@ -436,10 +441,7 @@ inline void validate_once(const capture_options& o, std::size_t photos, std::siz
   if (start && o.stages.estimate) throw std::invalid_argument("capture_once: start maps replace the estimate stage");
   o.refine.validate();
   if (o.stages.estimate) o.estimate.validate();
-  if (!(o.second_start_lobe_width >= 0 && o.second_start_lobe_width <= 1))
-    throw std::invalid_argument("the second start's lobe width (--second-start) must be in [0, 1]");
-  for (int r : o.neighbour_restarts)
-    if (r < 1) throw std::invalid_argument("a neighbour restart's radius (--neighbour-restarts) must be at least 1 texel (got " + std::to_string(r) + ")");
+  o.validate_restarts();
   if (o.stages.finetune) o.finetune.validate();
   o.validate_precision();
 }

@@ -14,6 +14,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 #include "anisocap/core/distributed.hpp"
 #include "anisocap/core/random.hpp"
@@ -122,13 +123,18 @@ struct finetune_options {
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (steps < 0) throw std::invalid_argument("fine-tune steps must not be negative");
-    if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the fine-tune learning rate must be positive and finite");
-    if (warmup < 0 || half_life < 0 || crop.cells < 0 || shard_cells < 0 || min_steps < 0)
-      throw std::invalid_argument("fine-tune warm-up, half-life, crop, shards and minimum steps must not be negative");
-    if (!(min_improvement >= 0 && min_improvement < 1)) throw std::invalid_argument("fine-tune early stopping must be in [0, 1)");
-    if (!(guard.factor >= 0) || !std::isfinite(guard.factor) || (guard.factor > 0 && (guard.factor <= 1 || guard.every < 1)))
-      throw std::invalid_argument("the fine-tune guard must be 0 (off) or above 1, with its snapshots at least 1 step apart");
+    const std::pair<const char*, int> counts[] = {{"steps", steps},     {"warmup", warmup},           {"half_life", half_life},
+                                                  {"crop.cells", crop.cells}, {"shard_cells", shard_cells}, {"min_steps", min_steps}};
+    for (const auto& [field, value] : counts)
+      if (value < 0) throw std::invalid_argument(std::string("finetune_options::") + field + " must not be negative");
+    if (!(learning_rate > 0) || !std::isfinite(learning_rate))
+      throw std::invalid_argument("finetune_options::learning_rate must be positive and finite");
+    if (!(min_improvement >= 0 && min_improvement < 1))
+      throw std::invalid_argument("finetune_options::min_improvement (the fine-tune's early stopping) must be in [0, 1)");
+    if (!(guard.factor >= 0) || !std::isfinite(guard.factor) || (guard.factor > 0 && guard.factor <= 1))
+      throw std::invalid_argument("finetune_options::guard.factor must be 0 (off) or above 1");
+    if (guard.factor > 0 && guard.every < 1)
+      throw std::invalid_argument("finetune_options::guard.every (steps between the guard's snapshots) must be at least 1");
   }
 };
 

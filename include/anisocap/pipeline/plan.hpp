@@ -39,7 +39,7 @@ struct plan_options {
   int azimuths = 8;     ///< directions around the sample, evenly spaced from +x
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (photos < 1 || photos > 4) throw std::invalid_argument("plan: --photos must be 1 to 4");
+    if (photos < 1 || photos > 4) throw std::invalid_argument("plan_options::photos must be 1 to 4");
     if (stride < 1) throw std::invalid_argument("plan: the stride must be at least 1");
     if (!flash && !lamp) throw std::invalid_argument("plan: neither flash nor lamp photographs allowed");
     if (azimuths < 1 || distances.empty() || elevations.empty()) throw std::invalid_argument("plan: no candidate positions");

@@ -76,10 +76,11 @@ struct refine_options {
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (steps < 0 || min_steps < 0) throw std::invalid_argument("refine steps and minimum steps must not be negative");
-    if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("the refine learning rate (--lr) must be positive and finite");
-    if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine early stopping (--refine-stop) must be in [0, 1)");
-    if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("the refine freeze tolerance (--freeze) must be in [0, 1)");
+    if (steps < 0) throw std::invalid_argument("refine_options::steps must not be negative");
+    if (min_steps < 0) throw std::invalid_argument("refine_options::min_steps must not be negative");
+    if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("refine_options::learning_rate (the refine's) must be positive and finite");
+    if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine_options::min_relative_improvement (the refine's early stopping) must be in [0, 1)");
+    if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("refine_options::freeze_tolerance (the refine's) must be in [0, 1)");
   }
 };
 
