@@ -123,13 +123,14 @@ class output_lock {
     if (std::uncaught_exceptions() > exceptions_) release_empty();
     if (fd_ >= 0) ::close(fd_);
   }
+
+ private:
   /// Removes the folder when this lock created it and nothing was written there.
   void release_empty() {
     std::error_code ec;
     if (created_ && fs::is_empty(folder_, ec)) fs::remove(folder_, ec);
   }
 
- private:
   fs::path folder_;
   int exceptions_ = 0;  ///< std::uncaught_exceptions() when the lock was taken
   bool created_ = false;

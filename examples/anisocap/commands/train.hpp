@@ -3,16 +3,12 @@
 // networks' evaluation (eval-networks); docs/model-card.md.
 #include <CLI/CLI.hpp>
 
-#include <algorithm>
-#include <cctype>
 #include <cstdio>
 #include <functional>
 #include <memory>
-#include <iterator>
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <string_view>
 #include <utility>
 #include <vector>
 
