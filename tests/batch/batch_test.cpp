@@ -120,10 +120,10 @@ TEST_CASE("batch selection: one sample by name or index, one task's share with -
   CHECK(select_batch_samples(m, pick({}, 1, 2)) == v{1, 3});
   CHECK(select_batch_samples(m, pick({}, 4, 8)) == v{4});
   CHECK(select_batch_samples(m, pick({}, 6, 8)).empty());  // more tasks than samples: nothing to do
-  CHECK_THROWS_WITH(select_batch_samples(m, pick({"x"})), doctest::Contains("no sample named 'x'"));
-  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, 5, std::nullopt)), doctest::Contains("--index 5 is out of range: the manifest has 5 samples, indices 0 to 4"));
-  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, 3, 3)), doctest::Contains("with --count 3 the tasks are 0 to 2"));
-  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, std::nullopt, 3)), doctest::Contains("give this task's --index too"));
+  CHECK_THROWS_WITH(select_batch_samples(m, pick({"x"})), doctest::Contains("no sample named 'x' (its samples: a, b, c, d, e)"));
+  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, 5, std::nullopt)), doctest::Contains("batch_selection::index 5 is out of range: the manifest has 5 samples, indices 0 to 4"));
+  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, 3, 3)), doctest::Contains("with batch_selection::count 3 the tasks are 0 to 2"));
+  CHECK_THROWS_WITH(select_batch_samples(m, pick({}, std::nullopt, 3)), doctest::Contains("give this task's batch_selection::index too"));
   CHECK_THROWS_WITH(select_batch_samples(m, pick({"a"}, 1, std::nullopt)), doctest::Contains("give one of them"));
 }
 

@@ -36,7 +36,9 @@ printf 'a photos/a out/a %s\nc photos/c out/c\n' "$quick" >missing.txt
 expect_refused "missing.txt:2: sample 'c': $work/photos/c/" batch missing.txt
 grep -qF "no such photograph (named by $work/photos/c/capture.json)" out.txt || { cat out.txt; fail "names the missing photograph"; }
 [[ ! -e out ]] || fail "bad input left output: $(ls -R out)"
-expect_refused "no sample named 'z'" batch m.txt --sample z
+expect_refused "no sample named 'z' (its samples: a, b)" batch m.txt --sample z
+expect_refused "--count divides the samples between tasks: give this task's --index too" batch m.txt --count 2
+expect_refused "--sample and --index both choose samples" batch m.txt --sample a --index 1
 expect_refused "--index 2 is out of range: the manifest has 2 samples, indices 0 to 1" batch m.txt --index 2
 
 [[ "$("$program" batch m.txt --list)" == $'a\nb' ]] || fail "--list prints the names"

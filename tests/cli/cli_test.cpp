@@ -1191,7 +1191,7 @@ TEST_CASE("train-autoencoder --inputs estimates --trainable encoder: the encoder
   // Resuming it as a run on the true maps is refused with the option that resumes it.
   r = run("--threads 1 train-autoencoder --out enc --steps 2 --size 64 --batch 2 --trainable encoder --resume", t.path);
   CHECK(r.status != 0);
-  CHECK(r.output.find("--inputs estimates") != std::string::npos);
+  CHECK(r.output.find("resume it with --inputs estimates") != std::string::npos);
   // The estimator reads sizes that are multiples of 64; encoder-only needs weights to start from.
   r = run("train-autoencoder --out small --size 32 --inputs estimates", t.path);
   CHECK(r.status != 0);

@@ -161,7 +161,7 @@ TEST_CASE("training: --trainable encoder keeps the decoder of the --init weights
   auto o = options(b);
   o.resume = true;
   o.encoder_only = false;  // a resume must keep what the run trains
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("--trainable encoder"), std::runtime_error);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("resume it with train_options::encoder_only true"), std::runtime_error);
   o.encoder_only = true;
   o.init_weights.clear();  // a resume needs no --init
   training::train_autoencoder(o, resumed);
@@ -240,7 +240,7 @@ TEST_CASE("training: an auto-encoder on the estimator's estimates keeps its deco
   auto_encoder<testing::autoencoder_tiny> resumed(13);
   auto o = options(b);
   o.resume = true;
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("--inputs estimates"), std::runtime_error);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, resumed), doctest::Contains("resume it with train_options::inputs_are_estimates true"), std::runtime_error);
   training::train_autoencoder(o, resumed, estimator);
   const auto wa = all_weights(straight), wb = all_weights(resumed);
   REQUIRE(wa.size() == wb.size());
@@ -584,7 +584,7 @@ TEST_CASE("training materials: a run resumes only on the mix it started with") {
   auto_encoder<testing::autoencoder_tiny> net(3);
   auto o = tiny_options(dir, 32);
   o.resume = true;  // mix left at original
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("--materials training"), std::runtime_error);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with train_options::mix training"), std::runtime_error);
   o.mix = material_mix::training;
   training::train_autoencoder(o, net);
   CHECK(fs::exists(dir / "autoencoder.safetensors"));
@@ -647,10 +647,10 @@ TEST_CASE("training materials: a run resumes only with the emphasis it started w
   auto_encoder<testing::autoencoder_tiny> net(3);
   auto o = tiny_options(dir, 32);
   o.resume = true;  // no emphasis
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with --emphasis brushed,spun"), std::runtime_error);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with train_options::emphasis brushed,spun"), std::runtime_error);
   o.emphasis = {material_kind::brushed_metal, material_kind::spun_metal};
   o.emphasis_share = 0.25;
-  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with --emphasis-share 0.5"), std::runtime_error);
+  CHECK_THROWS_WITH_AS(training::train_autoencoder(o, net), doctest::Contains("resume it with train_options::emphasis_share 0.5"), std::runtime_error);
   o.emphasis_share = 0.5;
   training::train_autoencoder(o, net);
   CHECK(fs::exists(dir / "autoencoder.safetensors"));
@@ -722,41 +722,41 @@ TEST_CASE("training: a resume with another network, preset, seed, size, batch or
   };
   auto o = resume();
   o.batch = 4;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with batch 2, not 4; resume it with --batch 2");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with batch 2, not 4; resume it with train_options::batch 2");
   o = resume();
   o.seed = 6;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with seed 5, not 6; resume it with --seed 5");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with seed 5, not 6; resume it with train_options::seed 5");
   o = resume();
   o.size = 64;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with size 32, not 64; resume it with --size 32");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with size 32, not 64; resume it with train_options::size 32");
   o = resume();
   o.render_weight = 0.25;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with render_weight 1, not 0.25; resume it with --render-weight 1");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with render_weight 1, not 0.25; resume it with train_options::render_weight 1");
   o = resume();
   o.sigma_weight = 2;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with sigma_weight 0, not 2; resume it with --sigma-weight 0");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with sigma_weight 0, not 2; resume it with train_options::sigma_weight 0");
   o = resume();
   o.mse_weight = 4;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with mse_weight 0, not 4; resume it with --mse-weight 0");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with mse_weight 0, not 4; resume it with train_options::mse_weight 0");
   o = resume();
   o.lobe_weight = 3;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with --lobe-weight 1");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with lobe_weight 1, not 3; resume it with train_options::lobe_weight 1");
   o = resume();
   o.diffuse_weight = 2;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with diffuse_weight 1, not 2; resume it with --diffuse-weight 1");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with diffuse_weight 1, not 2; resume it with train_options::diffuse_weight 1");
   o = resume();
   o.normal_weight = 0.5;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with normal_weight 1, not 0.5; resume it with --normal-weight 1");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with normal_weight 1, not 0.5; resume it with train_options::normal_weight 1");
   o = resume();
   o.lr_warmup = 3;
-  refused([&] { training::train_autoencoder(o, net); }, "trained with lr_warmup 0, not 3; resume it with --lr-warmup 0");
+  refused([&] { training::train_autoencoder(o, net); }, "trained with lr_warmup 0, not 3; resume it with train_options::lr_warmup 0");
   auto_encoder<autoencoder_tiny_renamed> renamed(3);
   o = resume();
-  refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with --preset tiny");
+  refused([&] { training::train_autoencoder(o, renamed); }, "trained with preset tiny, not tiny_renamed; resume it with the preset tiny");
   estimation_network<testing::estimator_tiny> estimator(3);
   o = resume();
   o.size = 64;
-  refused([&] { training::train_estimator(o, estimator); }, "trains the autoencoder, not the estimator; resume it with train-autoencoder");
+  refused([&] { training::train_estimator(o, estimator); }, "trains the autoencoder, not the estimator; resume it with train_autoencoder");
   // Refused resumes change nothing; the run's own settings resume it to the end.
   CHECK(file_text(dir / "checkpoint.json") == saved);
   training::train_autoencoder(resume(), net);
@@ -999,7 +999,8 @@ TEST_CASE("training: a re-warm-up ramps the rate again from a given step, resume
   for (const auto& [key, value] : {std::pair<std::string, json>{"lr_rewarmup", json::array({1.5, 3})},
                                    std::pair<std::string, json>{"lr_decay", json::array({2, 4})},
                                    std::pair<std::string, json>{"lr_decay", json::array({2, "4", 0.1})}}) {
-    CAPTURE(value.dump());
+    const std::string shown = value.dump();  // a named copy: Clang 14's CAPTURE cannot refer to a structured binding
+    CAPTURE(shown);
     json broken = good;
     broken[key] = value;
     std::ofstream(resumed / "checkpoint.json") << broken.dump(2);
@@ -1023,28 +1024,28 @@ TEST_CASE("training: checkpoints as earlier versions wrote them resume with thei
   CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
   given["render_weight"] = 0.1;
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
-                       doctest::Contains("resume it with --render-weight 1"), std::runtime_error);
+                       doctest::Contains("resume it with train_options::render_weight 1"), std::runtime_error);
   given["render_weight"] = 1.0;
   given["materials"] = "training";
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
-                       doctest::Contains("resume it with --materials original"), std::runtime_error);
+                       doctest::Contains("resume it with train_options::mix original"), std::runtime_error);
   given["materials"] = "original";
   given["emphasis"] = "brushed";
   given["emphasis_share"] = 0.5;
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
-                       doctest::Contains("resume it without --emphasis"), std::runtime_error);
+                       doctest::Contains("resume it without train_options::emphasis"), std::runtime_error);
   given["emphasis"] = "";
   given["emphasis_share"] = 0.0;
   CHECK_NOTHROW(training::detail::check_resume_settings(saved, given, "checkpoint.json"));
   // A checkpoint without input noise trained on exact renders: a resume with noise is another run.
   given["shot_noise"] = 0.02;
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(saved, given, "checkpoint.json"),
-                       doctest::Contains("trained with shot_noise 0, not 0.02; resume it with --shot-noise 0"), std::runtime_error);
+                       doctest::Contains("trained with shot_noise 0, not 0.02; resume it with train_options::input_noise.shot 0"), std::runtime_error);
   json noisy = saved;
   noisy["read_noise"] = 0.002;
   given["shot_noise"] = 0.0;
   CHECK_THROWS_WITH_AS(training::detail::check_resume_settings(noisy, given, "checkpoint.json"),
-                       doctest::Contains("resume it with --read-noise 0.002"), std::runtime_error);
+                       doctest::Contains("resume it with train_options::input_noise.read 0.002"), std::runtime_error);
   given["read_noise"] = 0.002;
   CHECK_NOTHROW(training::detail::check_resume_settings(noisy, given, "checkpoint.json"));
   given.erase("read_noise");

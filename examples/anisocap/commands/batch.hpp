@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <memory>
 
+#include "anisocap/core/option_names.hpp"
 #include "anisocap/pipeline/batch.hpp"
 
 namespace anisocap::commands {
@@ -26,6 +27,13 @@ struct batch_settings {
   std::filesystem::path summary;  ///< --summary: the summary as JSON, when given
 };
 
+/// The flag that sets each batch_selection field a library message names.
+inline constexpr option_name batch_field_flags[] = {
+    {"batch_selection::names", "--sample"},
+    {"batch_selection::index", "--index"},
+    {"batch_selection::count", "--count"},
+};
+
 /// This program's own path (each unit runs it as `anisocap capture`).
 inline std::filesystem::path this_program() {
   char path[PATH_MAX + 1] = {};
@@ -38,7 +46,7 @@ inline std::filesystem::path this_program() {
 /// line per unit and the summary; exits non-zero when a unit failed or the batch was stopped.
 inline void run_batch_command(const batch_settings& s, const CLI::App* parsed) {
   const batch_manifest m = read_batch_manifest(s.manifest);
-  const std::vector<std::size_t> selected = select_batch_samples(m, s.selection);
+  const std::vector<std::size_t> selected = naming_options(batch_field_flags, [&] { return select_batch_samples(m, s.selection); });
   if (s.list) {
     for (std::size_t i : selected) std::printf("%s\n", m.samples[i].name.c_str());
     return;

@@ -177,6 +177,7 @@ inline void add_common(CLI::App* cmd, train_settings& s, bool autoencoder) {
 /// The flag that sets each train_options field a library message names.
 inline constexpr option_name train_field_flags[] = {
     {"train_options::steps", "--steps"},
+    {"train_options::seed", "--seed"},
     {"train_options::size", "--size"},
     {"train_options::batch", "--batch"},
     {"train_options::learning_rate", "--lr"},
@@ -193,7 +194,11 @@ inline constexpr option_name train_field_flags[] = {
     {"train_options::mse_weight", "--mse-weight"},
     {"train_options::diffuse_weight", "--diffuse-weight"},
     {"train_options::normal_weight", "--normal-weight"},
+    {"train_options::encoder_only false", "--trainable all"},  // a resume's hint, before the field alone
+    {"train_options::encoder_only true", "--trainable encoder"},
     {"train_options::encoder_only", "--trainable encoder"},
+    {"train_options::inputs_are_estimates false", "--inputs truth"},
+    {"train_options::inputs_are_estimates true", "--inputs estimates"},
     {"train_options::inputs_are_estimates", "--inputs estimates"},
     {"train_options::mix", "--materials"},
     {"train_options::emphasis", "--emphasis"},
@@ -209,6 +214,9 @@ inline constexpr option_name train_field_flags[] = {
     {"train_options::data_parallel", "--data-parallel"},
     {"train_options::prefetch", "--prefetch"},
     {"train_options::precision", "--network-precision"},
+    {"train_autoencoder", "train-autoencoder"},  // the trainer a resume names
+    {"train_estimator", "train-estimator"},
+    {"the preset", "--preset"},                  // the trainer's template argument
 };
 
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:

@@ -276,11 +276,11 @@ inline batch_manifest read_batch_manifest(const std::filesystem::path& file) {
 
 /// Which samples of a manifest one batch process runs.
 struct batch_selection {
-  std::vector<std::string> names;  ///< --sample: these samples (in manifest order)
-  /// --index: with `count` unset, the sample at this index (0-based, manifest order); with
-  /// `count` N, every sample whose index is `index` modulo N (task `index` of N tasks).
+  std::vector<std::string> names;  ///< these samples (in manifest order)
+  /// With `count` unset, the sample at this index (0-based, manifest order); with `count` N,
+  /// every sample whose index is `index` modulo N (task `index` of N tasks).
   std::optional<long> index;
-  std::optional<long> count;  ///< --count: the number of tasks the manifest is divided between
+  std::optional<long> count;  ///< the number of tasks the manifest is divided between
 };
 
 /// The indices of the samples `s` selects (all without names or an index). Throws
@@ -289,20 +289,27 @@ struct batch_selection {
 inline std::vector<std::size_t> select_batch_samples(const batch_manifest& m, const batch_selection& s) {
   std::vector<std::size_t> picked;
   const std::size_t n = m.samples.size();
-  if (s.count && !s.index) throw batch_input_error("--count divides the samples between tasks: give this task's --index too");
-  if (s.count && *s.count < 1) throw batch_input_error("--count must be at least 1, got " + std::to_string(*s.count));
-  if (!s.names.empty() && s.index) throw batch_input_error("--sample and --index both choose samples: give one of them");
+  if (s.count && !s.index)
+    throw batch_input_error("batch_selection::count divides the samples between tasks: give this task's batch_selection::index too");
+  if (s.count && *s.count < 1) throw batch_input_error("batch_selection::count must be at least 1, got " + std::to_string(*s.count));
+  if (!s.names.empty() && s.index)
+    throw batch_input_error("batch_selection::names and batch_selection::index both choose samples: give one of them");
   for (const std::string& name : s.names) {
     const int i = m.find(name);
-    if (i < 0) throw batch_input_error(m.file.string() + ": no sample named '" + name + "' (anisocap batch " + m.file.string() + " --list names them)");
+    if (i < 0) {
+      std::string known;  // the first few names, so that a typo shows itself
+      for (std::size_t k = 0; k < m.samples.size() && k < 6; ++k) known += (k ? ", " : "") + m.samples[k].name;
+      if (m.samples.size() > 6) known += ", ... (" + std::to_string(m.samples.size()) + " in all)";
+      throw batch_input_error(m.file.string() + ": no sample named '" + name + "' (its samples: " + known + ")");
+    }
     if (std::find(picked.begin(), picked.end(), std::size_t(i)) == picked.end()) picked.push_back(std::size_t(i));
   }
   if (s.index) {
     const long count = s.count.value_or(0);
     const long limit = count > 0 ? count : long(n);
     if (*s.index < 0 || *s.index >= limit)
-      throw batch_input_error(m.file.string() + ": --index " + std::to_string(*s.index) + " is out of range: " +
-                              (count > 0 ? "with --count " + std::to_string(count) + " the tasks are 0 to " + std::to_string(count - 1)
+      throw batch_input_error(m.file.string() + ": batch_selection::index " + std::to_string(*s.index) + " is out of range: " +
+                              (count > 0 ? "with batch_selection::count " + std::to_string(count) + " the tasks are 0 to " + std::to_string(count - 1)
                                          : "the manifest has " + std::to_string(n) + " sample" + (n == 1 ? "" : "s") + ", indices 0 to " +
                                                std::to_string(long(n) - 1)));
     if (count > 0) {

@@ -156,22 +156,43 @@ inline json resumed_schedule_part(const json& saved, const std::string& key, std
 /// Throws std::runtime_error naming `file` when the settings a resumed run was given (`given`,
 /// checkpoint.json's entries for this run) differ from those its checkpoint was trained with
 /// (`saved`) in the network, preset, seed, size, batch, materials, a loss weight, emphasis or input
-/// noise or the learning-rate warm-up: such a run would silently continue as another one. Older
-/// checkpoints lack "materials" (the original mix), "render_weight", "lobe_weight", "diffuse_weight"
-/// and "normal_weight" (1), "sigma_weight" and "mse_weight" (0), "emphasis" ("": none),
-/// "emphasis_share" (0), "trainable" ("all"), "inputs" ("truth"), "shot_noise", "read_noise" and
-/// "lr_warmup" (0); other entries a checkpoint lacks are not compared.
+/// noise or the learning-rate warm-up: such a run would silently continue as another one. The
+/// message names the setting to resume with as a host sets it (train_options::render_weight 1,
+/// train_autoencoder, the preset compact). Older checkpoints lack "materials" (the original mix),
+/// "render_weight", "lobe_weight", "diffuse_weight" and "normal_weight" (1), "sigma_weight" and
+/// "mse_weight" (0), "emphasis" ("": none), "emphasis_share" (0), "trainable" ("all"), "inputs"
+/// ("truth"), "shot_noise", "read_noise" and "lr_warmup" (0); other entries a checkpoint lacks are
+/// not compared.
 inline void check_resume_settings(const json& saved, const json& given, const std::filesystem::path& file) {
   if (saved.contains("network") && setting_text(saved.at("network")) != setting_text(given.at("network")))
     throw std::runtime_error(file.string() + ": the run in this folder trains the " + setting_text(saved.at("network")) + ", not the " +
-                             setting_text(given.at("network")) + "; resume it with train-" + setting_text(saved.at("network")));
+                             setting_text(given.at("network")) + "; resume it with train_" + setting_text(saved.at("network")));
+  // Each entry and the train_options field it records (the preset is the trainer's template argument).
   static const std::pair<const char*, const char*> options[] = {
-      {"preset", "--preset"}, {"seed", "--seed"},       {"size", "--size"},
-      {"batch", "--batch"},   {"materials", "--materials"}, {"render_weight", "--render-weight"},
-      {"lobe_weight", "--lobe-weight"}, {"sigma_weight", "--sigma-weight"}, {"mse_weight", "--mse-weight"},
-      {"diffuse_weight", "--diffuse-weight"}, {"normal_weight", "--normal-weight"},
-      {"emphasis", "--emphasis"}, {"emphasis_share", "--emphasis-share"}, {"trainable", "--trainable"}, {"inputs", "--inputs"},
-      {"shot_noise", "--shot-noise"}, {"read_noise", "--read-noise"}, {"lr_warmup", "--lr-warmup"}};
+      {"preset", "the preset"},
+      {"seed", "train_options::seed"},
+      {"size", "train_options::size"},
+      {"batch", "train_options::batch"},
+      {"materials", "train_options::mix"},
+      {"render_weight", "train_options::render_weight"},
+      {"lobe_weight", "train_options::lobe_weight"},
+      {"sigma_weight", "train_options::sigma_weight"},
+      {"mse_weight", "train_options::mse_weight"},
+      {"diffuse_weight", "train_options::diffuse_weight"},
+      {"normal_weight", "train_options::normal_weight"},
+      {"emphasis", "train_options::emphasis"},
+      {"emphasis_share", "train_options::emphasis_share"},
+      {"trainable", "train_options::encoder_only"},
+      {"inputs", "train_options::inputs_are_estimates"},
+      {"shot_noise", "train_options::input_noise.shot"},
+      {"read_noise", "train_options::input_noise.read"},
+      {"lr_warmup", "train_options::lr_warmup"}};
+  // The field's value that an entry's saved value stands for ("trainable" and "inputs" save words for flags).
+  auto field_value = [](std::string_view key, const json& value) -> std::string {
+    if (key == "trainable") return value == "encoder" ? "true" : "false";
+    if (key == "inputs") return value == "estimates" ? "true" : "false";
+    return setting_text(value);
+  };
   // What a description that lacks an entry meant: older versions wrote no materials, loss weights or emphasis.
   auto entry = [](const json& description, std::string_view key) {
     if (description.contains(std::string(key))) return description.at(std::string(key));
@@ -194,7 +215,7 @@ inline void check_resume_settings(const json& saved, const json& given, const st
       auto shown = [](const json& v) { return v == "" ? std::string("(none)") : setting_text(v); };
       throw std::runtime_error(file.string() + ": the run was trained with " + key + " " + shown(value) + ", not " + shown(now) +
                                "; resume it " +
-                               (value == "" ? std::string("without ") + option : std::string("with ") + option + " " + setting_text(value)));
+                               (value == "" ? std::string("without ") + option : std::string("with ") + option + " " + field_value(key, value)));
     }
   }
 }
