@@ -388,6 +388,73 @@ constexpr option_name capture_argument_names[] = {
     {"kernel_options", "kernel"},
 };
 
+/// The capture_options capture() builds from its arguments: the schedule, then each override
+/// given, validated; messages name the arguments (capture_argument_names).
+capture_options capture_options_py(const std::string& stages, const std::string& schedule, std::optional<int> estimate_window,
+                                   std::optional<int> estimate_stride, std::optional<int> finetune_steps,
+                                   std::optional<float> finetune_lr, std::optional<int> steps, std::optional<float> lr,
+                                   std::optional<double> refine_stop, const std::optional<std::vector<int>>& neighbour_restarts,
+                                   const std::string& kernel, const std::string& precision, const std::string& network_precision,
+                                   std::optional<bool> second_run) {
+  capture_options o;
+  o.apply_schedule(schedule);
+  if (estimate_window) o.estimate.window = *estimate_window;
+  if (estimate_stride) o.estimate.stride = *estimate_stride;
+  if (finetune_steps) o.finetune.steps = *finetune_steps;
+  if (finetune_lr) o.finetune.learning_rate = *finetune_lr;
+  if (steps) o.refine.steps = o.refine_alone.steps = *steps;
+  if (lr) o.refine.learning_rate = o.refine_alone.learning_rate = *lr;
+  if (refine_stop) o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = *refine_stop;
+  if (neighbour_restarts) o.neighbour_restarts = o.neighbour_restarts_alone = *neighbour_restarts;
+  o.render = render_options_of(precision, o.render.cull_tolerance);
+  try {
+    o.network_precision = nn::parse_precision(network_precision);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(std::string("network_precision: ") + e.what());
+  }
+  if (second_run) o.second_run.residual = o.second_run.second_prior = *second_run;
+  naming_options(capture_argument_names, [&] {
+    o.kernel = kernel_options::parse(kernel);
+    if (stages != "auto") o.stages = pipeline_stages::parse(stages);
+    o.validate();
+  });
+  return o;
+}
+
+/// The networks capture() runs, as the program chooses them: the weights where they are found
+/// ("auto" stages run the refine alone without them), those `models` names, none with
+/// models=False (an empty path) or when the network stages do not run (null).
+loaded_networks* capture_networks_py(const capture_options& o, bool has_start, const std::string& stages,
+                                     const std::optional<fs::path>& models, const std::string& preset,
+                                     const std::optional<fs::path>& also_models) {
+  const bool explicit_stages = stages != "auto";
+  if (has_start && explicit_stages && o.stages.networks())
+    throw py::value_error("start replaces the network stages: use it with stages='refine'");
+  if (has_start || !o.stages.networks()) return nullptr;
+  if (models && models->empty()) {
+    if (explicit_stages) throw py::value_error("stages '" + stages + "' need the networks, and models=False turns them off");
+    return nullptr;
+  }
+  // Empty folder with stages named: load_networks searches and says where it looked.
+  const fs::path folder = models ? *models : find_models_folder(preset);
+  return !folder.empty() || explicit_stages ? &cached_networks(folder, preset, also_models) : nullptr;
+}
+
+/// capture()'s answer: the maps and how they were made.
+py::dict capture_result_py(const capture_result& result, const loaded_networks* nets) {
+  py::dict out;
+  out["maps"] = from_maps(result.maps);
+  out["loss"] = result.loss;
+  py::list st;
+  for (const auto& s : result.stages) st.append(stage_to_dict(s));
+  out["stages"] = st;
+  out["networks_ran"] = result.networks_ran;
+  out["networks"] = nets ? nets->nets.describe() : std::string("none");
+  out["kernel"] = feature_name(result.features);
+  out["exposure_scale"] = result.exposure_scale;
+  return out;
+}
+
 py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_image>& configurations, const py::object& masks_obj,
                     const std::optional<fs::path>& models, const std::string& preset, const std::optional<fs::path>& also_models,
                     const std::string& stages, const std::string& schedule, std::optional<int> estimate_window,
@@ -408,44 +475,10 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
     start = to_maps(start_obj, "start");
     check_size(*start, photos[0].width(), photos[0].height(), "the photographs");
   }
-  capture_options o;
-  o.apply_schedule(schedule);
-  if (estimate_window) o.estimate.window = *estimate_window;
-  if (estimate_stride) o.estimate.stride = *estimate_stride;
-  if (finetune_steps) o.finetune.steps = *finetune_steps;
-  if (finetune_lr) o.finetune.learning_rate = *finetune_lr;
-  if (steps) o.refine.steps = o.refine_alone.steps = *steps;
-  if (lr) o.refine.learning_rate = o.refine_alone.learning_rate = *lr;
-  if (refine_stop) o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = *refine_stop;
-  if (neighbour_restarts) o.neighbour_restarts = o.neighbour_restarts_alone = *neighbour_restarts;
-  o.render = render_options_of(precision, o.render.cull_tolerance);
-  try {
-    o.network_precision = nn::parse_precision(network_precision);
-  } catch (const std::invalid_argument& e) {
-    throw py::value_error(std::string("network_precision: ") + e.what());
-  }
-  if (second_run) o.second_run.residual = o.second_run.second_prior = *second_run;
-  const bool explicit_stages = stages != "auto";
-  naming_options(capture_argument_names, [&] {
-    o.kernel = kernel_options::parse(kernel);
-    if (explicit_stages) o.stages = pipeline_stages::parse(stages);
-    o.validate();
-  });
-  if (start && explicit_stages && o.stages.networks())
-    throw py::value_error("start replaces the network stages: use it with stages='refine'");
-  // The networks as the program chooses them: the weights where they are found ("auto" runs the
-  // refine alone without them), those named by `models`, none with models=False (empty path).
-  loaded_networks* nets = nullptr;
+  capture_options o = capture_options_py(stages, schedule, estimate_window, estimate_stride, finetune_steps, finetune_lr, steps, lr,
+                                         refine_stop, neighbour_restarts, kernel, precision, network_precision, second_run);
+  loaded_networks* nets = capture_networks_py(o, start.has_value(), stages, models, preset, also_models);
   static const networks none;
-  if (!start && o.stages.networks()) {
-    if (models && models->empty()) {
-      if (explicit_stages) throw py::value_error("stages '" + stages + "' need the networks, and models=False turns them off");
-    } else {
-      // Empty folder with stages named: load_networks searches and says where it looked.
-      const fs::path folder = models ? *models : find_models_folder(preset);
-      if (!folder.empty() || explicit_stages) nets = &cached_networks(folder, preset, also_models);
-    }
-  }
   // Every step reports, so that Ctrl-C stops the capture within a step.
   o.finetune.progress_every = o.refine.progress_every = o.refine_alone.progress_every = 1;
   const progress_hook hook{progress};
@@ -463,17 +496,7 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
     result = naming_options(capture_argument_names,
                             [&] { return capture_material(cap, photos, nets ? nets->nets : none, o, masks, start ? &*start : nullptr); });
   }
-  py::dict out;
-  out["maps"] = from_maps(result.maps);
-  out["loss"] = result.loss;
-  py::list st;
-  for (const auto& s : result.stages) st.append(stage_to_dict(s));
-  out["stages"] = st;
-  out["networks_ran"] = result.networks_ran;
-  out["networks"] = nets ? nets->nets.describe() : std::string("none");
-  out["kernel"] = feature_name(result.features);
-  out["exposure_scale"] = result.exposure_scale;
-  return out;
+  return capture_result_py(result, nets);
 }
 
 void export_py(const py::handle& maps_obj, const std::string& format, const fs::path& out, double width) {

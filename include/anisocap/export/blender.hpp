@@ -22,6 +22,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
@@ -47,11 +48,9 @@ inline std::string python_string(const std::string& text) {
 }
 }  // namespace detail
 
-/// The Blender script (textures named as write_blender writes them), reading its textures first from
-/// `texture_folder` (an absolute path; empty: only beside the script or the .blend).
-inline std::string blender_script(int width, int height, const std::filesystem::path& texture_folder = {}) {
-  const double n = std::max(width, height);
-  return R"PY(# Built by `anisocap export --format blender`: the captured material as a Principled BSDF for
+namespace detail {
+/// The opening of the Blender script, before the lines blender_script fills in.
+inline constexpr std::string_view blender_script_head = R"PY(# Built by `anisocap export --format blender`: the captured material as a Principled BSDF for
 # Blender 3.x and 4.x (the Fresnel inputs are set per version). Run it with
 # `blender --python material.py`, `blender -b --python material.py`, or from Blender's Text Editor
 # (Run Script). Conversion and its measured error: the anisocap README, "Exports".
@@ -61,9 +60,10 @@ import bpy
 
 # The export folder, where the textures are; if it has moved, the script looks beside itself and
 # beside the open .blend file. Edit this line to point elsewhere.
-TEXTURES = )PY" + detail::python_string(texture_folder.string()) + R"PY(
-SIZE_X, SIZE_Y = )PY" + std::to_string(width / n) + ", " + std::to_string(height / n) + R"PY(  # scene units (longest side 1)
-# False: add only the plane and its material (no camera, light or removal of the factory cube).
+)PY";
+/// The rest of the Blender script, after its TEXTURES and SIZE_X, SIZE_Y lines: the material's
+/// nodes (per Blender version), the plane and the scene.
+inline constexpr std::string_view blender_script_body = R"PY(# False: add only the plane and its material (no camera, light or removal of the factory cube).
 SETUP_SCENE = True
 
 
@@ -177,6 +177,15 @@ def build_plane(material):
 if __name__ == "__main__":
     build_plane(build_material())
 )PY";
+}  // namespace detail
+
+/// The Blender script (textures named as write_blender writes them), reading its textures first from
+/// `texture_folder` (an absolute path; empty: only beside the script or the .blend).
+inline std::string blender_script(int width, int height, const std::filesystem::path& texture_folder = {}) {
+  const double n = std::max(width, height);
+  return std::string(detail::blender_script_head) + "TEXTURES = " + detail::python_string(texture_folder.string()) + "\nSIZE_X, SIZE_Y = " +
+         std::to_string(width / n) + ", " + std::to_string(height / n) + "  # scene units (longest side 1)\n" +
+         std::string(detail::blender_script_body);
 }
 
 /// Writes the Blender script and its textures for `maps` into folder `dir` (staged, then renamed together).
