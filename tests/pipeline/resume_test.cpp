@@ -4,6 +4,7 @@
 #include <doctest/doctest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <random>
 
 #include "../networks/tiny_presets.hpp"
@@ -68,10 +69,14 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
       REQUIRE(stopped.stages[2].restarts <= a.stages[2].restarts);
       stopped_after_restart += stopped.stages[2].restarts > 0 && stopped.stages[2].restarts < a.stages[2].restarts;
 
+      // A kill while the check-point was written leaves half-written files under their .next names.
+      const fs::path torn = o.checkpoint.folder / "finetune" / "state.next.safetensors";
+      std::ofstream(torn) << "half a file";
       o.finetune.stop_after = -1;
       o.checkpoint.resume = true;
       auto_encoder<autoencoder_tiny> second(2);  // a new process: fresh weights, everything else from the check-point
       const capture_result b = capture_once(cap, photos, estimator, second, o);
+      CHECK_FALSE(fs::exists(torn));  // the resume drops it
       CHECK(b.stages[2].resumed);
       CHECK(b.stages[2].steps == 40 - stop);
       CHECK(b.stages[2].restarts == a.stages[2].restarts);

@@ -335,10 +335,15 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
 }
 
 /// Reads back save_checkpoint's files; returns the step to continue from. Throws
-/// std::runtime_error naming the file when a value is missing or the two files disagree.
+/// std::runtime_error naming the file when a value is missing or the two files disagree. Files a
+/// kill left under their .next names are removed: the pair in place is the complete one.
 template <class P>
 int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard,
                     loop_state& loop) {
+  for (const char* torn : {"decoder.next.safetensors", "state.next.safetensors"}) {
+    std::error_code ignored;  // absent in the usual case
+    std::filesystem::remove(folder / torn, ignored);
+  }
   const std::filesystem::path decoder_file = folder / "decoder.safetensors", state_file = folder / "state.safetensors";
   const auto decoder = nn::read_safetensors(decoder_file);
   const auto state = nn::read_safetensors(state_file);
