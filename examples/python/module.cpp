@@ -303,16 +303,28 @@ py::dict read_capture_py(const fs::path& file, float saturation, bool exclude_cl
   return out;
 }
 
+/// A capture's configurations with its photographs and optional masks, checked to match in count.
+struct capture_input {
+  capture cap;
+  std::vector<image> photos, masks;
+};
+
+capture_input capture_input_py(const std::vector<capture_image>& configurations, const py::handle& photos_obj, const py::object& masks_obj) {
+  capture_input in{to_capture(configurations), to_images(photos_obj, "photos", 3, 3), {}};
+  if (!masks_obj.is_none()) in.masks = to_images(masks_obj, "masks", 2, 0);
+  if (in.photos.size() != in.cap.images.size())
+    throw py::value_error(std::to_string(in.photos.size()) + " photographs for " + std::to_string(in.cap.images.size()) + " configurations");
+  if (!in.masks.empty() && in.masks.size() != in.photos.size())
+    throw py::value_error(std::to_string(in.masks.size()) + " masks for " + std::to_string(in.photos.size()) + " photographs");
+  return in;
+}
+
 void write_capture_py(const std::vector<capture_image>& configurations, const py::handle& photos_obj, const py::object& masks_obj,
                       const fs::path& folder) {
-  const capture cap = to_capture(configurations);
-  const std::vector<image> photos = to_images(photos_obj, "photos", 3, 3);
-  std::vector<image> masks;
-  if (!masks_obj.is_none()) masks = to_images(masks_obj, "masks", 2, 0);
-  if (photos.size() != cap.images.size())
-    throw py::value_error(std::to_string(photos.size()) + " photographs for " + std::to_string(cap.images.size()) + " configurations");
-  if (!masks.empty() && masks.size() != photos.size())
-    throw py::value_error(std::to_string(masks.size()) + " masks for " + std::to_string(photos.size()) + " photographs");
+  const capture_input in = capture_input_py(configurations, photos_obj, masks_obj);
+  const capture& cap = in.cap;
+  const std::vector<image>& photos = in.photos;
+  const std::vector<image>& masks = in.masks;
   for (std::size_t i = 0; i < cap.images.size(); ++i) {
     const fs::path f(cap.images[i].file);
     if (f.empty() || f.is_absolute() || f.extension() != ".exr" || *f.begin() == "..")
@@ -464,12 +476,10 @@ py::dict capture_py(const py::handle& photos_obj, const std::vector<capture_imag
                     const std::string& kernel, const std::string& precision, const std::string& network_precision,
                     std::optional<bool> second_run,
                     const py::object& start_obj, const py::object& progress, const py::object& log) {
-  const capture cap = to_capture(configurations);
-  const std::vector<image> photos = to_images(photos_obj, "photos", 3, 3);
-  std::vector<image> masks;
-  if (!masks_obj.is_none()) masks = to_images(masks_obj, "masks", 2, 0);
-  if (photos.size() != cap.images.size())
-    throw py::value_error(std::to_string(photos.size()) + " photographs for " + std::to_string(cap.images.size()) + " configurations");
+  const capture_input in = capture_input_py(configurations, photos_obj, masks_obj);
+  const capture& cap = in.cap;
+  const std::vector<image>& photos = in.photos;
+  const std::vector<image>& masks = in.masks;
   std::optional<material_maps> start;
   if (!start_obj.is_none()) {
     start = to_maps(start_obj, "start");

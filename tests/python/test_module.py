@@ -116,7 +116,7 @@ def test_nan_is_refused_naming_where(material):
         anisocap.loss_and_gradient(material["maps"], material["configurations"], photos)
 
 
-def test_photos_of_other_sizes_or_counts_are_refused(material):
+def test_photos_of_other_sizes_or_counts_are_refused(material, tmp_path):
     maps, configs, photos = material["maps"], material["configurations"], material["photos"]
     with pytest.raises(ValueError, match="configurations for"):
         anisocap.loss_and_gradient(maps, configs[:5], photos)
@@ -124,6 +124,13 @@ def test_photos_of_other_sizes_or_counts_are_refused(material):
         anisocap.loss_and_gradient(maps[:8], configs, photos)
     with pytest.raises(ValueError, match=r"photos\[1\]: 16 x 23"):
         anisocap.loss_targets([photos[0], photos[1][:, :23]])
+    with pytest.raises(ValueError, match="photographs for"):
+        anisocap.capture(photos[:5], configs, models=False, steps=1)
+    with pytest.raises(ValueError, match="photographs for"):
+        anisocap.write_capture(configs, photos[:5], tmp_path)
+    with pytest.raises(ValueError, match="masks for"):
+        anisocap.write_capture(configs, photos, tmp_path, masks=np.ones((2,) + photos.shape[1:3], np.float32))
+    assert not any(tmp_path.iterdir())
 
 
 def test_non_contiguous_arrays_give_the_contiguous_result(material):
