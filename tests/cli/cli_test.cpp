@@ -165,7 +165,7 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   std::ifstream rep3(t.path / "nets/report.json");
   std::stringstream s3;
   s3 << rep3.rdbuf();
-  CHECK(s3.str().find("\"crop\": 1") != std::string::npos);
+  CHECK(s3.str().find("\"crop.cells\": 1") != std::string::npos);
   CHECK(s3.str().find("\"warmup\": 3") != std::string::npos);
   CHECK(s3.str().find("\"half_life\": 100") != std::string::npos);
   CHECK(s3.str().find("\"window\": 256") != std::string::npos);  // the estimate's default window
@@ -209,7 +209,14 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK(a["finetune"]["steps"] == 2000);
   CHECK(finetune_stage_steps(a) == 2000);
   CHECK(a["finetune"]["warmup"] == 200);
+  CHECK(a["finetune"]["guard.factor"] == 1.5);  // every field finetune_options::visit_fields lists
+  CHECK(a["finetune"]["crop.cells"] == 0);
   CHECK(a["refine"]["steps"] == 1000);
+  CHECK(a["refine"]["min_relative_improvement"] == 0.0);
+  // --help reads the schedules' numbers from the options the capture ran with.
+  const std::string help = run("capture --help", t.path).output;
+  CHECK(help.find("thorough: fine-tune " + std::to_string(a["finetune"]["steps"].get<int>()) + " at 0.008, refine " +
+                  std::to_string(a["refine"]["steps"].get<int>()) + " at 0.003 ") != std::string::npos);
   r = run("capture syn/capture.json -o short --stages all --schedule thorough --finetune-steps 7 --steps 2 --no-view", t.path);
   REQUIRE(r.status == 0);
   const nlohmann::json b = report("short");

@@ -351,3 +351,46 @@ TEST_CASE("pipeline stages parse from text and reject nonsense") {
   CHECK_THROWS_WITH_AS(pipeline_stages::parse("estimate,polish"), doctest::Contains("polish"), std::invalid_argument);
   CHECK_THROWS_AS(pipeline_stages::parse("finetune"), std::invalid_argument);
 }
+
+TEST_CASE("every fine-tune field but the step count is in the check-point fingerprint, and negative counts are refused by name") {
+  const capture cap{{capture_image{}}};
+  const std::vector<image> photos{image(4, 4)};
+  no_networks none;
+  const capture_options base;
+  const fingerprint before = capture_fingerprint(cap, photos, none, none, base);
+  int fields = 0;
+  finetune_options::visit_fields(base.finetune, [&](const std::string& name, const auto&) {
+    ++fields;
+    capture_options o = base;
+    finetune_options::visit_fields(o.finetune, [&](const std::string& other, auto& value) {
+      if (other != name) return;
+      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, bool>) value = !value;
+      else value = value * 2 + 1;
+    });
+    const std::vector<std::string> differences = capture_fingerprint(cap, photos, none, none, o).differences_from(before);
+    INFO(name);
+    if (name == "steps") {
+      CHECK(differences.empty());  // a check-point after k steps serves any total
+    } else {
+      REQUIRE(differences.size() == 1);
+      CHECK(differences[0].rfind("finetune." + name + " ", 0) == 0);
+    }
+  });
+  CHECK(fields == 13);
+  auto refuses_negative = [](auto options, const std::string& type) {
+    using options_type = decltype(options);
+    options_type::visit_fields(options, [&](const std::string& name, const auto& value) {
+      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>) {
+        options_type o = options;
+        options_type::visit_fields(o, [&](const std::string& other, auto& v) {
+          if constexpr (std::is_same_v<std::decay_t<decltype(v)>, int>)
+            if (other == name) v = -1;
+        });
+        INFO(name);
+        CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains((type + "::" + name + " must not be negative").c_str()), std::invalid_argument);
+      }
+    });
+  };
+  refuses_negative(finetune_options{}, "finetune_options");
+  refuses_negative(refine_options{}, "refine_options");
+}

@@ -150,6 +150,15 @@ inline networks choose_networks(const capture_settings& s, capture_options& o, c
   return nets;
 }
 
+/// The fields `Options::visit_fields` lists (finetune_options, refine_options), as a JSON object
+/// keyed by their names: report.json's record of the options a capture ran with.
+template <class Options>
+nlohmann::json fields_json(const Options& o) {
+  nlohmann::json j = nlohmann::json::object();
+  Options::visit_fields(o, [&](const char* name, const auto& value) { j[name] = value; });
+  return j;
+}
+
 /// report.json of a capture (without its timings): inputs, options as run, every stage, the choice
 /// between runs, the novel views and, with --truth, the errors.
 inline nlohmann::json capture_report(const capture_settings& s, const capture_options& o, const capture_command_inputs& in,
@@ -179,13 +188,12 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
                                 {"restarts", st.restarts}, {"replaced_fraction", st.replaced_fraction},
                                 {"restart_replaced_fractions", st.restart_replaced_fractions}});
   const refine_options& refined = with_networks ? o.refine : o.refine_alone;
-  report["refine"] = {{"steps", refined.steps}, {"learning_rate", refined.learning_rate},
-                      {"stop", refined.min_relative_improvement}, {"freeze", refined.freeze_tolerance},
-                      {"neighbour_restarts", with_networks ? o.neighbour_restarts : o.neighbour_restarts_alone}};
-  if (with_networks)
-    report["finetune"] = {{"steps", o.finetune.steps}, {"learning_rate", o.finetune.learning_rate}, {"warmup", o.finetune.warmup},
-                          {"half_life", o.finetune.half_life}, {"crop", o.finetune.crop.cells}, {"guard", o.finetune.guard.factor},
-                          {"residual", o.finetune.residual}, {"preset", s.models.preset}};
+  report["refine"] = fields_json(refined);
+  report["refine"]["neighbour_restarts"] = with_networks ? o.neighbour_restarts : o.neighbour_restarts_alone;
+  if (with_networks) {
+    report["finetune"] = fields_json(o.finetune);
+    report["finetune"]["preset"] = s.models.preset;
+  }
   if (with_networks && o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
   report["loss"] = result.loss;
   if (result.choice) {

@@ -390,18 +390,36 @@ inline void add_second_run_options(CLI::App* c, second_run_options& r) {
 /// Prints capture_material's choices (capture_options::log) as "capture: ..." lines.
 inline void print_capture_choice(const std::string& message) { std::fprintf(stderr, "capture: %s\n", message.c_str()); }
 
+/// A number as --help writes it: "0.008", "500".
+inline std::string help_number(double v) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", v);
+  return text;
+}
+
 /// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
 /// comes first so that options after it on the command line refine it.
 inline void add_optimiser_options(CLI::App* c, capture_options& o) {
+  // The schedules' numbers in the help are read from the options themselves, so that --help
+  // cannot disagree with what a schedule runs; the measured costs beside them are docs/results.md's.
+  const auto n = help_number;
+  const capture_options fast = capture_options::fast(), thorough = capture_options::thorough(), automatic = capture_options::automatic(),
+                        paper = capture_options::paper();
+  const refine_options alone = fast.refine_alone;
   c->add_option_function<std::string>(
        "--schedule",
        [&o](const std::string& name) { o.apply_schedule(name); },
-       "fast: fine-tune 800 steps at 8e-3 after a 200-step warm-up, refine 500 at 3e-3 (~30 s for 256 x 256 on 2 cores, the paper's "
-       "error; docs/results.md \"Run time against error\"); thorough: fine-tune 2000 at 8e-3, refine 1000 at 3e-3 (~2.1x longer, "
-       "the novel-view loss 17% lower on the family comparison, foil 33%); auto: the fast schedule's steps, then on while the "
-       "loss still falls (2% per 200 fine-tune steps, 0.2% per 50 refine steps) up to the thorough schedule's (the thorough "
-       "schedule's error in 0.89x its time on the family comparison); paper: fine-tune 5000 "
-       "at 7.5e-4, refine 500 at 1e-4, no neighbour restarts (~5x longer). Options given beside it override its values")
+       "fast: fine-tune " + n(fast.finetune.steps) + " steps at " + n(fast.finetune.learning_rate) + " after a " + n(fast.finetune.warmup) +
+           "-step warm-up, refine " + n(fast.refine.steps) + " at " + n(fast.refine.learning_rate) +
+           " (~30 s for 256 x 256 on 2 cores, the paper's error; docs/results.md \"Run time against error\"); thorough: fine-tune " +
+           n(thorough.finetune.steps) + " at " + n(thorough.finetune.learning_rate) + ", refine " + n(thorough.refine.steps) + " at " +
+           n(thorough.refine.learning_rate) +
+           " (~2.1x longer, the novel-view loss 17% lower on the family comparison, foil 33%); auto: the fast schedule's steps, then on "
+           "while the loss still falls (" + n(100 * automatic.finetune.min_improvement) + "% per " + n(automatic.finetune.patience) +
+           " fine-tune steps, " + n(100 * automatic.refine.min_relative_improvement) + "% per " + n(automatic.refine.patience) +
+           " refine steps) up to the thorough schedule's (the thorough schedule's error in 0.89x its time on the family comparison); "
+           "paper: fine-tune " + n(paper.finetune.steps) + " at " + n(paper.finetune.learning_rate) + ", refine " + n(paper.refine.steps) +
+           " at " + n(paper.refine.learning_rate) + ", no neighbour restarts (~5x longer). Options given beside it override its values")
       ->check(CLI::IsMember({"fast", "thorough", "auto", "paper"}))
       ->default_str("fast");
   c->add_option_function<std::string>(
@@ -417,28 +435,28 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
       ->check(CLI::Range(64, 1 << 16));
   c->add_option("--estimate-stride", o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
       ->check(CLI::Range(1, 1 << 16));
-  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: 5000)")->check(finite_number(false));
+  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: " + n(paper.finetune.steps) + ")")->check(finite_number(false));
   c->add_flag("--finetune-residual", o.finetune.residual,
               "start the fine-tune at the estimate itself: fit D(z) + r, with r fixed so that the start equals the estimate, "
               "instead of D(z) (docs/method.md section 8.3)");
-  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: 7.5e-4)")->check(finite_number(true));
+  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: " + n(paper.finetune.learning_rate) + ")")->check(finite_number(true));
   c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
   c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));
   c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many latent cells per side (a cell is 32 x 32 texels, 16 x 16 for the compact-fine auto-encoders; 0: the whole tile, as the paper)")->check(finite_number(false));
   c->add_option("--finetune-shards", o.finetune.shard_cells, "cut each fine-tune step into blocks of this many latent cells per side, decoded apart and their gradients added in a fixed order, so that any number of MPI ranks gives the same maps (0: one decode per step; under mpirun 16; docs/scaling.md)")->check(finite_number(false));
-  c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when 200 steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
-  c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every 50 steps, keeps large rates from losing what they gained");
+  c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when " + n(fast.finetune.patience) + " steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every " + n(fast.finetune.guard.every) + " steps, keeps large rates from losing what they gained");
   c->add_option_function<int>(
        "--steps", [&o](int n) { o.refine.steps = o.refine_alone.steps = n; },
-       "refine steps (default 500 after the network stages, 1000 when they do not run)")
+       "refine steps (default " + n(fast.refine.steps) + " after the network stages, " + n(alone.steps) + " when they do not run)")
       ->check(finite_number(false));
   c->add_option_function<float>(
        "--lr", [&o](float r) { o.refine.learning_rate = o.refine_alone.learning_rate = r; },
-       "refine learning rate, Adam in unconstrained parameters (default 3e-3 after the network stages, 0.03 when they do not run)")
+       "refine learning rate, Adam in unconstrained parameters (default " + n(fast.refine.learning_rate) + " after the network stages, " + n(alone.learning_rate) + " when they do not run)")
       ->check(finite_number(true));
   c->add_option_function<double>(
        "--refine-stop", [&o](double f) { o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = f; },
-       "stop refining when 50 steps improve the loss by less than this fraction (0: never)")
+       "stop refining when " + n(fast.refine.patience) + " steps improve the loss by less than this fraction (0: never)")
       ->check(CLI::Range(0.0, 1.0));
   c->add_option("--second-start", o.second_start_lobe_width,
                 "refine also from the same maps with both lobe widths at least this, and keep per 64-texel group the fit with the "
@@ -453,8 +471,8 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
       ->type_name("R,...|none");
   c->add_option_function<double>(
        "--freeze", [&o](double f) { o.refine.freeze_tolerance = o.refine_alone.freeze_tolerance = f; },
-       "refine only texels whose loss still moves: freeze a 64-texel group when 25 steps improve its loss by less than this "
-       "fraction (0: never)")
+       "refine only texels whose loss still moves: freeze a 64-texel group when " + n(fast.refine.freeze_every) +
+           " steps improve its loss by less than this fraction (0: never)")
       ->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
        "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },

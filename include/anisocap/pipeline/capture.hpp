@@ -390,13 +390,13 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("kernel.auto_tolerance", o.kernel.auto_tolerance);
   f.add("normalise_exposure", o.normalise_exposure ? 1.0 : 0.0);
   f.add("render.cull_tolerance", o.render.cull_tolerance).add("render.double_precision", o.render.double_precision ? 1.0 : 0.0);
-  const finetune_options& ft = o.finetune;
-  f.add("finetune.learning_rate", ft.learning_rate).add("finetune.warmup", ft.warmup).add("finetune.half_life", ft.half_life);
-  f.add("finetune.min_improvement", ft.min_improvement).add("finetune.patience", ft.patience).add("finetune.residual", ft.residual ? 1.0 : 0.0);
-  f.add("finetune.guard.factor", ft.guard.factor).add("finetune.guard.every", ft.guard.every);
-  f.add("finetune.crop.cells", ft.crop.cells).add("finetune.crop.seed", double(ft.crop.seed));
-  if (ft.shard_cells > 0) f.add("finetune.shard_cells", ft.shard_cells);  // absent: the whole window (check-points made before shards)
-  if (ft.min_steps > 0) f.add("finetune.min_steps", ft.min_steps);        // absent: early stopping from the first step
+  finetune_options::visit_fields(o.finetune, [&](const std::string& name, const auto& value) {
+    if (name == "steps") return;  // see above
+    // Absent when 0 (the whole window; early stopping from the first step), so that check-points
+    // written without these fields still match.
+    if ((name == "shard_cells" || name == "min_steps") && value == 0) return;
+    f.add("finetune." + name, double(value));
+  });
   if (o.network_precision != nn::precision::fp32) f.add("network_precision", nn::to_string(o.network_precision));  // absent: fp32
   return f;
 }

@@ -14,6 +14,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "anisocap/core/distributed.hpp"
@@ -121,12 +122,31 @@ struct finetune_options {
     o.warmup = 0;
     return o;
   }
+  /// Calls `f(name, field)` for each field that decides what the fine-tune computes, named as the
+  /// library's messages, the check-point fingerprint (capture_fingerprint) and the program's
+  /// report name them: the one list of them (`o` a finetune_options, const or not).
+  template <class Self, class F>
+  static void visit_fields(Self& o, F&& f) {
+    f("steps", o.steps);
+    f("learning_rate", o.learning_rate);
+    f("warmup", o.warmup);
+    f("half_life", o.half_life);
+    f("min_improvement", o.min_improvement);
+    f("patience", o.patience);
+    f("min_steps", o.min_steps);
+    f("guard.factor", o.guard.factor);
+    f("guard.every", o.guard.every);
+    f("crop.cells", o.crop.cells);
+    f("crop.seed", o.crop.seed);
+    f("shard_cells", o.shard_cells);
+    f("residual", o.residual);
+  }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    const std::pair<const char*, int> counts[] = {{"steps", steps},     {"warmup", warmup},           {"half_life", half_life},
-                                                  {"crop.cells", crop.cells}, {"shard_cells", shard_cells}, {"min_steps", min_steps}};
-    for (const auto& [field, value] : counts)
-      if (value < 0) throw std::invalid_argument(std::string("finetune_options::") + field + " must not be negative");
+    visit_fields(*this, [](const char* field, const auto& value) {
+      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>)
+        if (value < 0) throw std::invalid_argument(std::string("finetune_options::") + field + " must not be negative");
+    });
     if (!(learning_rate > 0) || !std::isfinite(learning_rate))
       throw std::invalid_argument("finetune_options::learning_rate must be positive and finite");
     if (!(min_improvement >= 0 && min_improvement < 1))

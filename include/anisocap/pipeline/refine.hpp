@@ -18,6 +18,7 @@
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
@@ -74,10 +75,28 @@ struct refine_options {
     o.learning_rate = 1e-4f;
     return o;
   }
+  /// Calls `f(name, field)` for each number that decides what the refine computes, named as the
+  /// library's messages and the program's report name them: the one list of them (`o` a
+  /// refine_options, const or not). The render options and the ranks are apart.
+  template <class Self, class F>
+  static void visit_fields(Self& o, F&& f) {
+    f("steps", o.steps);
+    f("learning_rate", o.learning_rate);
+    f("beta1", o.beta1);
+    f("beta2", o.beta2);
+    f("epsilon", o.epsilon);
+    f("min_relative_improvement", o.min_relative_improvement);
+    f("patience", o.patience);
+    f("min_steps", o.min_steps);
+    f("freeze_tolerance", o.freeze_tolerance);
+    f("freeze_every", o.freeze_every);
+  }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    if (steps < 0) throw std::invalid_argument("refine_options::steps must not be negative");
-    if (min_steps < 0) throw std::invalid_argument("refine_options::min_steps must not be negative");
+    visit_fields(*this, [](const char* field, const auto& value) {
+      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>)
+        if (value < 0) throw std::invalid_argument(std::string("refine_options::") + field + " must not be negative");
+    });
     if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("refine_options::learning_rate (the refine's) must be positive and finite");
     if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine_options::min_relative_improvement (the refine's early stopping) must be in [0, 1)");
     if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("refine_options::freeze_tolerance (the refine's) must be in [0, 1)");
