@@ -5,6 +5,7 @@
 /// needed. Folders, each including only those before it: core, ad, nn, brdf, render, data,
 /// networks, training, pipeline, calibration, export (docs/architecture.md).
 
+#include "anisocap/core/files.hpp"
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/memory.hpp"

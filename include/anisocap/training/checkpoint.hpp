@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "anisocap/core/files.hpp"
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/nn/nn.hpp"
 #include "anisocap/training/validation.hpp"
@@ -50,13 +51,7 @@ void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, 
   info["optimizer_steps"] = opt.steps();
   info["file"] = file;
   info["rng"] = "all randomness is a function of (seed, step): the step is the RNG state";
-  const auto temporary = dir / "checkpoint.json.tmp";
-  {
-    std::ofstream out(temporary);
-    out << info.dump(2) << "\n";
-    if (!out) throw std::runtime_error((dir / "checkpoint.json").string() + ": cannot write the checkpoint description");
-  }
-  std::filesystem::rename(temporary, dir / "checkpoint.json");
+  write_file_atomically(dir / "checkpoint.json", info.dump(2) + "\n");
   if (!previous.empty() && previous != file) std::filesystem::remove(dir / previous);
 }
 
