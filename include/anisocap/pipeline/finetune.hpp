@@ -128,16 +128,10 @@ struct finetune_options {
   template <class Self, class F>
   static void visit_fields(Self& o, F&& f) {
     f("steps", o.steps);
-    f("learning_rate", o.learning_rate);
-    f("warmup", o.warmup);
-    f("half_life", o.half_life);
-    f("min_improvement", o.min_improvement);
-    f("patience", o.patience);
-    f("min_steps", o.min_steps);
-    f("guard.factor", o.guard.factor);
-    f("guard.every", o.guard.every);
-    f("crop.cells", o.crop.cells);
-    f("crop.seed", o.crop.seed);
+    f("learning_rate", o.learning_rate), f("warmup", o.warmup), f("half_life", o.half_life);         // the rate's schedule
+    f("min_improvement", o.min_improvement), f("patience", o.patience), f("min_steps", o.min_steps);  // early stopping
+    f("guard.factor", o.guard.factor), f("guard.every", o.guard.every);
+    f("crop.cells", o.crop.cells), f("crop.seed", o.crop.seed);
     f("shard_cells", o.shard_cells);
     f("residual", o.residual);
   }

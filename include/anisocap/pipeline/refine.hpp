@@ -81,15 +81,9 @@ struct refine_options {
   template <class Self, class F>
   static void visit_fields(Self& o, F&& f) {
     f("steps", o.steps);
-    f("learning_rate", o.learning_rate);
-    f("beta1", o.beta1);
-    f("beta2", o.beta2);
-    f("epsilon", o.epsilon);
-    f("min_relative_improvement", o.min_relative_improvement);
-    f("patience", o.patience);
-    f("min_steps", o.min_steps);
-    f("freeze_tolerance", o.freeze_tolerance);
-    f("freeze_every", o.freeze_every);
+    f("learning_rate", o.learning_rate), f("beta1", o.beta1), f("beta2", o.beta2), f("epsilon", o.epsilon);  // Adam
+    f("min_relative_improvement", o.min_relative_improvement), f("patience", o.patience), f("min_steps", o.min_steps);  // early stopping
+    f("freeze_tolerance", o.freeze_tolerance), f("freeze_every", o.freeze_every);
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
