@@ -209,7 +209,7 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK(a["finetune"]["steps"] == 2000);
   CHECK(finetune_stage_steps(a) == 2000);
   CHECK(a["finetune"]["warmup"] == 200);
-  CHECK(a["finetune"]["guard.factor"] == 1.5);  // every field finetune_options::visit_fields lists
+  CHECK(a["finetune"]["guard.factor"] == 1.5);  // fields under the names finetune_options::visit_fields gives them
   CHECK(a["finetune"]["crop.cells"] == 0);
   CHECK(a["refine"]["steps"] == 1000);
   CHECK(a["refine"]["min_relative_improvement"] == 0.0);

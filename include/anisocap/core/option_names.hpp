@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 
 namespace anisocap {
 
@@ -61,6 +62,17 @@ decltype(auto) naming_options(std::span<const option_name> names, Run&& run) {
     if (std::string named = with_option_names(e.what(), names); named != e.what()) throw std::runtime_error(named);
     throw;
   }
+}
+
+/// Throws std::invalid_argument "TYPE::FIELD must not be negative" for the first int field that
+/// `Options::visit_fields` lists with a negative value: the counts check of every options struct
+/// with a field visitor (finetune_options, refine_options).
+template <class Options>
+void check_counts_not_negative(const Options& o, std::string_view type) {
+  Options::visit_fields(o, [&](const char* field, const auto& value) {
+    if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>)
+      if (value < 0) throw std::invalid_argument(std::string(type) + "::" + field + " must not be negative");
+  });
 }
 
 }  // namespace anisocap

@@ -14,10 +14,10 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <type_traits>
 #include <utility>
 
 #include "anisocap/core/distributed.hpp"
+#include "anisocap/core/option_names.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/adam.hpp"
@@ -137,10 +137,7 @@ struct finetune_options {
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    visit_fields(*this, [](const char* field, const auto& value) {
-      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>)
-        if (value < 0) throw std::invalid_argument(std::string("finetune_options::") + field + " must not be negative");
-    });
+    check_counts_not_negative(*this, "finetune_options");
     if (!(learning_rate > 0) || !std::isfinite(learning_rate))
       throw std::invalid_argument("finetune_options::learning_rate must be positive and finite");
     if (!(min_improvement >= 0 && min_improvement < 1))

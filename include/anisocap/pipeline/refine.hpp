@@ -18,11 +18,11 @@
 #include <span>
 #include <stdexcept>
 #include <string>
-#include <type_traits>
 #include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/distributed.hpp"
+#include "anisocap/core/option_names.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/adam.hpp"
 #include "anisocap/nn/early_stopping.hpp"
@@ -87,10 +87,7 @@ struct refine_options {
   }
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
-    visit_fields(*this, [](const char* field, const auto& value) {
-      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, int>)
-        if (value < 0) throw std::invalid_argument(std::string("refine_options::") + field + " must not be negative");
-    });
+    check_counts_not_negative(*this, "refine_options");
     if (!(learning_rate > 0) || !std::isfinite(learning_rate)) throw std::invalid_argument("refine_options::learning_rate (the refine's) must be positive and finite");
     if (!(min_relative_improvement >= 0 && min_relative_improvement < 1)) throw std::invalid_argument("refine_options::min_relative_improvement (the refine's early stopping) must be in [0, 1)");
     if (!(freeze_tolerance >= 0 && freeze_tolerance < 1)) throw std::invalid_argument("refine_options::freeze_tolerance (the refine's) must be in [0, 1)");
