@@ -37,6 +37,13 @@ inline constexpr int lanes = int(simd::width<T>);
 template <class T>
 inline constexpr int accumulator_budget = (sizeof(T) * simd::width<T> >= 64) ? 24 : 12;
 
+/// A forward tile's pixels for NV registers of output channels: as many as the accumulator budget
+/// holds (the wide tile), and about two thirds of that (the narrow tile, for the rest of a row).
+template <class T>
+constexpr int forward_tile_width(int nv) { return std::max(1, accumulator_budget<T> / nv); }
+template <class T>
+constexpr int forward_narrow_width(int nv) { return std::max(1, 2 * forward_tile_width<T>(nv) / 3); }
+
 /// Channels rounded up to whole registers.
 template <class T>
 constexpr int padded_channels(int c) { return (c + lanes<T> - 1) / lanes<T> * lanes<T>; }
@@ -155,6 +162,22 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
   }
   tile_finish<NX, NV>(acc, out, o_col, last_lanes);
 }
+
+/// The three register tiles of a forward pass (NX1 pixels, NX2 pixels, one pixel), as function
+/// pointers: the pass driver is compiled once per register count NV, and only the tiles once per
+/// compile-time column step ACOL. A call per tile costs nothing beside the tile's taps x channels
+/// x pixels of FMAs.
+template <class T>
+struct forward_tiles {
+  using tile = void (*)(const T* const*, const T* const*, int, int, std::ptrdiff_t, std::ptrdiff_t, T*, std::ptrdiff_t, int,
+                        const T*, int);
+  tile wide, narrow, single;
+};
+/// The tiles of run_forward<NV, ACOL, T>. The single-pixel tile never steps between pixels, so
+/// it is the same for every ACOL.
+template <int NX1, int NX2, int NV, int ACOL, class T>
+inline constexpr forward_tiles<T> forward_tiles_of{&forward_tile<NX1, NV, ACOL, T>, &forward_tile<NX2, NV, ACOL, T>,
+                                                   &forward_tile<1, NV, 0, T>};
 
 /// How the weights of a forward-type pass are laid out: tap t's [ci][co] slice of output-channel
 /// block cb starts at w + t * tap_stride + cb * block_stride, rows ld apart. Packed weights
@@ -296,6 +319,16 @@ inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint
   tile_finish<NX, NV>(acc, out, o_col, last_lanes);
 }
 
+/// The bf16 tiles of run_forward<NV, ACOL, float> (see forward_tiles).
+struct forward_tiles_bf16 {
+  using tile = void (*)(const std::uint16_t* const*, const std::uint16_t* const*, int, int, std::ptrdiff_t, float*, std::ptrdiff_t,
+                        int, const float*, int);
+  tile wide, narrow, single;
+};
+template <int NX1, int NX2, int NV, int ACOL>
+inline constexpr forward_tiles_bf16 forward_tiles_bf16_of{&forward_tile_bf16<NX1, NV, ACOL>, &forward_tile_bf16<NX2, NV, ACOL>,
+                                                          &forward_tile_bf16<1, NV, 0>};
+
 /// `n` values at p and at p + step side by side as bf16 pairs (two pixels of a weight gradient,
 /// or two weight rows); `second` false: the second of each pair is zero.
 inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second, int n, std::uint16_t* dst) {
@@ -340,12 +373,11 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
 /// once (same offsets), the weights are converted to bf16 pairs either once for the call (when
 /// many work items share each block) or by each work item for its block, as the FP32 path packs
 /// them; the tiles accumulate in FP32.
-template <int NV, int ACOL>
+template <int NV>
 void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, const weight_layout<float>& wl,
-                      const float* bias, bool accumulate, bool whole_blocks) {
+                      const float* bias, bool accumulate, bool whole_blocks, const forward_tiles_bf16& tiles) {
   constexpr int W = lanes<float>;
-  constexpr int NX1 = std::max(1, accumulator_budget<float> / NV);
-  constexpr int NX2 = std::max(1, 2 * NX1 / 3);
+  constexpr int NX1 = forward_tile_width<float>(NV), NX2 = forward_narrow_width<float>(NV);
   const int block = NV * W;
   const int coblocks = (Cb + block - 1) / block;
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
@@ -429,12 +461,8 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
         float* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const std::uint16_t* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
-        if (nx == NX1)
-          forward_tile_bf16<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
-        else if (nx == NX2)
-          forward_tile_bf16<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
-        else
-          forward_tile_bf16<1, NV, ACOL>(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
+        const auto tile_fn = nx == NX1 ? tiles.wide : nx == NX2 ? tiles.narrow : tiles.single;
+        tile_fn(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
@@ -442,24 +470,12 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
 
 #endif  // ANISOCAP_BF16_DOT
 
-/// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels, in blocks of
-/// NV registers; ACOL: every pass's a_col when it is a compile-time constant (one-register tiles),
-/// else 0; bias: readable for whole blocks, or null; accumulate: add onto out instead of
-/// overwriting it.
-template <int NV, int ACOL, class T>
-void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
-                 const T* bias, bool accumulate, bool whole_blocks = false) {
-#if ANISOCAP_BF16_DOT
-  if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available) {
-    if (convolution_precision() == precision::bf16) {
-      run_forward_bf16<NV, ACOL>(passes, npasses, Ca, Cb, wl, bias, accumulate, whole_blocks);
-      return;
-    }
-  }
-#endif
+/// The FP32 (or FP64) driver of run_forward, with its register tiles.
+template <int NV, class T>
+void run_forward_with(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl, const T* bias,
+                      bool accumulate, bool whole_blocks, const forward_tiles<T>& tiles) {
   constexpr int W = lanes<T>;
-  constexpr int NX1 = std::max(1, accumulator_budget<T> / NV);
-  constexpr int NX2 = std::max(1, 2 * NX1 / 3);
+  constexpr int NX1 = forward_tile_width<T>(NV), NX2 = forward_narrow_width<T>(NV);
   const int block = NV * W;
   const int coblocks = (Cb + block - 1) / block;
   const int last_lanes = Cb - (coblocks - 1) * block - (NV - 1) * W;
@@ -515,15 +531,30 @@ void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const wei
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
-        if (nx == NX1)
-          forward_tile<NX1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
-        else if (nx == NX2)
-          forward_tile<NX2, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
-        else
-          forward_tile<1, NV, ACOL>(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
+        const auto tile_fn = nx == NX1 ? tiles.wide : nx == NX2 ? tiles.narrow : tiles.single;
+        tile_fn(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
+}
+
+/// Runs forward-type passes on all threads. Ca: channels of A; Cb: output channels, in blocks of
+/// NV registers; ACOL: every pass's a_col when it is a compile-time constant (one-register tiles),
+/// else 0; bias: readable for whole blocks, or null; accumulate: add onto out instead of
+/// overwriting it. Only the register tiles depend on ACOL (forward_tiles).
+template <int NV, int ACOL, class T>
+void run_forward(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl,
+                 const T* bias, bool accumulate, bool whole_blocks = false) {
+  constexpr int NX1 = forward_tile_width<T>(NV), NX2 = forward_narrow_width<T>(NV);
+#if ANISOCAP_BF16_DOT
+  if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available) {
+    if (convolution_precision() == precision::bf16) {
+      run_forward_bf16<NV>(passes, npasses, Ca, Cb, wl, bias, accumulate, whole_blocks, forward_tiles_bf16_of<NX1, NX2, NV, ACOL>);
+      return;
+    }
+  }
+#endif
+  run_forward_with<NV>(passes, npasses, Ca, Cb, wl, bias, accumulate, whole_blocks, forward_tiles_of<NX1, NX2, NV, ACOL, T>);
 }
 
 // ---- weight-gradient pass ---------------------------------------------------------------------
