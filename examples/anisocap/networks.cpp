@@ -1,9 +1,12 @@
 // The program's network weights: the one translation unit that instantiates the pipeline for
-// every preset a capture can run (load_networks), so that the others compile without it.
+// every preset a capture can run (load_networks), so that the others compile without it. The
+// per-texel kernels (the fine-tune's and the refine's) are compiled here too, once for the program.
 #include <cstdio>
 
 #include "anisocap/pipeline/networks.hpp"
 #include "commands/common.hpp"
+
+ANISOCAP_TEXEL_KERNELS()
 
 namespace anisocap::commands {
 

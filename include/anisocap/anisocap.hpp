@@ -78,6 +78,7 @@
 #include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/progress_line.hpp"
 #include "anisocap/pipeline/refine.hpp"
+#include "anisocap/pipeline/texel_kernels.hpp"
 
 #include "anisocap/calibration/camera.hpp"
 #include "anisocap/calibration/markers.hpp"

@@ -77,7 +77,11 @@
 #include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/progress_line.hpp"
 #include "anisocap/pipeline/refine.hpp"
+#include "anisocap/pipeline/texel_kernels.hpp"
 #include "field_flags.hpp"
+
+// The per-texel kernels are compiled once, in networks.cpp, not in every unit of the program.
+ANISOCAP_TEXEL_KERNELS(extern)
 
 namespace anisocap::commands {
 
