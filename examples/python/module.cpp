@@ -394,6 +394,8 @@ constexpr option_name capture_argument_names[] = {
     {"refine_options::steps", "steps"},
     {"refine_options::learning_rate", "lr"},
     {"refine_options::min_relative_improvement", "refine_stop"},
+    {"estimate_options::window", "estimate_window"},
+    {"estimate_options::stride", "estimate_stride"},
     {"capture_options::neighbour_restarts", "neighbour_restarts"},
     {"capture_options::network_precision", "network_precision"},
     {"pipeline_stages", "stages"},

@@ -180,7 +180,7 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   CHECK(report64.find("\"stride\": 16") != std::string::npos);
   r = run("capture syn2/capture.json -o nets_bad --stages all --estimate-window 64 --estimate-stride 65", t.path);
   CHECK(r.status != 0);
-  CHECK(r.output.find("stride (65) is larger than its window (64)") != std::string::npos);
+  CHECK(r.output.find("--estimate-stride (65) is larger than --estimate-window (64)") != std::string::npos);
   CHECK_FALSE(fs::exists(t.path / "nets_bad"));
   r = run("render --maps syn/truth --capture syn/capture.json -o again", t.path);
   REQUIRE(r.status == 0);
@@ -870,7 +870,7 @@ TEST_CASE("families: new kinds synthesize, the held-out families evaluate per fa
     CHECK_FALSE(estimator_row(noisy.output).empty());
     CHECK(estimator_row(noisy.output) != estimator_row(whole.output));
     CHECK(run("eval-networks --window 96" + nets, t.path).output.find("multiple of 64") != std::string::npos);
-    CHECK(run("eval-networks --window 64 --stride 80" + nets, t.path).output.find("larger than its window") != std::string::npos);
+    CHECK(run("eval-networks --window 64 --stride 80" + nets, t.path).output.find("--stride (80) is larger than --window (64)") != std::string::npos);
   }
   CHECK(run("train-estimator --out tr --materials extended", t.path).output.find("--materials") != std::string::npos);
   CHECK(run("synthesize -o s3 --images 5 --fresnel 4", t.path).status != 0);

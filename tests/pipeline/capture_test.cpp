@@ -394,3 +394,30 @@ TEST_CASE("every fine-tune field but the step count is in the check-point finger
   refuses_negative(finetune_options{}, "finetune_options");
   refuses_negative(refine_options{}, "refine_options");
 }
+
+TEST_CASE("both estimate fields are in the check-point fingerprint, and a bad window is refused by its fields' names") {
+  const capture cap{{capture_image{}}};
+  const std::vector<image> photos{image(4, 4)};
+  no_networks none;
+  const capture_options base;
+  const fingerprint before = capture_fingerprint(cap, photos, none, none, base);
+  int fields = 0;
+  estimate_options::visit_fields(base.estimate, [&](const std::string& name, int) {
+    ++fields;
+    capture_options o = base;
+    estimate_options::visit_fields(o.estimate, [&](const std::string& other, int& value) {
+      if (other == name) value /= 2;
+    });
+    const std::vector<std::string> differences = capture_fingerprint(cap, photos, none, none, o).differences_from(before);
+    INFO(name);
+    REQUIRE(differences.size() == 1);
+    CHECK(differences[0].rfind("estimate." + name + " ", 0) == 0);
+  });
+  CHECK(fields == 2);
+  estimate_options e;
+  e.stride = e.window + 1;
+  CHECK_THROWS_WITH_AS(e.validate(), doctest::Contains("estimate_options::stride (257) is larger than estimate_options::window (256)"),
+                       std::invalid_argument);
+  e.stride = 0;
+  CHECK_THROWS_WITH_AS(e.validate(), doctest::Contains("must be positive"), std::invalid_argument);
+}

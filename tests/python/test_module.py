@@ -155,6 +155,9 @@ def test_capture_refines_towards_the_truth(material):
         anisocap.capture(material["photos"], material["configurations"], models=False, schedule="slow")
     with pytest.raises(ValueError, match="stages"):
         anisocap.capture(material["photos"], material["configurations"], models=False, stages="all")
+    with pytest.raises(ValueError, match=r"estimate_stride \(65\) is larger than estimate_window \(64\)"):
+        anisocap.capture(material["photos"], material["configurations"], models=False, estimate_window=64,
+                         estimate_stride=65)
 
 
 def test_capture_reports_progress_and_stops_when_the_callback_raises(material):

@@ -150,7 +150,7 @@ inline networks choose_networks(const capture_settings& s, capture_options& o, c
   return nets;
 }
 
-/// The fields `Options::visit_fields` lists (finetune_options, refine_options), as a JSON object
+/// The fields `Options::visit_fields` lists (finetune_options, refine_options, estimate_options), as a JSON object
 /// keyed by their names: report.json's record of the options a capture ran with.
 template <class Options>
 nlohmann::json fields_json(const Options& o) {
@@ -194,7 +194,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
     report["finetune"] = fields_json(o.finetune);
     report["finetune"]["preset"] = s.models.preset;
   }
-  if (with_networks && o.stages.estimate) report["estimate"] = {{"window", o.estimate.window}, {"stride", o.estimate.stride}};
+  if (with_networks && o.stages.estimate) report["estimate"] = fields_json(o.estimate);
   report["loss"] = result.loss;
   if (result.choice) {
     const run_choice& c = *result.choice;

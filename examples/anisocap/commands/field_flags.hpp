@@ -5,8 +5,8 @@
 
 namespace anisocap::commands {
 
-/// The fields of capture_options (with its refine_options, finetune_options, pipeline_stages and
-/// kernel_options) that capture, demo and eval set by flags.
+/// The fields of capture_options (with its refine_options, finetune_options, estimate_options,
+/// pipeline_stages and kernel_options) that capture, demo and eval set by flags.
 inline constexpr option_name capture_field_flags[] = {
     {"refine_options::steps", "--steps"},
     {"refine_options::learning_rate", "--lr"},
@@ -20,6 +20,8 @@ inline constexpr option_name capture_field_flags[] = {
     {"finetune_options::shard_cells", "--finetune-shards"},
     {"finetune_options::min_improvement", "--finetune-stop"},
     {"finetune_options::guard.factor", "--finetune-guard"},
+    {"estimate_options::window", "--estimate-window"},
+    {"estimate_options::stride", "--estimate-stride"},
     {"capture_options::second_start_lobe_width", "--second-start"},
     {"capture_options::neighbour_restarts", "--neighbour-restarts"},
     {"capture_options::network_precision", "--network-precision"},

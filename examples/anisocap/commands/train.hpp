@@ -382,7 +382,10 @@ void evaluate_networks_with(const network_eval_settings& s) {
 inline void evaluate_networks(const network_eval_settings& s) {
   if (s.window % 64 != 0)
     throw std::invalid_argument("eval-networks: --window " + std::to_string(s.window) + " is not a multiple of 64 (the estimator's)");
-  if (s.window > 0) s.windows().validate();
+  if (s.window > 0) {
+    static constexpr option_name window_flags[] = {{"estimate_options::window", "--window"}, {"estimate_options::stride", "--stride"}};
+    naming_options(window_flags, [&] { s.windows().validate(); });
+  }
   with_estimator_preset<program_estimator_presets>(s.estimator, [&]<class P>() {
     with_autoencoder_preset<program_autoencoder_presets>(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
   });

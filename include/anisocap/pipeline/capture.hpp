@@ -384,7 +384,7 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   const pipeline_stages& st = o.stages;
   f.add("stages", std::string(st.estimate ? "estimate," : "") + (st.encode ? "encode," : "") + (st.finetune ? "finetune," : "") +
                       (st.refine ? "refine" : ""));
-  f.add("estimate.window", o.estimate.window).add("estimate.stride", o.estimate.stride);
+  estimate_options::visit_fields(o.estimate, [&](const std::string& name, int value) { f.add("estimate." + name, value); });
   const brdf_features& k = o.kernel.features;
   f.add("kernel.features", std::string(k.anisotropic ? "anisotropic," : "") + (k.fresnel ? "fresnel," : "") + (k.normal_map ? "normal_map" : ""));
   f.add("kernel.auto_tolerance", o.kernel.auto_tolerance);

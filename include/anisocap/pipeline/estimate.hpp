@@ -145,14 +145,20 @@ struct estimate_options {
   int window = 256;  ///< estimation window side, texels (the network sees window x window crops)
   int stride = 64;   ///< window step (overlap window - stride)
 
+  /// Calls `f(name, field)` for each field, by the name the capture's fingerprint, the program's
+  /// report and the library's messages give it (`o` an estimate_options, const or not).
+  template <class Self, class F>
+  static void visit_fields(Self& o, F&& f) {
+    f("window", o.window), f("stride", o.stride);
+  }
   /// Throws std::invalid_argument unless 0 < stride <= window (a larger step would leave texels
   /// that no window covers).
   void validate() const {
     if (window <= 0 || stride <= 0)
-      throw std::invalid_argument("the estimate's window (" + std::to_string(window) + ") and stride (" + std::to_string(stride) +
-                                  ") must be positive");
+      throw std::invalid_argument("estimate_options::window (" + std::to_string(window) + ") and estimate_options::stride (" +
+                                  std::to_string(stride) + ") must be positive");
     if (stride > window)
-      throw std::invalid_argument("the estimate's stride (" + std::to_string(stride) + ") is larger than its window (" +
+      throw std::invalid_argument("estimate_options::stride (" + std::to_string(stride) + ") is larger than estimate_options::window (" +
                                   std::to_string(window) + "): texels between the windows would have no estimate");
   }
 };
