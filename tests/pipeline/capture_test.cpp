@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <mutex>
 #include <random>
 
@@ -55,6 +56,19 @@ void check_fine_tune_resumes(const scene& s, capture_options o) {
   CHECK(b.stages[2].loss == doctest::Approx(a.stages[2].loss).epsilon(1e-4));
   std::filesystem::remove_all(o.checkpoint.folder);
 }
+
+/// The entries of the check-point fingerprint (of an empty capture, no networks) that `change`,
+/// applied to default capture options, alters.
+std::vector<std::string> fingerprint_changes(const std::function<void(capture_options&)>& change) {
+  const capture cap{{capture_image{}}};
+  const std::vector<image> photos{image(4, 4)};
+  no_networks none;
+  capture_options o;
+  const fingerprint before = capture_fingerprint(cap, photos, none, none, o);
+  change(o);
+  return capture_fingerprint(cap, photos, none, none, o).differences_from(before);
+}
+
 }  // namespace
 
 TEST_CASE("pipeline: every stage runs on a non-square size that is not a multiple of 32, maps stay valid") {
@@ -353,21 +367,17 @@ TEST_CASE("pipeline stages parse from text and reject nonsense") {
 }
 
 TEST_CASE("every fine-tune field but the step count is in the check-point fingerprint, and negative counts are refused by name") {
-  const capture cap{{capture_image{}}};
-  const std::vector<image> photos{image(4, 4)};
-  no_networks none;
-  const capture_options base;
-  const fingerprint before = capture_fingerprint(cap, photos, none, none, base);
   int fields = 0;
-  finetune_options::visit_fields(base.finetune, [&](const std::string& name, const auto&) {
+  const finetune_options defaults;
+  finetune_options::visit_fields(defaults, [&](const std::string& name, const auto&) {
     ++fields;
-    capture_options o = base;
-    finetune_options::visit_fields(o.finetune, [&](const std::string& other, auto& value) {
-      if (other != name) return;
-      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, bool>) value = !value;
-      else value = value * 2 + 1;
+    const std::vector<std::string> differences = fingerprint_changes([&](capture_options& o) {
+      finetune_options::visit_fields(o.finetune, [&](const std::string& other, auto& value) {
+        if (other != name) return;
+        if constexpr (std::is_same_v<std::decay_t<decltype(value)>, bool>) value = !value;
+        else value = value * 2 + 1;
+      });
     });
-    const std::vector<std::string> differences = capture_fingerprint(cap, photos, none, none, o).differences_from(before);
     INFO(name);
     if (name == "steps") {
       CHECK(differences.empty());  // a check-point after k steps serves any total
@@ -396,19 +406,15 @@ TEST_CASE("every fine-tune field but the step count is in the check-point finger
 }
 
 TEST_CASE("both estimate fields are in the check-point fingerprint, and a bad window is refused by its fields' names") {
-  const capture cap{{capture_image{}}};
-  const std::vector<image> photos{image(4, 4)};
-  no_networks none;
-  const capture_options base;
-  const fingerprint before = capture_fingerprint(cap, photos, none, none, base);
   int fields = 0;
-  estimate_options::visit_fields(base.estimate, [&](const std::string& name, int) {
+  const estimate_options defaults;
+  estimate_options::visit_fields(defaults, [&](const std::string& name, int) {
     ++fields;
-    capture_options o = base;
-    estimate_options::visit_fields(o.estimate, [&](const std::string& other, int& value) {
-      if (other == name) value /= 2;
+    const std::vector<std::string> differences = fingerprint_changes([&](capture_options& o) {
+      estimate_options::visit_fields(o.estimate, [&](const std::string& other, int& value) {
+        if (other == name) value /= 2;
+      });
     });
-    const std::vector<std::string> differences = capture_fingerprint(cap, photos, none, none, o).differences_from(before);
     INFO(name);
     REQUIRE(differences.size() == 1);
     CHECK(differences[0].rfind("estimate." + name + " ", 0) == 0);
