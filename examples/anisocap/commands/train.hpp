@@ -219,6 +219,9 @@ inline constexpr option_name train_field_flags[] = {
     {"the preset", "--preset"},                  // the trainer's template argument
 };
 
+/// The flags that set the estimate_options fields eval-networks' messages name.
+inline constexpr option_name eval_networks_field_flags[] = {{"estimate_options::window", "--window"}, {"estimate_options::stride", "--stride"}};
+
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
 /// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
 /// folder's lock; a run refused before writing anything leaves no folder behind. Under an MPI
@@ -382,10 +385,7 @@ void evaluate_networks_with(const network_eval_settings& s) {
 inline void evaluate_networks(const network_eval_settings& s) {
   if (s.window % 64 != 0)
     throw std::invalid_argument("eval-networks: --window " + std::to_string(s.window) + " is not a multiple of 64 (the estimator's)");
-  if (s.window > 0) {
-    static constexpr option_name window_flags[] = {{"estimate_options::window", "--window"}, {"estimate_options::stride", "--stride"}};
-    naming_options(window_flags, [&] { s.windows().validate(); });
-  }
+  if (s.window > 0) naming_options(eval_networks_field_flags, [&] { s.windows().validate(); });
   with_estimator_preset<program_estimator_presets>(s.estimator, [&]<class P>() {
     with_autoencoder_preset<program_autoencoder_presets>(s.autoencoder, [&]<class A>() { evaluate_networks_with<P, A>(s); });
   });

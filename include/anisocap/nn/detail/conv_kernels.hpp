@@ -163,21 +163,21 @@ inline void forward_tile(const T* const* a_tap, const T* const* w_tap, int taps,
   tile_finish<NX, NV>(acc, out, o_col, last_lanes);
 }
 
-/// The three register tiles of a forward pass (NX1 pixels, NX2 pixels, one pixel), as function
-/// pointers: the pass driver is compiled once per register count NV, and only the tiles once per
-/// compile-time column step ACOL. A call per tile costs nothing beside the tile's taps x channels
-/// x pixels of FMAs.
-template <class T>
+/// The three register tiles of a forward pass (the wide tile, the narrow one, one pixel), as
+/// function pointers of type Tile: the pass driver is compiled once per register count NV, and only
+/// the tiles once per compile-time column step ACOL. A call per tile costs nothing beside the
+/// tile's taps x channels x pixels of FMAs.
+template <class Tile>
 struct forward_tiles {
-  using tile = void (*)(const T* const*, const T* const*, int, int, std::ptrdiff_t, std::ptrdiff_t, T*, std::ptrdiff_t, int,
-                        const T*, int);
-  tile wide, narrow, single;
+  Tile wide, narrow, single;
+  /// The tile for `nx` pixels, where the wide tile has nx1 and the narrow one nx2.
+  Tile of_width(int nx, int nx1, int nx2) const { return nx == nx1 ? wide : nx == nx2 ? narrow : single; }
 };
 /// The tiles of run_forward<NV, ACOL, T>. The single-pixel tile never steps between pixels, so
 /// it is the same for every ACOL.
 template <int NX1, int NX2, int NV, int ACOL, class T>
-inline constexpr forward_tiles<T> forward_tiles_of{&forward_tile<NX1, NV, ACOL, T>, &forward_tile<NX2, NV, ACOL, T>,
-                                                   &forward_tile<1, NV, 0, T>};
+inline constexpr forward_tiles<decltype(&forward_tile<1, NV, 0, T>)> forward_tiles_of{
+    &forward_tile<NX1, NV, ACOL, T>, &forward_tile<NX2, NV, ACOL, T>, &forward_tile<1, NV, 0, T>};
 
 /// How the weights of a forward-type pass are laid out: tap t's [ci][co] slice of output-channel
 /// block cb starts at w + t * tap_stride + cb * block_stride, rows ld apart. Packed weights
@@ -320,14 +320,9 @@ inline void forward_tile_bf16(const std::uint16_t* const* a_tap, const std::uint
 }
 
 /// The bf16 tiles of run_forward<NV, ACOL, float> (see forward_tiles).
-struct forward_tiles_bf16 {
-  using tile = void (*)(const std::uint16_t* const*, const std::uint16_t* const*, int, int, std::ptrdiff_t, float*, std::ptrdiff_t,
-                        int, const float*, int);
-  tile wide, narrow, single;
-};
 template <int NX1, int NX2, int NV, int ACOL>
-inline constexpr forward_tiles_bf16 forward_tiles_bf16_of{&forward_tile_bf16<NX1, NV, ACOL>, &forward_tile_bf16<NX2, NV, ACOL>,
-                                                          &forward_tile_bf16<1, NV, 0>};
+inline constexpr forward_tiles<decltype(&forward_tile_bf16<1, NV, 0>)> forward_tiles_bf16_of{
+    &forward_tile_bf16<NX1, NV, ACOL>, &forward_tile_bf16<NX2, NV, ACOL>, &forward_tile_bf16<1, NV, 0>};
 
 /// `n` values at p and at p + step side by side as bf16 pairs (two pixels of a weight gradient,
 /// or two weight rows); `second` false: the second of each pair is zero.
@@ -373,9 +368,9 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
 /// once (same offsets), the weights are converted to bf16 pairs either once for the call (when
 /// many work items share each block) or by each work item for its block, as the FP32 path packs
 /// them; the tiles accumulate in FP32.
-template <int NV>
+template <int NV, class Tile>
 void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, const weight_layout<float>& wl,
-                      const float* bias, bool accumulate, bool whole_blocks, const forward_tiles_bf16& tiles) {
+                      const float* bias, bool accumulate, bool whole_blocks, const forward_tiles<Tile>& tiles) {
   constexpr int W = lanes<float>;
   constexpr int NX1 = forward_tile_width<float>(NV), NX2 = forward_narrow_width<float>(NV);
   const int block = NV * W;
@@ -461,8 +456,7 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
         float* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const std::uint16_t* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
-        const auto tile_fn = nx == NX1 ? tiles.wide : nx == NX2 ? tiles.narrow : tiles.single;
-        tile_fn(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
+        tiles.of_width(nx, NX1, NX2)(a_tap, w_tap, ps.taps, pairs, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
@@ -471,9 +465,9 @@ void run_forward_bf16(forward_pass<float>* passes, int npasses, int Ca, int Cb, 
 #endif  // ANISOCAP_BF16_DOT
 
 /// The FP32 (or FP64) driver of run_forward, with its register tiles.
-template <int NV, class T>
+template <int NV, class T, class Tile>
 void run_forward_with(forward_pass<T>* passes, int npasses, int Ca, int Cb, const weight_layout<T>& wl, const T* bias,
-                      bool accumulate, bool whole_blocks, const forward_tiles<T>& tiles) {
+                      bool accumulate, bool whole_blocks, const forward_tiles<Tile>& tiles) {
   constexpr int W = lanes<T>;
   constexpr int NX1 = forward_tile_width<T>(NV), NX2 = forward_narrow_width<T>(NV);
   const int block = NV * W;
@@ -531,8 +525,7 @@ void run_forward_with(forward_pass<T>* passes, int npasses, int Ca, int Cb, cons
         T* obase = ps.o + b * ps.o_batch + r * ps.o_row + std::ptrdiff_t(x) * ps.o_col + co0;
         const T* a_tap[16];
         for (int t = 0; t < ps.taps; ++t) a_tap[t] = abase + ps.a_tap[t];
-        const auto tile_fn = nx == NX1 ? tiles.wide : nx == NX2 ? tiles.narrow : tiles.single;
-        tile_fn(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
+        tiles.of_width(nx, NX1, NX2)(a_tap, w_tap, ps.taps, c1 - c0, ld, ps.a_col, obase, ps.o_col, lanes_here, bias_block, init);
       }
     }
   }
