@@ -12,7 +12,7 @@ namespace anisocap::commands {
 
 networks load_program_networks(const model_choice& m) {
   try {
-    return load_networks<program_estimator_presets, program_autoencoder_presets, true>(m.models, m.options());
+    return load_networks<program_estimator_presets, program_autoencoder_presets, program_has_paper_preset>(m.models, m.options());
   } catch (const std::invalid_argument& e) {
     // Name the options a user gives, beside the library's message.
     throw std::invalid_argument(std::string(e.what()) + " (--models, --preset, --also-models)");

@@ -257,6 +257,20 @@ TEST_CASE("capture --network-precision bf16: the networks' convolutions in bf16,
   check_refused("capture syn/capture.json -o fp16 --network-precision fp16", t.path, "fp16", "fp16");
 }
 
+TEST_CASE("--preset paper: taken where the build has the paper's widths, else refused naming the build option") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 16 --height 16 --images 4 --seed 5", t.path).status == 0);
+  const std::string models = " --models '" + (fs::path(ANISOCAP_SOURCE_DIR) / "models").string() + "'";
+#ifdef ANISOCAP_EXPERIMENTAL_PRESETS
+  // The option is taken, and the loader then names the paper weights the folder lacks.
+  check_refused("capture syn/capture.json -o paper --preset paper" + models, t.path, "paper/estimator.safetensors", "paper");
+#else
+  for (const char* command : {"capture syn/capture.json -o paper --preset paper", "demo -o paper --preset paper",
+                              "train-estimator -o paper --preset paper", "train-autoencoder -o paper --preset paper"})
+    check_refused(command + models, t.path, "-DANISOCAP_EXPERIMENTAL_PRESETS=ON", "paper");
+#endif
+}
+
 TEST_CASE("capture --tileable: the maps and a seamless tile of them, its seam in report.json; a sample too small is refused first") {
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 48 --height 40 --images 5 --seed 3", t.path).status == 0);

@@ -343,13 +343,24 @@ networks load_program_networks(const model_choice& m);
 using program_estimator_presets = compact_estimator_presets;
 /// The auto-encoder presets the program's capture and trainers take: all compact ones.
 using program_autoencoder_presets = compact_autoencoder_presets;
+/// Whether the program captures with and trains the paper's widths (`--preset paper`).
+inline constexpr bool program_has_paper_preset = true;
 #else
 /// The estimator presets the program's capture and trainers take: the shipped ones (the
 /// experimental ones with -DANISOCAP_EXPERIMENTAL_PRESETS=ON, at the cost of a longer build).
 using program_estimator_presets = trainable_estimator_presets;
 /// The auto-encoder presets the program's capture and trainers take: the shipped ones.
 using program_autoencoder_presets = shipped_autoencoder_presets;
+/// Whether the program captures with and trains the paper's widths (`--preset paper`). No weights
+/// ship for them and they do not train in useful time on a few cores, while their pipeline and
+/// trainers are a third of the program's compile time: like the experimental compact presets,
+/// they come with -DANISOCAP_EXPERIMENTAL_PRESETS=ON.
+inline constexpr bool program_has_paper_preset = false;
 #endif
+
+/// Why this build refuses `--preset paper`.
+inline constexpr const char* paper_preset_missing =
+    "paper: this program was built without the paper's widths (configure with -DANISOCAP_EXPERIMENTAL_PRESETS=ON)";
 
 /// load_program_networks where weights are found; empty networks, with a note on stderr, where
 /// none are (no --models given and none installed): the capture then runs the refine alone.
@@ -363,7 +374,15 @@ inline fs::path shipped_weights_file(const char* name) {
 }
 
 inline void add_model_options(CLI::App* c, model_choice& m) {
-  c->add_option("--preset", m.preset, "network preset whose weights to use")->check(CLI::IsMember({"compact", "paper"}));
+  c->add_option("--preset", m.preset,
+                std::string("network preset whose weights to use: compact, or paper (the paper's widths; ") +
+                    (program_has_paper_preset ? "no weights are shipped for them)" : "in a build with -DANISOCAP_EXPERIMENTAL_PRESETS=ON)"))
+      ->check(
+          [](const std::string& v) -> std::string {
+            if (v == "compact" || (v == "paper" && program_has_paper_preset)) return "";
+            return v == "paper" ? paper_preset_missing : v + ": not compact or paper";
+          },
+          program_has_paper_preset ? "{compact,paper}" : "{compact}");
   c->add_option("--models", m.models,
                 "folder holding <preset>/estimator.safetensors and autoencoder.safetensors (default: $ANISOCAP_MODELS, else the "
                 "installed share/anisocap/models)");
