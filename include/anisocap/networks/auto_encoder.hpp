@@ -199,14 +199,23 @@ class auto_encoder {
   void for_each_buffer(F&& f) {
     latent_norm.for_each_buffer(f);
   }
-  /// Visits the encoder's parameters and its batch norm's (what freeze_encoder freezes).
+  /// Visits the encoder's parameters and its batch norm's (what freeze_encoder freezes): calls
+  /// f(basic_parameter<T>&).
   template <class F>
   void for_each_encoder_parameter(F&& f) {
-    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
+    visit_encoder_parameters(network_detail::erase_visitor<T>(f));
   }
   /// Visits the decoder's parameters only (what the pipeline fine-tunes).
   template <class F>
   void for_each_decoder_parameter(F&& f) {
+    visit_decoder_parameters(network_detail::erase_visitor<T>(f));
+  }
+  /// for_each_encoder_parameter with the visitor's type erased (the one listing of the layers).
+  void visit_encoder_parameters(const network_detail::parameter_visitor<T>& f) {
+    std::apply([&](auto&... layers) { network_detail::visit(f, layers..., latent_norm); }, encoder_);
+  }
+  /// for_each_decoder_parameter with the visitor's type erased.
+  void visit_decoder_parameters(const network_detail::parameter_visitor<T>& f) {
     std::apply([&](auto&... layers) { network_detail::visit(f, layers...); }, decoder_);
   }
 

@@ -306,9 +306,13 @@ class estimation_network {
   /// The size forward() runs an n-texel side at: n rounded up to a multiple of 64.
   static int padded_size(int n) { return (n + size_multiple - 1) / size_multiple * size_multiple; }
 
-  /// Visits every trainable parameter (for optimisers and weight files).
+  /// Visits every trainable parameter (for optimisers and weight files): calls f(basic_parameter<T>&).
   template <class F>
   void for_each_parameter(F&& f) {
+    visit_parameters(network_detail::erase_visitor<T>(f));
+  }
+  /// for_each_parameter with the visitor's type erased (the one listing of the layers).
+  void visit_parameters(const network_detail::parameter_visitor<T>& f) {
     network_detail::visit(f, enc0, enc1, enc2, enc3, enc4, enc5, norm1, norm2, norm3, norm4, norm5, global0, global1,
                           global2, global3, global4, global5, bias1, bias2, bias3, bias4, bias5, track1, track2, head1,
                           head2);

@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -29,6 +30,19 @@ inline constexpr double leaky_slope = 0.2;
 template <class F, class... L>
 void visit(F& f, L&... layers) {
   (layers.for_each_parameter(f), ...);
+}
+
+/// A parameter visitor with its type erased. A network lists its layers once, in a function that
+/// takes this, rather than once per visitor (the optimiser, the weight files, the fingerprint, the
+/// freezing...): visiting runs once per parameter, never per value, and each network's listing is
+/// then compiled once instead of some fifteen times.
+template <class T>
+using parameter_visitor = std::function<void(nn::basic_parameter<T>&)>;
+
+/// `f` as a parameter_visitor that calls it by reference (a visitor's state stays the caller's).
+template <class T, class F>
+parameter_visitor<T> erase_visitor(F& f) {
+  return std::ref(f);
 }
 
 /// y = x cropped to its top-left height x width (recorded on the tape).

@@ -50,13 +50,20 @@ constexpr int conv2d_output_size(int n) { return conv_geometry<K, Stride, Pad>::
 
 namespace detail::conv {
 
+/// The exception require_shape throws; out of line and not a template, so that each kernel's check
+/// stays a comparison and a call.
+[[noreturn, gnu::cold, gnu::noinline]] inline void throw_shape_mismatch(const char* op, const char* what, int b, int h, int w,
+                                                                      int batch, int height, int width) {
+  throw std::invalid_argument(std::string(op) + ": " + what + " is " + std::to_string(b) + "x" + std::to_string(h) + "x" +
+                              std::to_string(w) + ", expected " + std::to_string(batch) + "x" + std::to_string(height) + "x" +
+                              std::to_string(width));
+}
+
 /// Throws std::invalid_argument naming `op` when t is not batch x height x width.
 template <int C, class T>
 void require_shape(const tensor<C, T>& t, int batch, int height, int width, const char* op, const char* what) {
   if (t.batch() != batch || t.height() != height || t.width() != width)
-    throw std::invalid_argument(std::string(op) + ": " + what + " is " + std::to_string(t.batch()) + "x" +
-                                std::to_string(t.height()) + "x" + std::to_string(t.width()) + ", expected " +
-                                std::to_string(batch) + "x" + std::to_string(height) + "x" + std::to_string(width));
+    throw_shape_mismatch(op, what, t.batch(), t.height(), t.width(), batch, height, width);
 }
 
 /// A source tensor's data as the padded dense buffer the kernels read: either the tensor itself

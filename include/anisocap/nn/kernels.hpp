@@ -64,14 +64,18 @@ inline void for_each_row(int batch, int height, std::size_t elements, F&& f) {
   for (int r = 0; r < rows; ++r) f(r / height, r % height);
 }
 
+/// The exception require_same_shape throws; out of line and not a template, so that each op's
+/// check stays a comparison and a call.
+[[noreturn, gnu::cold, gnu::noinline]] inline void throw_shapes_differ(const char* op, int b1, int h1, int w1, int b2, int h2, int w2) {
+  throw std::invalid_argument(std::string(op) + ": shape mismatch (" + std::to_string(b1) + "x" + std::to_string(h1) + "x" +
+                              std::to_string(w1) + " vs " + std::to_string(b2) + "x" + std::to_string(h2) + "x" +
+                              std::to_string(w2) + ")");
+}
+
 /// Throws std::invalid_argument naming `op` when two tensors differ in batch, height or width.
 template <int C1, int C2, class T>
 inline void require_same_shape(const tensor<C1, T>& a, const tensor<C2, T>& b, const char* op) {
-  if (!a.same_spatial_shape(b))
-    throw std::invalid_argument(std::string(op) + ": shape mismatch (" + std::to_string(a.batch()) + "x" +
-                                std::to_string(a.height()) + "x" + std::to_string(a.width()) + " vs " +
-                                std::to_string(b.batch()) + "x" + std::to_string(b.height()) + "x" +
-                                std::to_string(b.width()) + ")");
+  if (!a.same_spatial_shape(b)) throw_shapes_differ(op, a.batch(), a.height(), a.width(), b.batch(), b.height(), b.width());
 }
 
 /// Length of a channel pattern: a whole number of pixels (a multiple of C) and of SIMD registers,
