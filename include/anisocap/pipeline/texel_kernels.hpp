@@ -2,9 +2,9 @@
 /// @file
 /// Explicit instantiations of the per-texel kernels, for programs of several translation units.
 ///
-/// The fused loss and gradient (loss_and_gradient, in float and in double SIMD batches) and the
-/// per-texel refine are the largest functions a capture compiles, once per BRDF feature set (eight
-/// sets). Every translation unit that runs a capture, a refine or a fine-tune compiles its own copy
+/// The fused loss and gradient (loss_and_gradient, in float and in double SIMD batches), the
+/// per-texel refine and the renderer (render, in float SIMD batches) are the largest functions a
+/// capture compiles, once per BRDF feature set (eight sets). Every translation unit that runs a capture, a refine or a fine-tune compiles its own copy
 /// of them, and the linker keeps one. A program of several units compiles them once with
 ///
 ///     // in a header every unit includes, after the anisocap headers:
@@ -18,7 +18,7 @@
 #include "anisocap/pipeline/refine.hpp"
 #include "anisocap/render/renderer.hpp"
 
-/// The three kernels of one feature set F (see the file comment); `prefix` is `extern` or empty.
+/// The four kernels of one feature set F (see the file comment); `prefix` is `extern` or empty.
 #define ANISOCAP_TEXEL_KERNELS_OF(prefix, F)                                                                                      \
   prefix template double anisocap::loss_and_gradient<F, anisocap::simd::batch<float>>(                                         \
       const anisocap::material_maps&, const anisocap::capture&, const anisocap::loss_targets&, anisocap::material_maps*,        \
@@ -27,7 +27,9 @@
       const anisocap::material_maps&, const anisocap::capture&, const anisocap::loss_targets&, anisocap::material_maps*,        \
       const anisocap::tile_placement&, const anisocap::render_options&, const anisocap::texel_groups*);                         \
   prefix template anisocap::refine_result anisocap::refine<F>(anisocap::material_maps&, const anisocap::capture&,              \
-                                                               const anisocap::loss_targets&, const anisocap::refine_options&);
+                                                               const anisocap::loss_targets&, const anisocap::refine_options&); \
+  prefix template std::vector<anisocap::image> anisocap::render<F, anisocap::simd::batch<float>>(                              \
+      const anisocap::material_maps&, const anisocap::capture&, const anisocap::tile_placement&, const anisocap::render_options&);
 
 /// The kernels of every feature set with_features dispatches to: `extern` declares them, empty
 /// defines them (in one translation unit).
