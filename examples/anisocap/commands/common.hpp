@@ -8,6 +8,7 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -358,9 +359,18 @@ using program_autoencoder_presets = shipped_autoencoder_presets;
 inline constexpr bool program_has_paper_preset = false;
 #endif
 
-/// Why this build refuses `--preset paper`.
-inline constexpr const char* paper_preset_missing =
-    "paper: this program was built without the paper's widths (configure with -DANISOCAP_EXPERIMENTAL_PRESETS=ON)";
+/// A --preset check that takes `choices` and, refusing `paper` where this build has no paper
+/// widths, says how to get them (capture's, demo's and the trainers' --preset).
+inline CLI::Validator preset_validator(const std::vector<std::string>& choices) {
+  return CLI::Validator(
+      [choices](const std::string& v) -> std::string {
+        if (std::find(choices.begin(), choices.end(), v) != choices.end()) return "";
+        if (v == "paper")
+          return "paper: this program was built without the paper's widths (configure with -DANISOCAP_EXPERIMENTAL_PRESETS=ON)";
+        return v + ": not one of " + CLI::detail::join(choices, ", ");
+      },
+      "{" + CLI::detail::join(choices, ",") + "}");
+}
 
 /// load_program_networks where weights are found; empty networks, with a note on stderr, where
 /// none are (no --models given and none installed): the capture then runs the refine alone.
@@ -377,12 +387,8 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
   c->add_option("--preset", m.preset,
                 std::string("network preset whose weights to use: compact, or paper (the paper's widths; ") +
                     (program_has_paper_preset ? "no weights are shipped for them)" : "in a build with -DANISOCAP_EXPERIMENTAL_PRESETS=ON)"))
-      ->check(
-          [](const std::string& v) -> std::string {
-            if (v == "compact" || (v == "paper" && program_has_paper_preset)) return "";
-            return v == "paper" ? paper_preset_missing : v + ": not compact or paper";
-          },
-          program_has_paper_preset ? "{compact,paper}" : "{compact}");
+      ->check(preset_validator(program_has_paper_preset ? std::vector<std::string>{"compact", "paper"}
+                                                        : std::vector<std::string>{"compact"}));
   c->add_option("--models", m.models,
                 "folder holding <preset>/estimator.safetensors and autoencoder.safetensors (default: $ANISOCAP_MODELS, else the "
                 "installed share/anisocap/models)");

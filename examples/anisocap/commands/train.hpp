@@ -3,7 +3,6 @@
 // networks' evaluation (eval-networks); docs/model-card.md.
 #include <CLI/CLI.hpp>
 
-#include <algorithm>
 #include <cstdio>
 #include <functional>
 #include <memory>
@@ -40,21 +39,6 @@ std::vector<std::string> preset_choices() {
   return names;
 }
 
-/// A --preset check that says how to get the paper's widths where this build has none.
-template <class Paper, class Compact>
-CLI::Validator preset_check() {
-  const std::vector<std::string> choices = preset_choices<Paper, Compact>();
-  std::string list;
-  for (const auto& c : choices) list += (list.empty() ? "" : ",") + c;
-  return CLI::Validator(
-      [choices, list](const std::string& v) -> std::string {
-        if (std::find(choices.begin(), choices.end(), v) != choices.end()) return "";
-        if (v == Paper::name) return paper_preset_missing;
-        return v + ": not one of " + list;
-      },
-      "{" + list + "}");
-}
-
 /// --preset, with the presets of the network the command trains.
 inline void add_preset_option(CLI::App* cmd, train_settings& s, bool autoencoder) {
   if (autoencoder)
@@ -65,14 +49,14 @@ inline void add_preset_option(CLI::App* cmd, train_settings& s, bool autoencoder
                    "256-wide latent: the paper's 12 map values per latent value), compact-fine-wider (compact-fine-wide with "
                    "the levels above the latent twice as wide) and compact-fine-widest (compact-fine-wider with a 384-wide latent: 8 "
                    "map values per latent value)")
-        ->check(preset_check<autoencoder_paper, program_autoencoder_presets>());
+        ->check(preset_validator(preset_choices<autoencoder_paper, program_autoencoder_presets>()));
   else
     cmd->add_option("--preset", s.preset,
                     "network widths: compact, compact-orientation-doubled-angle (the shipped one: each photo's structure-tensor "
                     "orientation as 3 more input channels, the rotation read from a doubled-angle vector), and in a build with "
                     "-DANISOCAP_EXPERIMENTAL_PRESETS=ON paper and the experimental compact-doubled-angle (the doubled-angle "
                     "rotation alone) and compact-orientation (the orientation channels alone)")
-        ->check(preset_check<estimator_paper, program_estimator_presets>());
+        ->check(preset_validator(preset_choices<estimator_paper, program_estimator_presets>()));
 }
 
 /// The learning rate and its schedule: --lr, its decay, warm-up and re-warm-up.
@@ -260,7 +244,7 @@ void train_in_locked_folder(const train_settings& settings, Train train) {
   naming_options(train_field_flags, [&] {  // the library names train_options fields: name the flags
     if constexpr (program_has_paper_preset)
       if (s.preset == Paper::name) return run.template operator()<Paper>();
-    Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + Paper::name + ", " + Compact::joined(); });
+    Compact::call(s.preset, run, [&] { return "--preset " + s.preset + ": not one of " + CLI::detail::join(preset_choices<Paper, Compact>(), ", "); });
   });
 }
 

@@ -4,8 +4,9 @@
 ///
 /// The fused loss and gradient (loss_and_gradient, in float and in double SIMD batches), the
 /// per-texel refine and the renderer (render, in float SIMD batches) are the largest functions a
-/// capture compiles, once per BRDF feature set (eight sets). Every translation unit that runs a capture, a refine or a fine-tune compiles its own copy
-/// of them, and the linker keeps one. A program of several units compiles them once with
+/// capture compiles, once per BRDF feature set (eight sets). Every translation unit that runs a
+/// capture, a refine or a fine-tune compiles its own copy of them, and the linker keeps one. A
+/// program of several units compiles them once with
 ///
 ///     // in a header every unit includes, after the anisocap headers:
 ///     ANISOCAP_TEXEL_KERNELS(extern)
