@@ -6,7 +6,7 @@
 
 #include "anisocap/pipeline/networks.hpp"
 #include "anisocap/pipeline/uncertainty.hpp"
-#include "commands/common.hpp"
+#include "commands/program.hpp"
 
 ANISOCAP_TEXEL_KERNELS()
 
