@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 #include <string>
+#include <vector>
 
 #include "anisocap/calibration/camera.hpp"
 #include "anisocap/core/random.hpp"
@@ -136,4 +137,30 @@ TEST_CASE("look_at and project agree with the axis conventions") {
   CHECK(right.x() > 500);  // sample +x is image right
   CHECK(top.y() < 400);    // sample +y (top edge) is image up
   CHECK(p.camera_centre().z() == doctest::Approx(500));
+}
+
+TEST_CASE("homography_dlt maps four or many plane points onto their images, and refuses fewer than four") {
+  random_generator rng(17);
+  for (int trial = 0; trial < 20; ++trial) {
+    const pinhole_camera camera{rng.uniform(800.0, 3000.0), {999.5, 749.5}};
+    const planar_pose pose = random_pose(rng);
+    for (const int n : {4, 12}) {
+      std::vector<Eigen::Vector2d> plane, pixels;
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3d p(rng.uniform(-50.0, 50.0), rng.uniform(-40.0, 40.0), 0);
+        plane.push_back(p.head<2>());
+        pixels.push_back(project(camera, pose, p));
+      }
+      const Eigen::Matrix3d h = homography_dlt(plane, pixels);
+      CHECK(h(2, 2) == doctest::Approx(1.0));
+      // Every pair, and a point that took no part in the fit, land where the camera sees them (to a
+      // millionth of their pixel coordinates).
+      plane.emplace_back(rng.uniform(-50.0, 50.0), rng.uniform(-40.0, 40.0));
+      pixels.push_back(project(camera, pose, Eigen::Vector3d(plane.back().x(), plane.back().y(), 0)));
+      for (std::size_t i = 0; i < plane.size(); ++i) CHECK((h * plane[i].homogeneous()).hnormalized().isApprox(pixels[i], 1e-6));
+    }
+  }
+  const std::vector<Eigen::Vector2d> three(3, Eigen::Vector2d(1, 2)), four(4, Eigen::Vector2d(1, 2));
+  CHECK_THROWS_WITH_AS(homography_dlt(three, three), doctest::Contains("at least four"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(homography_dlt(four, three), doctest::Contains("got 4 and 3"), std::invalid_argument);
 }

@@ -20,6 +20,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace anisocap {
 
@@ -151,35 +152,45 @@ inline void check_corner_order(const corner_pixels& corners, const std::string& 
                                    "(top-left, top-right, bottom-right, bottom-left)");
 }
 
-/// The homography H (3 x 3, H(2,2) = 1) with pixels ~ H (X, Y, 1) from four plane points
-/// (X, Y) to four pixels: the direct linear transform with Hartley's normalisation.
-inline Eigen::Matrix3d homography_from_points(const std::array<Eigen::Vector2d, 4>& plane, const corner_pixels& pixels) {
-  auto normaliser = [](const std::array<Eigen::Vector2d, 4>& p) {
+/// The homography H (3 x 3, H(2,2) = 1) with to[i] ~ H (from[i], 1) for N >= 4 point pairs
+/// (least squares beyond four): the direct linear transform with Hartley's normalisation, the
+/// null vector from one SVD. The pose's four corners and the marker frames' many tag corners share
+/// it (a fixed-size 8 x 9 decomposition as well would cost the program seconds of compile time).
+inline Eigen::Matrix3d homography_dlt(const std::vector<Eigen::Vector2d>& from, const std::vector<Eigen::Vector2d>& to) {
+  if (from.size() != to.size() || from.size() < 4)
+    throw std::invalid_argument("homography_dlt: needs as many pixels as plane points, at least four (got " +
+                                std::to_string(from.size()) + " and " + std::to_string(to.size()) + ")");
+  auto normaliser = [](const std::vector<Eigen::Vector2d>& p) {
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
     for (const auto& q : p) mean += q;
-    mean /= 4;
+    mean /= double(p.size());
     double spread = 0;
     for (const auto& q : p) spread += (q - mean).norm();
-    const double s = std::sqrt(2.0) / (spread / 4);
+    const double s = std::sqrt(2.0) / (spread / double(p.size()));
     Eigen::Matrix3d t;
     t << s, 0, -s * mean.x(), 0, s, -s * mean.y(), 0, 0, 1;
     return t;
   };
-  const Eigen::Matrix3d ta = normaliser(plane), tb = normaliser(pixels);
-  Eigen::Matrix<double, 8, 9> a;
-  for (int i = 0; i < 4; ++i) {
-    const Eigen::Vector3d p = ta * plane[i].homogeneous();
-    const Eigen::Vector3d q = tb * pixels[i].homogeneous();
-    const double x = p.x() / p.z(), y = p.y() / p.z(), u = q.x() / q.z(), v = q.y() / q.z();
-    a.row(2 * i) << x, y, 1, 0, 0, 0, -u * x, -u * y, -u;
-    a.row(2 * i + 1) << 0, 0, 0, x, y, 1, -v * x, -v * y, -v;
+  const Eigen::Matrix3d ta = normaliser(from), tb = normaliser(to);
+  Eigen::MatrixXd a(2 * from.size(), 9);
+  for (std::size_t i = 0; i < from.size(); ++i) {
+    const Eigen::Vector3d p = ta * from[i].homogeneous(), q = tb * to[i].homogeneous();
+    const double x = p.x(), y = p.y(), u = q.x(), v = q.y();
+    a.row(Eigen::Index(2 * i)) << x, y, 1, 0, 0, 0, -u * x, -u * y, -u;
+    a.row(Eigen::Index(2 * i + 1)) << 0, 0, 0, x, y, 1, -v * x, -v * y, -v;
   }
-  Eigen::JacobiSVD<Eigen::Matrix<double, 8, 9>> svd(a, Eigen::ComputeFullV);
-  const Eigen::Matrix<double, 9, 1> h = svd.matrixV().col(8);
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullV);
+  const Eigen::VectorXd h = svd.matrixV().col(8);
   Eigen::Matrix3d hn;
   hn << h(0), h(1), h(2), h(3), h(4), h(5), h(6), h(7), h(8);
-  Eigen::Matrix3d result = tb.inverse() * hn * ta;
-  return result / result(2, 2);
+  const Eigen::Matrix3d r = tb.inverse() * hn * ta;
+  return r / r(2, 2);
+}
+
+/// The homography H (3 x 3, H(2,2) = 1) with pixels ~ H (X, Y, 1) from four plane points
+/// (X, Y) to four pixels (homography_dlt).
+inline Eigen::Matrix3d homography_from_points(const std::array<Eigen::Vector2d, 4>& plane, const corner_pixels& pixels) {
+  return homography_dlt({plane.begin(), plane.end()}, {pixels.begin(), pixels.end()});
 }
 
 /// Options of estimate_pose.
@@ -215,11 +226,14 @@ inline planar_pose estimate_pose(const pinhole_camera& camera, const corner_pixe
   r.col(0) = s * m.col(0);
   r.col(1) = s * m.col(1);
   r.col(2) = r.col(0).cross(r.col(1));
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(r, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  // The nearest rotation, through the same dynamic-size SVD as homography_dlt (one decomposition
+  // for the compiler to instantiate).
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Eigen::MatrixXd(r), Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Matrix3d u = svd.matrixU(), v = svd.matrixV();
   Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
-  d(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
+  d(2, 2) = (u * v.transpose()).determinant() < 0 ? -1 : 1;
   planar_pose pose;
-  pose.rotation = svd.matrixU() * d * svd.matrixV().transpose();
+  pose.rotation = u * d * v.transpose();
   pose.translation = s * m.col(2);
 
   // Levenberg-Marquardt over a rotation increment w (R <- exp([w]x) R) and t, forward-difference

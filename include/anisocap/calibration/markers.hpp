@@ -89,35 +89,6 @@ struct family {
   family& operator=(const family&) = delete;
 };
 
-/// Homography from N >= 4 plane points to pixels (direct linear transform, Hartley-normalised).
-inline Eigen::Matrix3d homography(const std::vector<Eigen::Vector2d>& from, const std::vector<Eigen::Vector2d>& to) {
-  auto normaliser = [](const std::vector<Eigen::Vector2d>& p) {
-    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-    for (const auto& q : p) mean += q;
-    mean /= double(p.size());
-    double spread = 0;
-    for (const auto& q : p) spread += (q - mean).norm();
-    const double s = std::sqrt(2.0) / (spread / double(p.size()));
-    Eigen::Matrix3d t;
-    t << s, 0, -s * mean.x(), 0, s, -s * mean.y(), 0, 0, 1;
-    return t;
-  };
-  const Eigen::Matrix3d ta = normaliser(from), tb = normaliser(to);
-  Eigen::MatrixXd a(2 * from.size(), 9);
-  for (std::size_t i = 0; i < from.size(); ++i) {
-    const Eigen::Vector3d p = ta * from[i].homogeneous(), q = tb * to[i].homogeneous();
-    const double x = p.x(), y = p.y(), u = q.x(), v = q.y();
-    a.row(Eigen::Index(2 * i)) << x, y, 1, 0, 0, 0, -u * x, -u * y, -u;
-    a.row(Eigen::Index(2 * i + 1)) << 0, 0, 0, x, y, 1, -v * x, -v * y, -v;
-  }
-  Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullV);
-  const Eigen::VectorXd h = svd.matrixV().col(8);
-  Eigen::Matrix3d hn;
-  hn << h(0), h(1), h(2), h(3), h(4), h(5), h(6), h(7), h(8);
-  const Eigen::Matrix3d r = tb.inverse() * hn * ta;
-  return r / r(2, 2);
-}
-
 }  // namespace marker_detail
 
 /// The printed sheet at `dots_per_mm` (e.g. 300 dpi: 300 / 25.4) as a 1-channel albedo image:
@@ -186,7 +157,7 @@ inline corner_pixels find_corners_from_markers(const photo& picture, const marke
   if (known.size() < 4)
     throw calibration_error(photo_name, "found " + std::to_string(known.size()) + " of the frame's " + std::to_string(f.markers.size()) +
                                             " markers, need at least 4: give \"corners\", or photograph the whole frame sharply");
-  const Eigen::Matrix3d hm = marker_detail::homography(known, seen);
+  const Eigen::Matrix3d hm = homography_dlt(known, seen);
   corner_pixels corners;
   const auto points = sample_corners(f.width_mm, f.height_mm);
   for (int k = 0; k < 4; ++k) corners[std::size_t(k)] = (hm * Eigen::Vector3d(points[std::size_t(k)].x(), points[std::size_t(k)].y(), 1)).hnormalized();
