@@ -1,7 +1,8 @@
 #pragma once
 // The `anisocap` program's commands, one registration function each. Each is defined in the
 // translation unit of its group (capture_commands.cpp, training_commands.cpp, tool_commands.cpp,
-// calibration_commands.cpp, batch_commands.cpp), so that the groups compile in parallel.
+// calibration_commands.cpp, batch_commands.cpp), so that the groups compile in parallel; what the
+// training commands run is compiled apart from their command lines, in training_runs.cpp.
 #include <CLI/CLI.hpp>
 
 namespace anisocap::commands {

@@ -66,7 +66,10 @@ inline json run_description(const train_options& o, const std::string& kind, con
   info["diffuse_weight"] = o.diffuse_weight;
   info["normal_weight"] = o.normal_weight;
   std::string emphasis;
-  for (material_kind k : o.emphasis) emphasis += (emphasis.empty() ? "" : ",") + std::string(material_kind_name(k));
+  for (material_kind k : o.emphasis) {
+    if (!emphasis.empty()) emphasis += ',';
+    emphasis += material_kind_name(k);
+  }
   info["emphasis"] = emphasis;
   info["emphasis_share"] = o.emphasis.empty() ? 0.0 : o.emphasis_share;
   info["shot_noise"] = o.input_noise.shot;
