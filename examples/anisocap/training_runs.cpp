@@ -16,7 +16,7 @@ namespace anisocap::commands::train_detail {
 namespace {
 
 /// The flag that sets each train_options field a library message names.
-inline constexpr option_name train_field_flags[] = {
+constexpr option_name train_field_flags[] = {
     {"train_options::steps", "--steps"},
     {"train_options::seed", "--seed"},
     {"train_options::size", "--size"},
@@ -61,7 +61,7 @@ inline constexpr option_name train_field_flags[] = {
 };
 
 /// The flags that set the estimate_options fields eval-networks' messages name.
-inline constexpr option_name eval_networks_field_flags[] = {{"estimate_options::window", "--window"}, {"estimate_options::stride", "--stride"}};
+constexpr option_name eval_networks_field_flags[] = {{"estimate_options::window", "--window"}, {"estimate_options::stride", "--stride"}};
 
 /// Runs `train(options, net)` on a Net<P> built from the run seed, P the preset s.preset names:
 /// Paper ("paper") or one of the list Compact (networks/presets.hpp), while holding the output
@@ -87,7 +87,8 @@ void train_in_locked_folder(const train_settings& settings, Train train) {
   });
 }
 
-inline std::string row(const char* name, const parameter_errors& e) {
+/// One row of eval-networks' Markdown table: the mean errors of one network on one group of materials.
+std::string row(const char* name, const parameter_errors& e) {
   char line[256];
   std::snprintf(line, sizeof line, "| %s | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g | %.4g |\n", name, e.diffuse, e.specular,
                 e.normal, e.lobes, e.rotation, e.rotation_anisotropic, e.fresnel);
@@ -96,7 +97,7 @@ inline std::string row(const char* name, const parameter_errors& e) {
 
 /// eval-networks' validation materials (their kinds in `kinds`), with the settings' sensor noise on
 /// their photographs.
-inline std::vector<training::sample> network_eval_samples(const network_eval_settings& s, const std::vector<material_kind>& families,
+std::vector<training::sample> network_eval_samples(const network_eval_settings& s, const std::vector<material_kind>& families,
                                                           std::vector<material_kind>& kinds) {
   std::vector<training::sample> samples;
   for (int i = 0; i < s.count; ++i) {
@@ -112,7 +113,7 @@ inline std::vector<training::sample> network_eval_samples(const network_eval_set
 }
 
 /// The per-texel mean of the samples' true maps (size x size): eval-networks' baseline.
-inline material_maps mean_of_truths(const std::vector<training::sample>& samples, int size) {
+material_maps mean_of_truths(const std::vector<training::sample>& samples, int size) {
   material_maps mean(size, size);
   for (int k = 0; k < parameter_count; ++k)
     for (std::size_t j = 0; j < mean.texel_count(); ++j) {
@@ -129,7 +130,7 @@ struct network_eval_errors {
 };
 
 /// eval-networks' report (Markdown): the settings, the four rows' mean errors, then per family.
-inline std::string network_eval_report(const network_eval_settings& s, const std::vector<material_kind>& families, const char* estimator_name,
+std::string network_eval_report(const network_eval_settings& s, const std::vector<material_kind>& families, const char* estimator_name,
                                        const char* autoencoder_name, const network_eval_errors& errors) {
   const parameter_errors est = average_errors(errors.estimator).mean, base = average_errors(errors.baseline).mean,
                          ae = average_errors(errors.autoencoder).mean, start = average_errors(errors.start).mean;
