@@ -50,7 +50,7 @@ std::string executable_folder() {
 std::string module_path(const std::string& isa) {
   const std::string here = executable_folder();
   const std::string name = "/anisocap-" + isa + ".so";
-  for (const std::string folder : {here + "/anisocap-kernels", here + "/" + ANISOCAP_MODULE_FOLDER}) {
+  for (const std::string& folder : {here + "/anisocap-kernels", here + "/" + ANISOCAP_MODULE_FOLDER}) {
     const std::string candidate = folder + name;
     if (::access(candidate.c_str(), R_OK) == 0) return candidate;
   }
