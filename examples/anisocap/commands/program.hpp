@@ -276,13 +276,6 @@ using program_autoencoder_presets = shipped_autoencoder_presets;
 inline constexpr bool program_has_paper_preset = false;
 #endif
 
-/// `names` joined by `separator` ("compact, paper"): the choices a message lists.
-inline std::string join_names(const std::vector<std::string>& names, const char* separator) {
-  std::string text;
-  for (const auto& n : names) text += (text.empty() ? "" : separator) + n;
-  return text;
-}
-
 /// load_program_networks where weights are found; empty networks, with a note on stderr, where
 /// none are (no --models given and none installed): the capture then runs the refine alone.
 networks find_program_networks(const model_choice& m);

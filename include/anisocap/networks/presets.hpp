@@ -31,6 +31,16 @@ inline std::string weights_preset(const std::filesystem::path& file) {
   return "";
 }
 
+/// `names` joined by `separator` ("compact, paper"): the choices an error message lists.
+inline std::string join_names(const std::vector<std::string>& names, std::string_view separator) {
+  std::string text;
+  for (const std::string& name : names) {
+    if (!text.empty()) text += separator;
+    text += name;
+  }
+  return text;
+}
+
 /// A list of network presets (types with a `name`, the name a weight file records): the one place
 /// that says which presets a command, the dispatch below and its error messages know.
 template <class... P>
@@ -39,11 +49,7 @@ struct preset_list {
   /// The presets' names, in the list's order.
   static std::vector<std::string> names() { return {std::string(P::name)...}; }
   /// The names joined by ", " (error messages).
-  static std::string joined() {
-    std::string text;
-    for (const std::string& name : names()) text += (text.empty() ? "" : ", ") + name;
-    return text;
-  }
+  static std::string joined() { return join_names(names(), ", "); }
   /// Whether `name` is one of the presets' names.
   static bool contains(std::string_view name) { return ((name == P::name) || ...); }
   /// Returns `f.template operator()<Q>()` with the preset Q of the list named `name`. Throws
