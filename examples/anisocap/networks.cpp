@@ -38,10 +38,8 @@ networks find_program_networks(const model_choice& m) {
     at.models = found;  // load_networks need not search again
     return load_program_networks(at);
   }
-  std::string places;
-  for (const auto& p : models_search_path()) places += (places.empty() ? "" : ", ") + p.string();
   std::fprintf(stderr, "capture: no %s network weights found (looked in %s): running the per-texel refine alone (set "
-               "ANISOCAP_MODELS or pass --models)\n", m.preset.c_str(), places.c_str());
+               "ANISOCAP_MODELS or pass --models)\n", m.preset.c_str(), join_names(models_search_path(), ", ").c_str());
   return {};
 }
 

@@ -118,6 +118,21 @@ TEST_CASE("map set: rewriting without height or previews leaves one consistent s
   CHECK(anisocap::read_maps(dir / "new" / "set").width() == 3);
 }
 
+TEST_CASE("map set: a folder without some maps is refused, naming each missing file") {
+  test_folder dir;
+  anisocap::write_maps(random_maps(4, 4, false, 6), dir.path(), false);
+  std::filesystem::remove(dir / "lobes.exr");
+  std::filesystem::remove(dir / "normal.exr");
+  std::string message;
+  try {
+    (void)anisocap::read_maps(dir.path());
+  } catch (const anisocap::io_error& e) {
+    message = e.what();
+  }
+  CHECK(message.find(dir.path().string()) == 0);
+  CHECK(message.find("map set is missing lobes.exr, normal.exr (needed:") != std::string::npos);
+}
+
 TEST_CASE("map set: values just outside the ranges are clamped, alpha is wrapped modulo pi") {
   test_folder dir;
   material_maps m = random_maps(4, 1, false, 5);

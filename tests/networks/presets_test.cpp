@@ -87,9 +87,6 @@ TEST_CASE("a preset list names its presets in order and calls the one a name pic
   using list = preset_list<autoencoder_compact, autoencoder_compact_fine, autoencoder_compact_fine_widest>;
   CHECK(list::names() == std::vector<std::string>{"compact", "compact-fine", "compact-fine-widest"});
   CHECK(list::joined() == "compact, compact-fine, compact-fine-widest");
-  CHECK(join_names({"compact", "paper"}, ",") == "compact,paper");
-  CHECK(join_names({"compact"}, ", ") == "compact");
-  CHECK(join_names({}, ", ").empty());
   CHECK(list::contains("compact-fine"));
   CHECK_FALSE(list::contains("compact-fine-wide"));
   const auto width = []<class P>() { return P::encoder.back(); };

@@ -34,6 +34,7 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/text.hpp"
 #include "anisocap/data/image_io.hpp"
 
 namespace anisocap {
@@ -223,11 +224,11 @@ inline std::filesystem::path preview_name(const std::filesystem::path& dir, std:
 inline material_maps read_maps(const std::filesystem::path& dir) {
   std::error_code ec;
   if (!std::filesystem::is_directory(dir, ec)) throw io_error(dir, "map set folder not found");
-  std::string missing;
+  std::vector<std::string_view> missing;
   for (std::size_t f = 0; f < 6; ++f)
-    if (!std::filesystem::exists(dir / map_file_names[f], ec)) missing += std::string(missing.empty() ? "" : ", ") + std::string(map_file_names[f]);
+    if (!std::filesystem::exists(dir / map_file_names[f], ec)) missing.push_back(map_file_names[f]);
   if (!missing.empty())
-    throw io_error(dir, "map set is missing " + missing +
+    throw io_error(dir, "map set is missing " + join_names(missing, ", ") +
                             " (needed: diffuse, specular, lobes, fresnel, normal, rotation .exr; height.exr optional)");
   const bool has_height = std::filesystem::exists(dir / map_file_names[6], ec);
   std::vector<image> images;

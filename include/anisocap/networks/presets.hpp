@@ -15,6 +15,7 @@
 #include <string_view>
 #include <vector>
 
+#include "anisocap/core/text.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
 #include "anisocap/nn/safetensors.hpp"
@@ -29,16 +30,6 @@ inline std::string weights_preset(const std::filesystem::path& file) {
   for (const auto& [key, value] : nn::read_safetensors_header(file).metadata)
     if (key == "preset") return value;
   return "";
-}
-
-/// `names` joined by `separator` ("compact, paper"): the choices an error message lists.
-inline std::string join_names(const std::vector<std::string>& names, std::string_view separator) {
-  std::string text;
-  for (const std::string& name : names) {
-    if (!text.empty()) text += separator;
-    text += name;
-  }
-  return text;
 }
 
 /// A list of network presets (types with a `name`, the name a weight file records): the one place

@@ -38,6 +38,7 @@
 #include <string_view>
 #include <vector>
 
+#include "anisocap/core/text.hpp"
 #include "anisocap/data/capture_io.hpp"
 #include "anisocap/data/image_io.hpp"
 
@@ -756,8 +757,7 @@ inline void capture_unit(const batch_sample& s, const batch_unit_files& f, const
   argv.insert(argv.end(), o.program_arguments.begin(), o.program_arguments.end());
   const auto args = batch_capture_arguments(s, record, resume);
   argv.insert(argv.end(), args.begin(), args.end());
-  std::string command;
-  for (const auto& a : argv) command += (command.empty() ? "" : " ") + a;
+  const std::string command = join_names(argv, " ");
   write_marker(f, s.name, record, "running");
   append(f.log(), "== batch: sample " + s.name + " on host " + host_name() + " pid " + std::to_string(::getpid()) +
                       (resume ? ", resuming" : "") + ": " + command);

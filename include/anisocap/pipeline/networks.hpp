@@ -187,9 +187,7 @@ networks load_networks(const std::filesystem::path& folder = {}, const network_o
   if (where.empty()) {
     where = find_models_folder(options.preset);
     if (where.empty()) {
-      std::string places;
-      for (const auto& p : models_search_path()) places += (places.empty() ? "" : ", ") + p.string();
-      throw std::invalid_argument("no " + options.preset + " network weights found (looked in: " + places +
+      throw std::invalid_argument("no " + options.preset + " network weights found (looked in: " + join_names(models_search_path(), ", ") +
                                   "); set ANISOCAP_MODELS to the folder holding " + options.preset +
                                   "/estimator.safetensors and autoencoder.safetensors");
     }

@@ -28,6 +28,7 @@
 #include <omp.h>
 
 #include "anisocap/core/distributed.hpp"
+#include "anisocap/core/text.hpp"
 #include "anisocap/networks/auto_encoder.hpp"
 #include "anisocap/networks/estimator.hpp"
 #include "anisocap/nn/nn.hpp"
@@ -145,10 +146,8 @@ void start_from_init(const train_options& o, const std::string& kind, Net& net, 
       if (key == "network" && value != kind)
         throw std::runtime_error(o.init_weights.string() + ": holds " + value + " weights, not " + kind + " weights (train_options::init_weights)");
     const std::vector<std::string> fresh = nn::load_matching_weights(o.init_weights, net);
-    std::string note;
-    for (const auto& name : fresh) note += (note.empty() ? "" : ", ") + name;
     log(kind + ": starting from the weights in " + o.init_weights.string() +
-        (fresh.empty() ? "" : " (not in the file with this shape, initialised afresh: " + note + ")"));
+        (fresh.empty() ? "" : " (not in the file with this shape, initialised afresh: " + join_names(fresh, ", ") + ")"));
     if constexpr (requires { start_doubled_angle_head(o.init_weights, net); })
       if (!fresh.empty() && start_doubled_angle_head(o.init_weights, net))
         log(kind + ": the doubled-angle head starts from the file's tanh head (normals as they were, alpha to first order)");
