@@ -213,6 +213,11 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   CHECK(a["finetune"]["crop.cells"] == 0);
   CHECK(a["refine"]["steps"] == 1000);
   CHECK(a["refine"]["min_relative_improvement"] == 0.0);
+  // The second runs' and the kernel's options, under the names their visit_fields give them.
+  CHECK(a["second_run"] == nlohmann::json{{"residual", true}, {"second_prior", true}, {"above", 0.1}, {"residual_ratio", 1.4}});
+  CHECK(a["kernel_options"]["features"] == "anisotropic, Fresnel, normal map");
+  CHECK(a["kernel_options"]["auto_tolerance"] == 1e-3);
+  CHECK(a["kernel_options"]["prior_f0"].get<double>() == doctest::Approx(0.04));
   // --help reads the schedules' numbers from the options the capture ran with.
   const std::string help = run("capture --help", t.path).output;
   CHECK(help.find("thorough: fine-tune " + std::to_string(a["finetune"]["steps"].get<int>()) + " at 0.008, refine " +
@@ -222,6 +227,17 @@ TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside
   const nlohmann::json b = report("short");
   CHECK(finetune_stage_steps(b) == 7);
   CHECK(b["refine"]["steps"] == 2);
+  r = run("capture syn/capture.json -o flags --stages all --finetune-steps 3 --steps 2 --no-view --no-uncertainty --kernel isotropic "
+          "--no-also-residual --also-models-above 0.25 --also-residual-ratio 2",
+          t.path);
+  INFO(r.output);
+  REQUIRE(r.status == 0);
+  const nlohmann::json c = report("flags");
+  CHECK(c["second_run"]["residual"] == false);
+  CHECK(c["second_run"]["above"] == 0.25);
+  CHECK(c["second_run"]["residual_ratio"] == 2.0);
+  CHECK(c["kernel_options"]["features"] == "isotropic, Fresnel, normal map");
+  CHECK(c["kernel_options"]["auto_tolerance"] == 0.0);
   r = run("capture syn/capture.json -o bad --schedule slow", t.path);
   CHECK(r.status != 0);
   CHECK(r.output.find("slow") != std::string::npos);

@@ -5,8 +5,10 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "../data/test_folder.hpp"
 #include "../render/render_reference.hpp"
@@ -91,6 +93,25 @@ TEST_CASE("capture_options: the named schedules and the validation of every fiel
   o = {};
   o.second_run.above = -1;
   CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("second_run.above"), std::invalid_argument);
+  o = {};
+  o.second_run.residual_ratio = std::numeric_limits<double>::quiet_NaN();
+  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("capture_options::second_run.residual_ratio must be a finite number >= 0"),
+                       std::invalid_argument);
+  o = {};
+  o.kernel.prior_f0 = 1.5f;
+  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("capture_options::kernel.prior_f0 must be in [0, 1]"), std::invalid_argument);
+  o = {};
+  o.kernel.auto_tolerance = -1e-3;
+  CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("capture_options::kernel.auto_tolerance"), std::invalid_argument);
+  o = {};
+  o.kernel.prior_f0 = 1.0f;  // a metal's prior: allowed
+  o.kernel.auto_tolerance = 0;
+  CHECK_NOTHROW(o.validate());
+  // The visitors list every field, by the names the messages use.
+  std::vector<std::string> names;
+  second_run_options::visit_fields(o.second_run, [&](const char* name, const auto&) { names.emplace_back(name); });
+  kernel_options::visit_fields(o.kernel, [&](const char* name, const auto&) { names.emplace_back(name); });
+  CHECK(names == std::vector<std::string>{"residual", "second_prior", "above", "residual_ratio", "features", "auto_tolerance", "prior_f0"});
   o = {};
   o.refine_alone.steps = -1;
   CHECK_THROWS_AS(o.validate(), std::invalid_argument);

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <memory>
 #include <optional>
+#include <type_traits>
 
 #include "anisocap/export/viewer.hpp"
 #include "anisocap/pipeline/progress_line.hpp"
@@ -150,12 +151,18 @@ inline networks choose_networks(const capture_settings& s, capture_options& o, c
   return nets;
 }
 
-/// The fields `Options::visit_fields` lists (finetune_options, refine_options, estimate_options), as a JSON object
-/// keyed by their names: report.json's record of the options a capture ran with.
+/// The fields `Options::visit_fields` lists (finetune_options, refine_options, estimate_options,
+/// second_run_options, kernel_options), as a JSON object keyed by their names: report.json's record
+/// of the options a capture ran with. A kernel's features are written as kernel_used is.
 template <class Options>
 nlohmann::json fields_json(const Options& o) {
   nlohmann::json j = nlohmann::json::object();
-  Options::visit_fields(o, [&](const char* name, const auto& value) { j[name] = value; });
+  Options::visit_fields(o, [&](const char* name, const auto& value) {
+    if constexpr (std::is_same_v<std::decay_t<decltype(value)>, brdf_features>)
+      j[name] = kernel_analysis{value, 0, 0, 0}.describe();
+    else
+      j[name] = value;
+  });
   return j;
 }
 
@@ -172,6 +179,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
   report["height"] = in.photos[0].height();
   report["kernel"] = o.kernel.auto_tolerance > 0 ? "auto" : kernel_used;
   report["kernel_used"] = kernel_used;
+  report["kernel_options"] = fields_json(o.kernel);
   report["f0_source"] = result.f0_source;
   report["precision"] = o.render.double_precision ? "double" : "float";
   report["network_precision"] = nn::to_string(o.network_precision);
@@ -195,6 +203,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
     report["finetune"]["preset"] = s.models.preset;
   }
   if (with_networks && o.stages.estimate) report["estimate"] = fields_json(o.estimate);
+  if (with_networks) report["second_run"] = fields_json(o.second_run);
   report["loss"] = result.loss;
   if (result.choice) {
     const run_choice& c = *result.choice;

@@ -17,8 +17,10 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <vector>
 
+#include "anisocap/core/text.hpp"
 #include "anisocap/pipeline/encode.hpp"
 #include "anisocap/pipeline/estimate.hpp"
 #include "anisocap/pipeline/exposure.hpp"
@@ -77,6 +79,21 @@ struct kernel_options {
   /// plastics, coatings). With networks the estimate's F0 is kept instead.
   float prior_f0 = 0.04f;
 
+  /// Calls `f(name, field)` for each field (`o` a kernel_options, const or not): the one list that
+  /// the check-point fingerprint (capture_fingerprint) and the program's report.json read.
+  template <class Self, class F>
+  static void visit_fields(Self& o, F&& f) {
+    f("features", o.features);
+    f("auto_tolerance", o.auto_tolerance);
+    f("prior_f0", o.prior_f0);
+  }
+  /// Throws std::invalid_argument for impossible values.
+  void validate() const {
+    if (!(auto_tolerance >= 0) || !std::isfinite(auto_tolerance))
+      throw std::invalid_argument("capture_options::kernel.auto_tolerance must be a finite number >= 0 (0: no automatic choice)");
+    if (!(prior_f0 >= 0 && prior_f0 <= 1)) throw std::invalid_argument("capture_options::kernel.prior_f0 must be in [0, 1]");
+  }
+
   /// The kernel of a name: full, auto, isotropic, no-fresnel, flat, isotropic-flat, lambert-like.
   static kernel_options parse(const std::string& name) {
     if (name == "auto") return {all_features, 1e-3};
@@ -109,11 +126,20 @@ struct second_run_options {
   /// The residual start's condition on projection_ratio (0: none). The ratio is measured before
   /// any fine-tuning and, unlike the final loss, hardly moves with the photographs' noise.
   double residual_ratio = 1.4;
-  /// Throws std::invalid_argument for impossible values.
+  /// Calls `f(name, field)` for each field (`o` a second_run_options, const or not): the one list
+  /// that validate() and the program's report.json read.
+  template <class Self, class F>
+  static void visit_fields(Self& o, F&& f) {
+    f("residual", o.residual), f("second_prior", o.second_prior);
+    f("above", o.above), f("residual_ratio", o.residual_ratio);
+  }
+  /// Throws std::invalid_argument for impossible values: every number must be finite and >= 0.
   void validate() const {
-    if (!(above >= 0) || !std::isfinite(above)) throw std::invalid_argument("capture_options::second_run.above must be a finite number >= 0");
-    if (!(residual_ratio >= 0) || !std::isfinite(residual_ratio))
-      throw std::invalid_argument("capture_options::second_run.residual_ratio must be a finite number >= 0");
+    visit_fields(*this, [](const char* name, const auto& value) {
+      if constexpr (std::is_same_v<std::decay_t<decltype(value)>, double>)
+        if (!(value >= 0) || !std::isfinite(value))
+          throw std::invalid_argument(std::string("capture_options::second_run.") + name + " must be a finite number >= 0");
+    });
   }
 };
 
@@ -248,6 +274,7 @@ struct capture_options {
     estimate.validate();
     finetune.validate();
     second_run.validate();
+    kernel.validate();
     if (uncertainty) uncertainty->validate();
     validate_precision();
     validate_restarts();
@@ -385,9 +412,16 @@ fingerprint capture_fingerprint(const capture& cap, const std::vector<image>& ph
   f.add("stages", std::string(st.estimate ? "estimate," : "") + (st.encode ? "encode," : "") + (st.finetune ? "finetune," : "") +
                       (st.refine ? "refine" : ""));
   estimate_options::visit_fields(o.estimate, [&](const std::string& name, int value) { f.add("estimate." + name, value); });
-  const brdf_features& k = o.kernel.features;
-  f.add("kernel.features", std::string(k.anisotropic ? "anisotropic," : "") + (k.fresnel ? "fresnel," : "") + (k.normal_map ? "normal_map" : ""));
-  f.add("kernel.auto_tolerance", o.kernel.auto_tolerance);
+  kernel_options::visit_fields(o.kernel, [&](const std::string& name, const auto& value) {
+    if constexpr (std::is_same_v<std::decay_t<decltype(value)>, brdf_features>) {
+      // In the text check-points have always recorded (hence the comma a kernel without normal
+      // maps leaves at the end), so that they still match.
+      f.add("kernel." + name, std::string(value.anisotropic ? "anisotropic," : "") + (value.fresnel ? "fresnel," : "") +
+                                  (value.normal_map ? "normal_map" : ""));
+    } else if (name != "prior_f0") {  // F0 written after the stages, where no network gave one
+      f.add("kernel." + name, double(value));
+    }
+  });
   f.add("normalise_exposure", o.normalise_exposure ? 1.0 : 0.0);
   f.add("render.cull_tolerance", o.render.cull_tolerance).add("render.double_precision", o.render.double_precision ? 1.0 : 0.0);
   finetune_options::visit_fields(o.finetune, [&](const std::string& name, const auto& value) {
@@ -418,9 +452,7 @@ inline void prepare_checkpoint_folder(const std::filesystem::path& folder, bool 
     if (!in) throw std::runtime_error(file.string() + ": cannot read the check-point's fingerprint");
     const auto differences = now.differences_from(fingerprint::parse(text.str()));
     if (!differences.empty()) {
-      std::string list;
-      for (const auto& d : differences) list += (list.empty() ? "" : "; ") + d;
-      throw std::runtime_error(folder.string() + ": the check-point is of another capture or other options: " + list +
+      throw std::runtime_error(folder.string() + ": the check-point is of another capture or other options: " + join_names(differences, "; ") +
                                ". Run with the same inputs and options, or start over without resuming (checkpoint_options::resume)");
     }
   } else if (resume && has_stages) {
