@@ -132,6 +132,9 @@ namespace anisocap {
 
 /// Calls `fn.template operator()<F>()` with F the compile-time twin of the runtime feature set `f`:
 /// how a program picks a specialised kernel at run time. Each combination is one instantiation.
+/// The switch below and ANISOCAP_TEXEL_KERNELS (pipeline/texel_kernels.hpp) each list the eight
+/// combinations of brdf_features' three terms; a fourth term must be added to both.
+static_assert(sizeof(brdf_features) == 3 * sizeof(bool), "brdf_features gained a term: extend with_features and ANISOCAP_TEXEL_KERNELS");
 template <class Fn>
 decltype(auto) with_features(const brdf_features& f, Fn&& fn) {
   const int code = int(f.anisotropic) * 4 + int(f.fresnel) * 2 + int(f.normal_map);

@@ -32,8 +32,9 @@
   prefix template std::vector<anisocap::image> anisocap::render<F, anisocap::simd::batch<float>>(                              \
       const anisocap::material_maps&, const anisocap::capture&, const anisocap::tile_placement&, const anisocap::render_options&);
 
-/// The kernels of every feature set with_features dispatches to: `extern` declares them, empty
-/// defines them (in one translation unit).
+/// The kernels of every feature set with_features dispatches to (all eight combinations of three
+/// terms, which brdf/ward.hpp asserts are all there are): `extern` declares them, empty defines
+/// them (in one translation unit).
 #define ANISOCAP_TEXEL_KERNELS(prefix)                                                   \
   ANISOCAP_TEXEL_KERNELS_OF(prefix, (anisocap::brdf_features{false, false, false}))      \
   ANISOCAP_TEXEL_KERNELS_OF(prefix, (anisocap::brdf_features{false, false, true}))       \
