@@ -1,6 +1,7 @@
 // Throughput of the non-convolution layers (nn/layers.hpp) at estimator-sized tensors
 // (4 x 128 x 128 x 64 floats, 16 MiB), forward and forward + backward, on 1 and 2 threads, beside
-// plain scalar references (the loops a user would write; the compiler may auto-vectorise them).
+// plain scalar references (the loops a user would write; the compiler may auto-vectorise them);
+// and of the fine-tune's network-space conversions (networks/network_space.hpp).
 // Counter `gbytes_per_s`: bytes the layer must read and write, per second (these layers are
 // memory-bound, so bandwidth is the figure that matters).
 #include <benchmark/benchmark.h>
@@ -10,6 +11,7 @@
 #include <cmath>
 #include <vector>
 
+#include "anisocap/networks/network_space.hpp"
 #include "anisocap/nn/layers.hpp"
 
 using namespace anisocap;
@@ -209,6 +211,66 @@ void upsample_forward_backward(benchmark::State& s) {
   set_counters(s, 4 + 16 + 4 + 16 + 16 + 8);
 }
 
+// ---- network space ------------------------------------------------------------------------------
+
+// The fine-tune's per-step conversions between the decoder's 12 output channels and the maps
+// (networks/network_space.hpp), at the default capture's 256 x 256: the maps from the outputs,
+// and the chain rule back. Counter `mtexels_per_s`.
+constexpr int maps_side = 256;
+
+tensor<parameter_count> decoder_outputs() {
+  tensor<parameter_count> u(1, maps_side, maps_side);
+  nn::random_generator g(3);
+  for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(1.1 * g.symmetric_uniform());
+  return u;
+}
+
+void set_texel_counter(benchmark::State& s) {
+  s.counters["mtexels_per_s"] =
+      benchmark::Counter(double(maps_side) * maps_side * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+}
+
+void network_to_maps(benchmark::State& s) {
+  omp_set_num_threads(int(s.range(0)));
+  const auto u = decoder_outputs();
+  material_maps maps;
+  for (auto _ : s) {
+    network_space::network_to_maps(u, 0, maps);
+    benchmark::DoNotOptimize(maps.plane(0));
+  }
+  set_texel_counter(s);
+}
+
+// The reference: from_network texel by texel and channel by channel into a new map set.
+void network_to_maps_scalar(benchmark::State& s) {
+  const auto u = decoder_outputs();
+  for (auto _ : s) {
+    material_maps maps(maps_side, maps_side);
+    for (int y = 0; y < maps_side; ++y)
+      for (int x = 0; x < maps_side; ++x) {
+        const float* p = u.pixel(0, y, x);
+        for (int k = 0; k < parameter_count; ++k) maps.at(k, x, y) = float(network_space::from_network(k, p[k]));
+      }
+    benchmark::DoNotOptimize(maps.plane(0));
+  }
+  set_texel_counter(s);
+}
+
+void add_network_gradient(benchmark::State& s) {
+  omp_set_num_threads(int(s.range(0)));
+  const auto u = decoder_outputs();
+  tensor<parameter_count> grad(1, maps_side, maps_side);
+  material_maps grad_maps(maps_side, maps_side);
+  nn::random_generator g(4);
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < grad_maps.texel_count(); ++i) grad_maps.plane(k)[i] = float(g.symmetric_uniform());
+  for (auto _ : s) {
+    network_space::add_network_gradient(u, 0, grad_maps, 1.0, grad);
+    benchmark::DoNotOptimize(grad.data());
+  }
+  set_texel_counter(s);
+}
+
 }  // namespace
 
 BENCHMARK(leaky_relu_forward_scalar)->Unit(benchmark::kMillisecond)->UseRealTime();
@@ -221,5 +283,9 @@ BENCHMARK(instance_norm_8_channels_forward_backward)->Arg(1)->Arg(2)->Unit(bench
 BENCHMARK(batch_norm_forward_backward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(max_over_images_forward_backward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(upsample_forward_backward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+BENCHMARK(network_to_maps_scalar)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(network_to_maps)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(add_network_gradient)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 BENCHMARK_MAIN();

@@ -55,36 +55,71 @@ TEST_CASE("network space: range ends map to the documented values") {
   CHECK(std::hypot(m.at(normal_x, 0, 0), m.at(normal_y, 0, 0)) == doctest::Approx(0.999).epsilon(1e-5));
 }
 
+TEST_CASE("network space: network_to_maps is from_network texel by texel, at any width, in parallel, into a reused map set") {
+  // 131 x 129 runs rows in parallel; 131 is no whole number of SIMD batches. Entry 1 of 2.
+  const int W = 131, H = 129;
+  tensor<parameter_count> u(2, H, W);
+  random_generator rng(5);
+  for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(rng.uniform() * 2.2 - 1.1);
+  material_maps m(3, 3);
+  ns::network_to_maps(u, 1, m);
+  REQUIRE(m.width() == W);
+  REQUIRE(m.height() == H);
+  int outside = 0;
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const float* p = u.pixel(1, y, x);
+      const double nx = p[normal_x], ny = p[normal_y], r = std::hypot(nx, ny);
+      for (int k = 0; k < parameter_count; ++k) {
+        double expected = ns::from_network(k, p[k]);
+        if ((k == normal_x || k == normal_y) && r > ns::max_normal_xy) expected = p[k] * ns::max_normal_xy / r;
+        if (m.at(k, x, y) != float(expected)) {
+          CHECK(m.at(k, x, y) == doctest::Approx(expected).epsilon(1e-6));
+        }
+      }
+      outside += r > ns::max_normal_xy;
+    }
+  CHECK(outside > 1000);
+  // A map set of the right size is written in place.
+  const float* storage = m.plane(0);
+  ns::network_to_maps(u, 0, m);
+  CHECK(m.plane(0) == storage);
+  CHECK(m.at(diffuse_r, 5, 7) == float(ns::from_network(diffuse_r, u(0, 7, 5, diffuse_r))));
+}
+
 TEST_CASE("network space: the chain rule matches finite differences, inside and outside the normal disc") {
-  const int W = 3, H = 2;
-  tensor<parameter_count> u(1, H, W), grad(1, H, W);
-  random_generator rng(11);
-  for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(rng.uniform() * 1.8 - 0.9);
-  u(0, 0, 0, normal_x) = 0.95f;  // outside the disc: scaled back
-  u(0, 0, 0, normal_y) = 0.6f;
-  // L = sum_k,p c_k,p maps_k,p: dL/dmaps = c.
-  material_maps c(W, H);
-  for (int k = 0; k < parameter_count; ++k)
-    for (int i = 0; i < W * H; ++i) c.plane(k)[i] = float(rng.uniform() * 2 - 1);
-  auto loss = [&] {
-    const material_maps m = ns::network_to_maps(u, 0);
-    double s = 0;
+  for (const int W : {3, 11}) {  // 11: a row that is no whole number of SIMD batches
+    CAPTURE(W);
+    const int H = 2;
+    tensor<parameter_count> u(1, H, W), grad(1, H, W);
+    random_generator rng(11);
+    for (std::size_t i = 0; i < u.size(); ++i) u.data()[i] = float(rng.uniform() * 1.8 - 0.9);
+    u(0, 0, 0, normal_x) = 0.95f;  // outside the disc: scaled back
+    u(0, 0, 0, normal_y) = 0.6f;
+    // L = sum_k,p c_k,p maps_k,p: dL/dmaps = c.
+    material_maps c(W, H);
     for (int k = 0; k < parameter_count; ++k)
-      for (int i = 0; i < W * H; ++i) s += double(c.plane(k)[i]) * m.plane(k)[i];
-    return s;
-  };
-  grad.fill(0.0f);
-  ns::add_network_gradient(u, 0, c, 2.0, grad);  // scale 2 to check the scale argument
-  for (std::size_t i = 0; i < u.size(); ++i) {
-    const float saved = u.data()[i];
-    const float h = 1e-3f;
-    u.data()[i] = saved + h;
-    const double up = loss();
-    u.data()[i] = saved - h;
-    const double down = loss();
-    u.data()[i] = saved;
-    const double numeric = 2.0 * (up - down) / (2.0 * h);
-    CHECK(double(grad.data()[i]) == doctest::Approx(numeric).epsilon(2e-2).scale(1.0));
+      for (int i = 0; i < W * H; ++i) c.plane(k)[i] = float(rng.uniform() * 2 - 1);
+    auto loss = [&] {
+      const material_maps m = ns::network_to_maps(u, 0);
+      double s = 0;
+      for (int k = 0; k < parameter_count; ++k)
+        for (int i = 0; i < W * H; ++i) s += double(c.plane(k)[i]) * m.plane(k)[i];
+      return s;
+    };
+    grad.fill(0.0f);
+    ns::add_network_gradient(u, 0, c, 2.0, grad);  // scale 2 to check the scale argument
+    for (std::size_t i = 0; i < u.size(); ++i) {
+      const float saved = u.data()[i];
+      const float h = 1e-3f;
+      u.data()[i] = saved + h;
+      const double up = loss();
+      u.data()[i] = saved - h;
+      const double down = loss();
+      u.data()[i] = saved;
+      const double numeric = 2.0 * (up - down) / (2.0 * h);
+      CHECK(double(grad.data()[i]) == doctest::Approx(numeric).epsilon(2e-2).scale(1.0));
+    }
   }
 }
 

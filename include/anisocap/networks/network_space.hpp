@@ -24,6 +24,7 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/simd.hpp"
 #include "anisocap/core/tensor.hpp"
 
 namespace anisocap::network_space {
@@ -77,22 +78,85 @@ void maps_to_network(const material_maps& maps, tensor<parameter_count, T>& out,
     }
 }
 
+namespace detail {
+
+/// Rows of at least this many texels in all run in parallel (network_to_maps, add_network_gradient).
+inline constexpr std::size_t parallel_texels = 16384;
+
+/// The lobe widths from_network gives for channels lobe_x and lobe_y of the `width` texels from
+/// `row` (parameter_count values per texel): sigma_x at `lobes[x]`, sigma_y at `lobes[padded + x]`,
+/// where `padded` (width rounded up to whole SIMD batches) is the size of each half of `lobes`. The
+/// same double-precision sums as from_network, with the exponential taken a batch at a time: the
+/// one transcendental of the network space, and most of its time when taken texel by texel.
+template <class T>
+void lobe_widths(const T* row, int width, std::vector<double>& lobes, std::size_t& padded) {
+  using V = simd::batch<double>;
+  padded = (std::size_t(width) + V::size - 1) / V::size * V::size;
+  lobes.assign(2 * padded, -1.0);  // padding: u = -1, the narrowest lobe (a finite exponential)
+  for (int x = 0; x < width; ++x) {
+    lobes[std::size_t(x)] = double(row[std::size_t(x) * parameter_count + lobe_x]);
+    lobes[padded + std::size_t(x)] = double(row[std::size_t(x) * parameter_count + lobe_y]);
+  }
+  const V base(log_min_lobe), range(-log_min_lobe), one(1.0), half(0.5);
+  for (std::size_t i = 0; i < 2 * padded; i += V::size) {
+    const V u = V::load_unaligned(lobes.data() + i);
+    simd::exp(base + (u + one) * half * range).store_unaligned(lobes.data() + i);
+  }
+}
+
+}  // namespace detail
+
+/// Writes the map set of entry `b` of network outputs u into `maps` (the inverse of
+/// maps_to_network, normals limited to |(x, y)| <= max_normal_xy), resizing it only when its size
+/// differs: a loop that calls this every step (the fine-tune) reuses one map set.
+template <class T>
+void network_to_maps(const tensor<parameter_count, T>& u, int b, material_maps& maps) {
+  if (maps.width() != u.width() || maps.height() != u.height()) maps = material_maps(u.width(), u.height());
+  const int width = u.width();
+#pragma omp parallel if (std::size_t(u.height()) * u.width() >= detail::parallel_texels)
+  {
+    std::vector<double> lobes;
+    std::size_t padded = 0;
+#pragma omp for schedule(static)
+    for (int y = 0; y < u.height(); ++y) {
+      detail::lobe_widths(u.pixel(b, y, 0), width, lobes, padded);
+      const T* row = u.pixel(b, y, 0);
+      // Channel by channel (from_network's cases, each a loop the compiler vectorises), then the
+      // normals limited to the disc.
+      for (int k = 0; k < parameter_count; ++k) {
+        float* out = &maps.at(k, 0, y);
+        const T* in = row + k;
+        if (k == lobe_x || k == lobe_y) {
+          const double* l = lobes.data() + (k == lobe_y ? padded : 0);
+          for (int x = 0; x < width; ++x) out[x] = float(l[x]);
+        } else if (k == normal_x || k == normal_y) {
+          for (int x = 0; x < width; ++x) out[x] = float(in[std::size_t(x) * parameter_count]);
+        } else if (k == rotation) {
+          for (int x = 0; x < width; ++x) out[x] = float(double(in[std::size_t(x) * parameter_count]) * (std::numbers::pi / 2));
+        } else {
+          for (int x = 0; x < width; ++x) out[x] = float((double(in[std::size_t(x) * parameter_count]) + 1) / 2);
+        }
+      }
+      float* out_x = &maps.at(normal_x, 0, y);
+      float* out_y = &maps.at(normal_y, 0, y);
+      for (int x = 0; x < width; ++x) {
+        const double nx = row[std::size_t(x) * parameter_count + normal_x], ny = row[std::size_t(x) * parameter_count + normal_y];
+        const double r = std::sqrt(nx * nx + ny * ny);
+        if (r > max_normal_xy) {
+          out_x[x] = float(nx * max_normal_xy / r);
+          out_y[x] = float(ny * max_normal_xy / r);
+        }
+      }
+    }
+  }
+}
+
 /// The map set of entry `b` of network outputs u (the inverse of maps_to_network, normals limited
 /// to |(x, y)| <= max_normal_xy).
 template <class T>
 material_maps network_to_maps(const tensor<parameter_count, T>& u, int b) {
   material_maps maps(u.width(), u.height());
-#pragma omp parallel for schedule(static) if (std::size_t(u.height()) * u.width() >= 16384)
-  for (int y = 0; y < u.height(); ++y)
-    for (int x = 0; x < u.width(); ++x) {
-      const T* p = u.pixel(b, y, x);
-      for (int k = 0; k < parameter_count; ++k) maps.at(k, x, y) = float(from_network(k, double(p[k])));
-      const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
-      if (r > max_normal_xy) {
-        maps.at(normal_x, x, y) = float(nx * max_normal_xy / r);
-        maps.at(normal_y, x, y) = float(ny * max_normal_xy / r);
-      }
-    }
+  network_to_maps(u, b, maps);
   return maps;
 }
 
@@ -106,6 +170,7 @@ tensor<parameter_count, T> shifted(const tensor<parameter_count, T>& u, const te
     throw std::invalid_argument("network_space::shifted: the values are " + std::to_string(u.height()) + "x" + std::to_string(u.width()) +
                                 ", the shift " + std::to_string(r.height()) + "x" + std::to_string(r.width()));
   tensor<parameter_count, T> out(1, u.height(), u.width());
+#pragma omp parallel for schedule(static) if (std::size_t(u.height()) * u.width() >= detail::parallel_texels)
   for (int y = 0; y < u.height(); ++y)
     for (int x = 0; x < u.width(); ++x) {
       const T* a = u.pixel(0, y, x);
@@ -141,33 +206,45 @@ template <class T>
 void add_network_gradient(const tensor<parameter_count, T>& u, int b, const material_maps& grad_maps, double scale,
                           tensor<parameter_count, T>& grad_u) {
   const double half = 0.5, lobe_factor = -log_min_lobe / 2, rotation_factor = std::numbers::pi / 2;
-#pragma omp parallel for schedule(static) if (std::size_t(u.height()) * u.width() >= 16384)
-  for (int y = 0; y < u.height(); ++y)
-    for (int x = 0; x < u.width(); ++x) {
-      const T* p = u.pixel(b, y, x);
-      T* g = grad_u.pixel(b, y, x);
+  const int width = u.width();
+#pragma omp parallel if (std::size_t(u.height()) * u.width() >= detail::parallel_texels)
+  {
+    std::vector<double> lobes;
+    std::size_t padded = 0;
+#pragma omp for schedule(static)
+    for (int y = 0; y < u.height(); ++y) {
+      detail::lobe_widths(u.pixel(b, y, 0), width, lobes, padded);
+      const T* row = u.pixel(b, y, 0);
+      T* grad_row = grad_u.pixel(b, y, 0);
+      const float* gm[parameter_count];
+      for (int k = 0; k < parameter_count; ++k) gm[k] = grad_maps.plane(k) + std::size_t(y) * grad_maps.width();
+      // Channel by channel, each a loop the compiler vectorises: d(map)/du times dL/d(map).
       for (int k = 0; k < parameter_count; ++k) {
-        const double gm = grad_maps.at(k, x, y);
-        double d;
-        switch (k) {
-          case lobe_x:
-          case lobe_y: d = from_network(k, p[k]) * lobe_factor; break;  // d exp(a + c u)/du = c exp(...)
-          case normal_x:
-          case normal_y: d = 1; break;  // corrected below when scaled onto the circle
-          case rotation: d = rotation_factor; break;
-          default: d = half;
+        T* g = grad_row + k;
+        const float* in = gm[k];
+        if (k == lobe_x || k == lobe_y) {  // d exp(a + c u)/du = c exp(...)
+          const double* l = lobes.data() + (k == lobe_y ? padded : 0);
+          for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * (l[x] * lobe_factor));
+        } else {
+          // Normals: 1, corrected below where they were scaled onto the circle.
+          const double d = k == normal_x || k == normal_y ? 1.0 : k == rotation ? rotation_factor : half;
+          for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * d);
         }
-        g[k] += T(scale * gm * d);
       }
-      const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
-      if (r > max_normal_xy) {
-        // n = s u with s = m / |u|: dn/du = (m / r) (I - u u^T / r^2).
-        const double gx = grad_maps.at(normal_x, x, y), gy = grad_maps.at(normal_y, x, y);
-        const double dot = nx * gx + ny * gy, f = max_normal_xy / r;
-        g[normal_x] += T(scale * (f * (gx - nx * dot / (r * r)) - gx));
-        g[normal_y] += T(scale * (f * (gy - ny * dot / (r * r)) - gy));
+      for (int x = 0; x < width; ++x) {
+        const T* p = row + std::size_t(x) * parameter_count;
+        const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
+        if (r > max_normal_xy) {
+          // n = s u with s = m / |u|: dn/du = (m / r) (I - u u^T / r^2).
+          T* g = grad_row + std::size_t(x) * parameter_count;
+          const double gx = gm[normal_x][x], gy = gm[normal_y][x];
+          const double dot = nx * gx + ny * gy, f = max_normal_xy / r;
+          g[normal_x] += T(scale * (f * (gx - nx * dot / (r * r)) - gx));
+          g[normal_y] += T(scale * (f * (gy - ny * dot / (r * r)) - gy));
+        }
       }
     }
+  }
 }
 
 /// Eq. 7 followed by the scaling to [-1, 1]: x -> 2 (log(x + 0.01) - log 0.01) / (log 1.01 - log 0.01) - 1.

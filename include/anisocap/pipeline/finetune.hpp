@@ -187,6 +187,7 @@ inline latent_window random_window(int cells_y, int cells_x, int k_y, int k_x, s
 /// Scratch buffers of crop_step, reused from step to step.
 struct scratch {
   loss_targets targets;
+  material_maps maps;  ///< the window's decoded maps
   material_maps gradient;
 };
 
@@ -207,7 +208,8 @@ double window_step(ad::tape& t, auto_encoder<P>& autoencoder, const tensor<auto_
   if (h <= 0 || w <= 0) throw std::invalid_argument("crop_step: the window holds no texel of the material");
   const auto u_view = residual ? network_space::shifted(y.value.tile(mr * M, mc * M, h, w), residual->tile(y0, x0, h, w))
                                : y.value.tile(mr * M, mc * M, h, w);
-  const material_maps m = network_space::network_to_maps(u_view, 0);
+  material_maps& m = scratch.maps;
+  network_space::network_to_maps(u_view, 0, m);
   crop_loss_targets(targets, x0, y0, w, h, scratch.targets);
   if (scratch.gradient.width() != w || scratch.gradient.height() != h) scratch.gradient = material_maps(w, h);
   const double loss = loss_and_gradient<F>(m, cap, scratch.targets, &scratch.gradient, tile_placement{width, height, x0, y0}, render);
@@ -498,9 +500,9 @@ class run {
     } else if (!cropping_) {
       auto y = ae_.decode(t_, t_.leaf(z_));
       const auto u_view = residual_ ? network_space::shifted(y.value.tile(0, 0, H_, W_), *residual_) : y.value.tile(0, 0, H_, W_);
-      const material_maps m = network_space::network_to_maps(u_view, 0);
-      loss = with_features(features_, [&]<brdf_features F>() { return loss_and_gradient<F>(m, cap_, targets_, &grad_, {}, render_); });
-      if (o_.observer) o_.observer(step, loss, [&]() { return m; });
+      network_space::network_to_maps(u_view, 0, maps_);
+      loss = with_features(features_, [&]<brdf_features F>() { return loss_and_gradient<F>(maps_, cap_, targets_, &grad_, {}, render_); });
+      if (o_.observer) o_.observer(step, loss, [&]() { return maps_; });
       restarted = guard_restarts(step, loss);
       if (!restarted) {
         auto g_view = y.grad.tile(0, 0, H_, W_);
@@ -608,7 +610,7 @@ class run {
   nn::adam adam_;
   divergence_guard guard_;
   loop_state loop_;
-  material_maps grad_;
+  material_maps maps_, grad_;  // the decoded maps and their gradient, reused from step to step
   ad::tape t_;
   const int cells_y_, cells_x_, crop_y_, crop_x_;
   const bool cropping_;
