@@ -12,8 +12,8 @@
 #include <cstdlib>
 #include <memory>
 
-#include "anisocap/core/option_names.hpp"
 #include "anisocap/pipeline/batch.hpp"
+#include "field_flags.hpp"
 
 namespace anisocap::commands {
 
@@ -25,13 +25,6 @@ struct batch_settings {
   bool status = false;  ///< print each selected sample's state, and run nothing
   double stale_seconds = 600;     ///< --stale-after (batch_options::stale_seconds)
   std::filesystem::path summary;  ///< --summary: the summary as JSON, when given
-};
-
-/// The flag that sets each batch_selection field a library message names.
-inline constexpr option_name batch_field_flags[] = {
-    {"batch_selection::names", "--sample"},
-    {"batch_selection::index", "--index"},
-    {"batch_selection::count", "--count"},
 };
 
 /// This program's own path (each unit runs it as `anisocap capture`).

@@ -1,6 +1,7 @@
 #pragma once
-// The flags that set the option fields the library's messages name (core/option_names.hpp): each
-// command passes its errors through naming_options with its table.
+// The flags that set the option fields the library's messages name (core/option_names.hpp), every
+// command's table in this one place: each command passes its errors through naming_options with
+// its table.
 #include "anisocap/core/option_names.hpp"
 
 namespace anisocap::commands {
@@ -31,5 +32,62 @@ inline constexpr option_name capture_field_flags[] = {
     {"pipeline_stages", "--stages"},
     {"kernel_options", "--kernel"},
 };
+
+/// The flags of train-estimator and train-autoencoder that set each train_options field a library
+/// message names, and the names a resume's hint gives.
+inline constexpr option_name train_field_flags[] = {
+    {"train_options::steps", "--steps"},
+    {"train_options::seed", "--seed"},
+    {"train_options::size", "--size"},
+    {"train_options::batch", "--batch"},
+    {"train_options::learning_rate", "--lr"},
+    {"train_options::checkpoint_minutes", "--checkpoint-minutes"},
+    {"train_options::validate_every", "--validate-every"},
+    {"train_options::validation_count", "--validation-count"},
+    {"train_options::resume", "--resume"},
+    {"train_options::init_weights", "--init"},
+    {"train_options::smoothness_weight", "--smoothness"},
+    {"train_options::latent_noise", "--latent-noise"},
+    {"train_options::render_weight", "--render-weight"},
+    {"train_options::lobe_weight", "--lobe-weight"},
+    {"train_options::sigma_weight", "--sigma-weight"},
+    {"train_options::mse_weight", "--mse-weight"},
+    {"train_options::diffuse_weight", "--diffuse-weight"},
+    {"train_options::normal_weight", "--normal-weight"},
+    {"train_options::encoder_only false", "--trainable all"},  // a resume's hint, before the field alone
+    {"train_options::encoder_only true", "--trainable encoder"},
+    {"train_options::encoder_only", "--trainable encoder"},
+    {"train_options::inputs_are_estimates false", "--inputs truth"},
+    {"train_options::inputs_are_estimates true", "--inputs estimates"},
+    {"train_options::inputs_are_estimates", "--inputs estimates"},
+    {"train_options::mix", "--materials"},
+    {"train_options::emphasis", "--emphasis"},
+    {"train_options::emphasis_share", "--emphasis-share"},
+    {"train_options::input_noise.shot", "--shot-noise"},
+    {"train_options::input_noise.read", "--read-noise"},
+    {"train_options::lr_decay_from", "--lr-decay-from"},
+    {"train_options::lr_decay_to", "--lr-decay-to"},
+    {"train_options::lr_end", "--lr-end"},
+    {"train_options::lr_warmup", "--lr-warmup"},
+    {"train_options::lr_rewarmup", "--lr-rewarmup"},
+    {"train_options::lr_rewarmup_from", "--lr-rewarmup-from"},
+    {"train_options::data_parallel", "--data-parallel"},
+    {"train_options::prefetch", "--prefetch"},
+    {"train_options::precision", "--network-precision"},
+    {"train_autoencoder", "train-autoencoder"},  // the trainer a resume names
+    {"train_estimator", "train-estimator"},
+    {"the preset", "--preset"},                  // the trainer's template argument
+};
+
+/// The flags of batch that set each batch_selection field a library message names.
+inline constexpr option_name batch_field_flags[] = {
+    {"batch_selection::names", "--sample"},
+    {"batch_selection::index", "--index"},
+    {"batch_selection::count", "--count"},
+};
+
+/// The flags that set the estimate_options fields eval-networks' messages name.
+inline constexpr option_name eval_networks_field_flags[] = {{"estimate_options::window", "--window"},
+                                                            {"estimate_options::stride", "--stride"}};
 
 }  // namespace anisocap::commands
