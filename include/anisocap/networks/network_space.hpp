@@ -104,6 +104,23 @@ void lobe_widths(const T* row, int width, std::vector<double>& lobes, std::size_
   }
 }
 
+/// Calls `row_fn(y, row, lobes, padded)` for each row y of entry `b` of u: `row` its values,
+/// `lobes` and `padded` its lobe widths as lobe_widths lays them out. Rows run in parallel from
+/// parallel_texels texels on.
+template <class T, class RowFn>
+void rows_with_lobe_widths(const tensor<parameter_count, T>& u, int b, RowFn&& row_fn) {
+#pragma omp parallel if (std::size_t(u.height()) * u.width() >= parallel_texels)
+  {
+    std::vector<double> lobes;
+    std::size_t padded = 0;
+#pragma omp for schedule(static)
+    for (int y = 0; y < u.height(); ++y) {
+      lobe_widths(u.pixel(b, y, 0), u.width(), lobes, padded);
+      row_fn(y, u.pixel(b, y, 0), static_cast<const double*>(lobes.data()), padded);
+    }
+  }
+}
+
 }  // namespace detail
 
 /// Writes the map set of entry `b` of network outputs u into `maps` (the inverse of
@@ -113,42 +130,34 @@ template <class T>
 void network_to_maps(const tensor<parameter_count, T>& u, int b, material_maps& maps) {
   if (maps.width() != u.width() || maps.height() != u.height()) maps = material_maps(u.width(), u.height());
   const int width = u.width();
-#pragma omp parallel if (std::size_t(u.height()) * u.width() >= detail::parallel_texels)
-  {
-    std::vector<double> lobes;
-    std::size_t padded = 0;
-#pragma omp for schedule(static)
-    for (int y = 0; y < u.height(); ++y) {
-      detail::lobe_widths(u.pixel(b, y, 0), width, lobes, padded);
-      const T* row = u.pixel(b, y, 0);
-      // Channel by channel (from_network's cases, each a loop the compiler vectorises), then the
-      // normals limited to the disc.
-      for (int k = 0; k < parameter_count; ++k) {
-        float* out = &maps.at(k, 0, y);
-        const T* in = row + k;
-        if (k == lobe_x || k == lobe_y) {
-          const double* l = lobes.data() + (k == lobe_y ? padded : 0);
-          for (int x = 0; x < width; ++x) out[x] = float(l[x]);
-        } else if (k == normal_x || k == normal_y) {
-          for (int x = 0; x < width; ++x) out[x] = float(in[std::size_t(x) * parameter_count]);
-        } else if (k == rotation) {
-          for (int x = 0; x < width; ++x) out[x] = float(double(in[std::size_t(x) * parameter_count]) * (std::numbers::pi / 2));
-        } else {
-          for (int x = 0; x < width; ++x) out[x] = float((double(in[std::size_t(x) * parameter_count]) + 1) / 2);
-        }
-      }
-      float* out_x = &maps.at(normal_x, 0, y);
-      float* out_y = &maps.at(normal_y, 0, y);
-      for (int x = 0; x < width; ++x) {
-        const double nx = row[std::size_t(x) * parameter_count + normal_x], ny = row[std::size_t(x) * parameter_count + normal_y];
-        const double r = std::sqrt(nx * nx + ny * ny);
-        if (r > max_normal_xy) {
-          out_x[x] = float(nx * max_normal_xy / r);
-          out_y[x] = float(ny * max_normal_xy / r);
-        }
+  detail::rows_with_lobe_widths(u, b, [&](int y, const T* row, const double* lobes, std::size_t padded) {
+    // Channel by channel (from_network's cases, each a loop the compiler vectorises), then the
+    // normals limited to the disc.
+    for (int k = 0; k < parameter_count; ++k) {
+      float* out = &maps.at(k, 0, y);
+      const T* in = row + k;
+      if (k == lobe_x || k == lobe_y) {
+        const double* l = lobes + (k == lobe_y ? padded : 0);
+        for (int x = 0; x < width; ++x) out[x] = float(l[x]);
+      } else if (k == normal_x || k == normal_y) {
+        for (int x = 0; x < width; ++x) out[x] = float(in[std::size_t(x) * parameter_count]);
+      } else if (k == rotation) {
+        for (int x = 0; x < width; ++x) out[x] = float(double(in[std::size_t(x) * parameter_count]) * (std::numbers::pi / 2));
+      } else {
+        for (int x = 0; x < width; ++x) out[x] = float((double(in[std::size_t(x) * parameter_count]) + 1) / 2);
       }
     }
-  }
+    float* out_x = &maps.at(normal_x, 0, y);
+    float* out_y = &maps.at(normal_y, 0, y);
+    for (int x = 0; x < width; ++x) {
+      const double nx = row[std::size_t(x) * parameter_count + normal_x], ny = row[std::size_t(x) * parameter_count + normal_y];
+      const double r = std::sqrt(nx * nx + ny * ny);
+      if (r > max_normal_xy) {
+        out_x[x] = float(nx * max_normal_xy / r);
+        out_y[x] = float(ny * max_normal_xy / r);
+      }
+    }
+  });
 }
 
 /// The map set of entry `b` of network outputs u (the inverse of maps_to_network, normals limited
@@ -207,44 +216,36 @@ void add_network_gradient(const tensor<parameter_count, T>& u, int b, const mate
                           tensor<parameter_count, T>& grad_u) {
   const double half = 0.5, lobe_factor = -log_min_lobe / 2, rotation_factor = std::numbers::pi / 2;
   const int width = u.width();
-#pragma omp parallel if (std::size_t(u.height()) * u.width() >= detail::parallel_texels)
-  {
-    std::vector<double> lobes;
-    std::size_t padded = 0;
-#pragma omp for schedule(static)
-    for (int y = 0; y < u.height(); ++y) {
-      detail::lobe_widths(u.pixel(b, y, 0), width, lobes, padded);
-      const T* row = u.pixel(b, y, 0);
-      T* grad_row = grad_u.pixel(b, y, 0);
-      const float* gm[parameter_count];
-      for (int k = 0; k < parameter_count; ++k) gm[k] = grad_maps.plane(k) + std::size_t(y) * grad_maps.width();
-      // Channel by channel, each a loop the compiler vectorises: d(map)/du times dL/d(map).
-      for (int k = 0; k < parameter_count; ++k) {
-        T* g = grad_row + k;
-        const float* in = gm[k];
-        if (k == lobe_x || k == lobe_y) {  // d exp(a + c u)/du = c exp(...)
-          const double* l = lobes.data() + (k == lobe_y ? padded : 0);
-          for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * (l[x] * lobe_factor));
-        } else {
-          // Normals: 1, corrected below where they were scaled onto the circle.
-          const double d = k == normal_x || k == normal_y ? 1.0 : k == rotation ? rotation_factor : half;
-          for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * d);
-        }
-      }
-      for (int x = 0; x < width; ++x) {
-        const T* p = row + std::size_t(x) * parameter_count;
-        const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
-        if (r > max_normal_xy) {
-          // n = s u with s = m / |u|: dn/du = (m / r) (I - u u^T / r^2).
-          T* g = grad_row + std::size_t(x) * parameter_count;
-          const double gx = gm[normal_x][x], gy = gm[normal_y][x];
-          const double dot = nx * gx + ny * gy, f = max_normal_xy / r;
-          g[normal_x] += T(scale * (f * (gx - nx * dot / (r * r)) - gx));
-          g[normal_y] += T(scale * (f * (gy - ny * dot / (r * r)) - gy));
-        }
+  detail::rows_with_lobe_widths(u, b, [&](int y, const T* row, const double* lobes, std::size_t padded) {
+    T* grad_row = grad_u.pixel(b, y, 0);
+    const float* gm[parameter_count];
+    for (int k = 0; k < parameter_count; ++k) gm[k] = grad_maps.plane(k) + std::size_t(y) * grad_maps.width();
+    // Channel by channel, each a loop the compiler vectorises: d(map)/du times dL/d(map).
+    for (int k = 0; k < parameter_count; ++k) {
+      T* g = grad_row + k;
+      const float* in = gm[k];
+      if (k == lobe_x || k == lobe_y) {  // d exp(a + c u)/du = c exp(...)
+        const double* l = lobes + (k == lobe_y ? padded : 0);
+        for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * (l[x] * lobe_factor));
+      } else {
+        // Normals: 1, corrected below where they were scaled onto the circle.
+        const double d = k == normal_x || k == normal_y ? 1.0 : k == rotation ? rotation_factor : half;
+        for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * d);
       }
     }
-  }
+    for (int x = 0; x < width; ++x) {
+      const T* p = row + std::size_t(x) * parameter_count;
+      const double nx = p[normal_x], ny = p[normal_y], r = std::sqrt(nx * nx + ny * ny);
+      if (r > max_normal_xy) {
+        // n = s u with s = m / |u|: dn/du = (m / r) (I - u u^T / r^2).
+        T* g = grad_row + std::size_t(x) * parameter_count;
+        const double gx = gm[normal_x][x], gy = gm[normal_y][x];
+        const double dot = nx * gx + ny * gy, f = max_normal_xy / r;
+        g[normal_x] += T(scale * (f * (gx - nx * dot / (r * r)) - gx));
+        g[normal_y] += T(scale * (f * (gy - ny * dot / (r * r)) - gy));
+      }
+    }
+  });
 }
 
 /// Eq. 7 followed by the scaling to [-1, 1]: x -> 2 (log(x + 0.01) - log 0.01) / (log 1.01 - log 0.01) - 1.
