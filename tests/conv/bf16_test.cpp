@@ -5,6 +5,7 @@
 // items convert their own blocks, and both ways of transposing an input-gradient kernel. Skipped
 // on builds without AVX-512 BF16.
 #include <doctest/doctest.h>
+#include <omp.h>
 
 #include <cmath>
 #include <cstdint>
@@ -206,4 +207,34 @@ TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * d
   check_transposed<64, 32>(2, 5, 7, 9);
   check_transposed<33, 16>(1, 4, 4, 10);                    // odd Ca
   check_transposed<128, 64>(1, 16, 16, 11);
+}
+
+TEST_CASE("bf16 weight gradients are the same bits on any thread count" * doctest::skip(!nn::bf16_available())) {
+  // The work items group taps by the thread count (each converts an operand the taps share once),
+  // but every item owns its part of the gradient and sums its pixels in one order.
+  nn::precision_scope scope(nn::precision::bf16);
+  std::mt19937 rng(21);
+  tensor<32> in(1, 24, 20), in2(1, 24, 20);
+  tensor<12> gout(1, 48, 40);
+  tensor<64> gout2(1, 12, 10);
+  fill_random(in, rng);
+  fill_random(in2, rng);
+  fill_random(gout, rng);
+  fill_random(gout2, rng);
+  const int saved = omp_get_max_threads();
+  std::vector<float> first_t, first_c;
+  for (const int threads : {1, 2, 3, 5, 16}) {
+    CAPTURE(threads);
+    omp_set_num_threads(threads);
+    std::vector<float> gt(16 * 32 * 12, 0.25f), gc(16 * 32 * 64, 0.25f);
+    nn::conv_transpose2d_backward_weight<32, 12>(in, gout, gt.data(), nullptr);
+    nn::conv2d_backward_weight<32, 64, 4, 2, 1>(in2, gout2, gc.data(), nullptr);
+    if (first_t.empty()) {
+      first_t = gt;
+      first_c = gc;
+    }
+    CHECK(gt == first_t);
+    CHECK(gc == first_c);
+  }
+  omp_set_num_threads(saved);
 }

@@ -598,24 +598,33 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
 /// shorter, else row segments) whose output-gradient block stays in L1 while the item's
 /// input-channel blocks run over it. Input channels go in blocks of CIB; a remainder of 4 or more
 /// runs as one 4-channel block, the rest one channel at a time. `even`: segments of an even width.
+///
+/// `group_taps` (the bf16 pass): an item takes a group of taps instead of one, and runs them one
+/// after another on each chunk, so that the operand whose offset the taps share (the input of a
+/// transposed convolution's pass, the output gradient of a convolution's) is converted to bf16
+/// once per chunk instead of once per tap. Groups are as few as give about two items per thread.
+/// Each item still owns its part of gW and sums its pixels in the same order, so the result is the
+/// same either way.
 struct weight_items {
-  int block, coblocks, last_lanes, CIB, ciblocks, quads, ci_items, parts;
+  int block, coblocks, last_lanes, CIB, ciblocks, quads, ci_items, groups, parts;
   long long items;
   int rows_total, seg, segs_per_row, chunk_rows;
   double work;
-  /// One work item: output-channel block, tap, and input-channel blocks k0..k1.
+  /// One work item: output-channel block, taps t..t_end, and input-channel blocks k0..k1.
   struct item {
-    int cb, t, k0, k1;
+    int cb, t, k0, k1, t_end;
   };
   weight_items(int taps, int batch, int rows, int cols, int Ca, int Cb, int lanes, int NV, int cib, std::size_t value_bytes,
-               bool even)
+               bool even, bool group_taps = false)
       : block(NV * lanes), coblocks((Cb + block - 1) / block), last_lanes(Cb - (coblocks - 1) * block - (NV - 1) * lanes),
         CIB(cib), ciblocks(Ca / cib), quads(cib > 4 && Ca % cib >= 4 ? 1 : 0),
         ci_items(ciblocks + quads + (Ca % cib - 4 * quads)) {
     const int threads = omp_get_max_threads();
-    // Split the input channels when (block, tap) pairs alone would not feed every thread.
-    const int pairs = coblocks * taps;
-    parts = std::max(1, std::min(ci_items, (8 * threads + pairs - 1) / pairs));
+    groups = group_taps ? std::clamp((2 * threads + coblocks - 1) / coblocks, 1, taps) : taps;
+    // Split the input channels when (block, tap group) pairs alone would not feed every thread.
+    const int pairs = coblocks * groups;
+    const int wanted = group_taps ? 2 * threads : 8 * threads;
+    parts = std::max(1, std::min(ci_items, (wanted + pairs - 1) / pairs));
     items = (long long)pairs * parts;
     rows_total = batch * rows;
     const int target = std::max(16, int((std::size_t(24) << 10) / (std::size_t(block) * value_bytes)));
@@ -625,8 +634,8 @@ struct weight_items {
     work = double(rows_total) * cols * taps * Ca * Cb;
   }
   item at(long long it, int taps) const {
-    const int pair = int(it / parts), part = int(it % parts);
-    return {pair / taps, pair % taps, ci_items * part / parts, ci_items * (part + 1) / parts};
+    const int pair = int(it / parts), part = int(it % parts), group = pair % groups;
+    return {pair / groups, taps * group / groups, ci_items * part / parts, ci_items * (part + 1) / parts, taps * (group + 1) / groups};
   }
   /// First input channel of input-channel block ck.
   int ci_start(int ck) const {
@@ -673,11 +682,11 @@ inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_
 template <int NV, int CIB>
 void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
   constexpr int W = lanes<float>;
-  const weight_items plan(ps.taps, ps.batch, ps.rows, ps.cols, Ca, Cb, W, NV, CIB, sizeof(float), true);
+  const weight_items plan(ps.taps, ps.batch, ps.rows, ps.cols, Ca, Cb, W, NV, CIB, sizeof(float), true, true);
   const int block = plan.block, seg = plan.seg, chunk_rows = plan.chunk_rows;
 #pragma omp parallel for schedule(dynamic, 1) if (plan.items > 1 && plan.work > double(1 << 16))
   for (long long it = 0; it < plan.items; ++it) {
-    const auto [cb, t, k0, k1] = plan.at(it, ps.taps);
+    const auto [cb, t_first, k0, k1, t_end] = plan.at(it, ps.taps);
     if (k0 >= k1) continue;
     const int ci_lo = plan.ci_start(k0), ci_hi = k1 < plan.ci_items ? plan.ci_start(k1) : Ca;
     const int nci = ci_hi - ci_lo;
@@ -693,29 +702,34 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
       for (int sg = 0; sg < plan.segs_per_row; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
         const int pairs = (nc + 1) / 2;
-        for (int r = 0; r < nr; ++r) {
-          const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
-          const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + ps.a_tap[t] + ci_lo;
-          const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + ps.g_tap[t] + co0;
-          std::uint16_t* ad = abuf + std::ptrdiff_t(r) * max_pairs * nci * 2;
-          std::uint16_t* gd = gbuf + std::ptrdiff_t(r) * max_pairs * block * 2;
-          for (int q = 0; q < pairs; ++q) {
-            const bool second = 2 * q + 1 < nc;
-            pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, second, nci, ad + std::ptrdiff_t(q) * nci * 2);
-            pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, second, block, gd + std::ptrdiff_t(q) * block * 2);
+        for (int t = t_first; t < t_end; ++t) {
+          // Each operand is converted again only where this tap's offset differs from the last.
+          const bool convert_a = t == t_first || ps.a_tap[t] != ps.a_tap[t - 1];
+          const bool convert_g = t == t_first || ps.g_tap[t] != ps.g_tap[t - 1];
+          for (int r = 0; r < nr; ++r) {
+            const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
+            const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + ps.a_tap[t] + ci_lo;
+            const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + ps.g_tap[t] + co0;
+            std::uint16_t* ad = abuf + std::ptrdiff_t(r) * max_pairs * nci * 2;
+            std::uint16_t* gd = gbuf + std::ptrdiff_t(r) * max_pairs * block * 2;
+            for (int q = 0; q < pairs; ++q) {
+              const bool second = 2 * q + 1 < nc;
+              if (convert_a) pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, second, nci, ad + std::ptrdiff_t(q) * nci * 2);
+              if (convert_g) pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, second, block, gd + std::ptrdiff_t(q) * block * 2);
+            }
+            a16[r] = ad;
+            g16[r] = gd;
           }
-          a16[r] = ad;
-          g16[r] = gd;
-        }
-        for (int ck = k0; ck < k1; ++ck) {
-          const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
-          float* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
-          if (width == CIB) {
-            weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
-          } else if (width == 4) {
-            if constexpr (CIB > 4) weight_tile_bf16<4, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
-          } else {
-            weight_tile_bf16<1, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+          for (int ck = k0; ck < k1; ++ck) {
+            const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
+            float* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
+            if (width == CIB) {
+              weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+            } else if (width == 4) {
+              if constexpr (CIB > 4) weight_tile_bf16<4, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+            } else {
+              weight_tile_bf16<1, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
+            }
           }
         }
       }
@@ -748,7 +762,7 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   const int block = plan.block, seg = plan.seg, chunk_rows = plan.chunk_rows;
 #pragma omp parallel for schedule(dynamic, 1) if (plan.items > 1 && plan.work > double(1 << 16))
   for (long long it = 0; it < plan.items; ++it) {
-    const auto [cb, t, k0, k1] = plan.at(it, ps.taps);
+    const auto [cb, t, k0, k1, t_end] = plan.at(it, ps.taps);  // one tap per item: t_end is t + 1
     const int co0 = cb * block;
     const int lanes_here = (cb == plan.coblocks - 1) ? plan.last_lanes : W;
     const T* a_rows[64];
