@@ -1,6 +1,6 @@
-// Check-points of the capture pipeline: a fine-tune stopped after a divergence-guard restart
-// resumes to exactly the uninterrupted run's decoder, and a check-point is only resumed by the
-// capture and options that wrote it.
+// Check-points of the capture pipeline: a fine-tune stopped after a divergence-guard restart, or
+// killed between its check-point's two renames, resumes to exactly the uninterrupted run's
+// decoder, and a check-point is only resumed by the capture and options that wrote it.
 #include <doctest/doctest.h>
 
 #include <filesystem>
@@ -22,6 +22,18 @@ fs::path fresh_folder(const char* name) {
   const fs::path p = fs::temp_directory_path() / (std::string("anisocap_") + name + "_" + std::to_string(std::random_device{}()));
   fs::remove_all(p);
   return p;
+}
+
+/// Options that run the fine-tune alone for `steps` steps, check-pointing into a fresh folder only
+/// where stop_after asks.
+capture_options finetune_alone(int steps, const char* folder) {
+  capture_options o = measured_capture_options();
+  o.stages.estimate = false;
+  o.stages.refine = false;
+  o.finetune.steps = steps;
+  o.checkpoint.folder = fresh_folder(folder);
+  o.checkpoint.seconds = 1e9;
+  return o;
 }
 
 std::vector<float> decoder_weights(auto_encoder<autoencoder_tiny>& ae) {
@@ -88,18 +100,59 @@ TEST_CASE("fine-tune: stopped after a divergence-guard restart and resumed, it e
   }
 }
 
+TEST_CASE("fine-tune: a kill between the check-point's two renames is completed on resume, to the uninterrupted run's decoder") {
+  capture_options o = finetune_alone(12, "torn_rename");
+  const capture cap = random_capture(4, 5);
+  const std::vector<image> photos = render(random_maps(32, 32, 4), cap);
+  estimation_network<estimator_tiny> estimator(1);
+  auto_encoder<autoencoder_tiny> straight(2);
+  const capture_result a = capture_once(cap, photos, estimator, straight, o);
+
+  // The state of an earlier save (step 3), then a save at step 7 killed after its first rename:
+  // the decoder of step 7 in place, the state of step 3 beside it, step 7's under its .next name.
+  const fs::path dir = o.checkpoint.folder / "finetune";
+  auto stop_at = [&](int step) {
+    o.finetune.stop_after = step;
+    o.checkpoint.resume = false;
+    auto_encoder<autoencoder_tiny> ae(2);
+    REQUIRE(capture_once(cap, photos, estimator, ae, o).stopped);
+  };
+  stop_at(3);
+  const fs::path old_state = o.checkpoint.folder.string() + "_state3";
+  fs::copy_file(dir / "state.safetensors", old_state, fs::copy_options::overwrite_existing);
+  stop_at(7);
+  fs::rename(dir / "state.safetensors", dir / "state.next.safetensors");
+  fs::copy_file(old_state, dir / "state.safetensors");
+
+  o.finetune.stop_after = -1;
+  o.checkpoint.resume = true;
+  auto_encoder<autoencoder_tiny> resumed(2);
+  const capture_result b = capture_once(cap, photos, estimator, resumed, o);
+  CHECK(b.stages[2].resumed);
+  CHECK(b.stages[2].steps == 12 - 7);
+  CHECK(decoder_weights(resumed) == decoder_weights(straight));
+  CHECK(b.stages[2].loss == a.stages[2].loss);
+  CHECK_FALSE(fs::exists(dir / "state.next.safetensors"));
+
+  // A pair whose steps differ with no save to complete is still refused, naming the folder.
+  stop_at(7);
+  fs::copy_file(old_state, dir / "state.safetensors", fs::copy_options::overwrite_existing);
+  o.finetune.stop_after = -1;
+  o.checkpoint.resume = true;
+  auto_encoder<autoencoder_tiny> refused(2);
+  CHECK_THROWS_WITH_AS(capture_once(cap, photos, estimator, refused, o), doctest::Contains("files are of different steps"),
+                       std::runtime_error);
+  fs::remove_all(o.checkpoint.folder);
+  fs::remove(old_state);
+}
+
 TEST_CASE("check-points: resuming with other photographs, configurations or options is refused, naming what differs") {
   const material_maps truth = random_maps(32, 32, 5);
   const capture cap = random_capture(4, 6);
   const std::vector<image> photos = render(truth, cap);
   estimation_network<estimator_tiny> estimator(1);
-  capture_options o = measured_capture_options();
-  o.stages.estimate = false;
-  o.stages.refine = false;
-  o.finetune.steps = 6;
+  capture_options o = finetune_alone(6, "fingerprint");
   o.finetune.stop_after = 3;
-  o.checkpoint.folder = fresh_folder("fingerprint");
-  o.checkpoint.seconds = 1e9;
   {
     auto_encoder<autoencoder_tiny> ae(2);
     REQUIRE(capture_once(cap, photos, estimator, ae, o).stopped);

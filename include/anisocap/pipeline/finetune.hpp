@@ -313,7 +313,8 @@ struct loop_state {
 /// (decoder.safetensors) and in state.safetensors Adam's state (nn/adam.hpp's key scheme, its own
 /// step counter included: after a guard restart it lags the loop's), the guard's snapshot of
 /// weights and moments, and the guard's and the loop's numbers, doubles written exactly. Both
-/// files carry the step, so a pair torn by a kill between the two renames is recognised.
+/// files carry the step, so a pair torn by a kill between the two renames is recognised (and
+/// completed on resume: finish_interrupted_save).
 template <class P>
 void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, int step,
                      const divergence_guard& guard, const loop_state& loop) {
@@ -347,16 +348,44 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
   std::filesystem::rename(state_next, folder / "state.safetensors");
 }
 
+/// The "step" save_checkpoint wrote into `file`'s metadata; "" when the file is unreadable, half
+/// written or has none.
+inline std::string checkpoint_step(const std::filesystem::path& file) {
+  try {
+    for (const auto& [key, value] : nn::read_safetensors(file).metadata)
+      if (key == "step") return value;
+  } catch (const std::exception&) {
+  }
+  return "";
+}
+
+/// Completes a save that a kill interrupted between save_checkpoint's two renames: the new decoder
+/// is in place and the new state, written whole before either rename, is still under its .next
+/// name (with the decoder's step). Every other file under a .next name is from a save killed
+/// before its renames, so the pair in place is the previous complete one, and it is removed. Safe
+/// when several ranks call it at once on one folder: a rename that another rank made first is
+/// ignored, and state.next goes before decoder.next, so no rank ever sees a state.next without
+/// its decoder.next that is not the interrupted rename's.
+inline void finish_interrupted_save(const std::filesystem::path& folder) {
+  namespace fs = std::filesystem;
+  const fs::path decoder_next = folder / "decoder.next.safetensors", state_next = folder / "state.next.safetensors";
+  std::error_code ignored;  // absent in the usual case, or another rank's already
+  if (!fs::exists(decoder_next, ignored) && fs::exists(state_next, ignored)) {
+    const std::string pending = checkpoint_step(state_next);
+    if (!pending.empty() && pending == checkpoint_step(folder / "decoder.safetensors"))
+      fs::rename(state_next, folder / "state.safetensors", ignored);
+  }
+  fs::remove(state_next, ignored);
+  fs::remove(decoder_next, ignored);
+}
+
 /// Reads back save_checkpoint's files; returns the step to continue from. Throws
-/// std::runtime_error naming the file when a value is missing or the two files disagree. Files a
-/// kill left under their .next names are removed: the pair in place is the complete one.
+/// std::runtime_error naming the file when a value is missing or the two files disagree. A save a
+/// kill interrupted is completed where it can be, or dropped (finish_interrupted_save).
 template <class P>
 int load_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoencoder, nn::adam& adam, divergence_guard& guard,
                     loop_state& loop) {
-  for (const char* torn : {"decoder.next.safetensors", "state.next.safetensors"}) {
-    std::error_code ignored;  // absent in the usual case
-    std::filesystem::remove(folder / torn, ignored);
-  }
+  finish_interrupted_save(folder);
   const std::filesystem::path decoder_file = folder / "decoder.safetensors", state_file = folder / "state.safetensors";
   const auto decoder = nn::read_safetensors(decoder_file);
   const auto state = nn::read_safetensors(state_file);
