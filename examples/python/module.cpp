@@ -421,13 +421,9 @@ capture_options capture_options_py(const std::string& stages, const std::string&
   if (refine_stop) o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = *refine_stop;
   if (neighbour_restarts) o.neighbour_restarts = o.neighbour_restarts_alone = *neighbour_restarts;
   o.render = render_options_of(precision, o.render.cull_tolerance);
-  try {
-    o.network_precision = nn::parse_precision(network_precision);
-  } catch (const std::invalid_argument& e) {
-    throw py::value_error(std::string("network_precision: ") + e.what());
-  }
   if (second_run) o.second_run.residual = o.second_run.second_prior = *second_run;
   naming_options(capture_argument_names, [&] {
+    o.network_precision = nn::parse_precision(network_precision, "capture_options::network_precision");
     o.kernel = kernel_options::parse(kernel);
     if (stages != "auto") o.stages = pipeline_stages::parse(stages);
     o.validate();

@@ -144,6 +144,12 @@ TEST_CASE("batch inputs: the capture description and every photograph must exist
   const batch_record again = check_batch_sample(m, 0);
   CHECK(again.differences(a.json) == (t.path / "photos/b.exr").string());
   CHECK(again.differences(again.json).empty());
+  nlohmann::json other_options = a.json;
+  other_options["options"] = nlohmann::json({"--steps", "5"});
+  CHECK(again.differences(other_options) == "options, " + (t.path / "photos/b.exr").string());
+  nlohmann::json no_inputs = again.json;
+  no_inputs["inputs"].push_back(nlohmann::json({"gone.exr", 1, 2}));  // one more input before: no file of this record differs
+  CHECK(again.differences(no_inputs) == "inputs");
   write(t.path / "photos/capture.json", "{\"images\": 3}");
   CHECK_THROWS_WITH(check_batch_sample(m, 0), doctest::Contains("\"images\" must be an array"));
 }

@@ -374,7 +374,7 @@ TEST_CASE("photos.json errors name the file, the photo and the problem") {
   const std::string sample = R"("sample": {"width_mm": 100, "height_mm": 80}, "camera": {"focal_length_px": 1000})";
   const std::string corners = R"("corners": [[100, 100], [500, 100], [500, 400], [100, 400]])";
   CHECK_THROWS_WITH_AS(parse("{"), doctest::Contains("malformed JSON"), io_error);
-  CHECK_THROWS_WITH_AS(parse("{" + sample + R"(, "photos": [], "extra": 1})"), doctest::Contains("unknown field \"extra\""), io_error);
+  CHECK_THROWS_WITH_AS(parse("{" + sample + R"(, "photos": [], "extra": 1})"), doctest::Contains("unknown field \"extra\" (expected \"sample\", \"camera\", \"photos\")"), io_error);
   CHECK_THROWS_WITH_AS(parse("{" + sample + R"(, "photos": []})"), doctest::Contains("non-empty array"), io_error);
   CHECK_THROWS_WITH_AS(parse("{" + sample + R"(, "photos": [{"file": "a.jpg", )" + corners + "}]}"),
                        doctest::Contains("photos[0] (\"a.jpg\"): missing field \"light\""), io_error);

@@ -187,6 +187,8 @@ TEST_CASE("precision names and the bf16 switch") {
   CHECK(nn::parse_precision("fp32") == nn::precision::fp32);
   CHECK(nn::parse_precision("bf16") == nn::precision::bf16);
   CHECK_THROWS_WITH_AS(nn::parse_precision("fp16"), doctest::Contains("fp16"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(nn::parse_precision("fp16", "train_options::precision"),
+                       "train_options::precision: unknown precision 'fp16' (expected fp32 or bf16)", std::invalid_argument);
   CHECK(std::string(nn::to_string(nn::precision::bf16)) == "bf16");
   if (!nn::bf16_available()) {
     CHECK_THROWS_AS(nn::set_convolution_precision(nn::precision::bf16), std::invalid_argument);

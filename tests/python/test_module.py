@@ -303,7 +303,7 @@ def test_capture_equals_the_programs(program, tmp_path):
 
 
 def test_network_precision_is_checked(material):
-    with pytest.raises(ValueError, match="network_precision"):
+    with pytest.raises(ValueError, match=r"^network_precision: unknown precision 'fp16' \(expected fp32 or bf16\)"):
         anisocap.capture(material["photos"], material["configurations"], models=False, network_precision="fp16")
     if anisocap.has_bf16():
         result = anisocap.capture(material["photos"], material["configurations"], models=False, steps=50,

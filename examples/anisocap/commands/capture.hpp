@@ -265,17 +265,16 @@ inline void print_undetermined(const capture_result& result, const capture_optio
                    held.c_str());
   }
   if (!result.uncertainty) return;
-  std::string undetermined;
+  std::vector<std::string> undetermined;
   for (int k = 0; k < parameter_count; ++k)
     if (!result.uncertainty->determined(k)) {
       char text[64];
-      std::snprintf(text, sizeof text, "%s%s (%.0f%% of texels)", undetermined.empty() ? "" : ", ", parameter_name(k),
-                    100 * result.uncertainty->determined_share[std::size_t(k)]);
-      undetermined += text;
+      std::snprintf(text, sizeof text, "%s (%.0f%% of texels)", parameter_name(k), 100 * result.uncertainty->determined_share[std::size_t(k)]);
+      undetermined.emplace_back(text);
     }
   if (!undetermined.empty())
     std::fprintf(stderr, "capture: these photographs determine on most texels every parameter but %s; uncertainty/ holds each "
-                 "parameter's standard deviation per texel\n", undetermined.c_str());
+                 "parameter's standard deviation per texel\n", join_names(undetermined, ", ").c_str());
 }
 
 /// What stage_capture_files staged beside the maps.

@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "anisocap/calibration/camera.hpp"
+#include "anisocap/core/text.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/render/capture.hpp"
 
@@ -78,11 +79,7 @@ struct object_reader {
     for (const auto& [key, value] : object.items()) {
       bool known = false;
       for (const char* k : keys) known |= key == k;
-      if (!known) {
-        std::string list;
-        for (const char* k : keys) list += (list.empty() ? "\"" : ", \"") + std::string(k) + "\"";
-        fail("unknown field \"" + key + "\" (expected " + list + ")");
-      }
+      if (!known) fail("unknown field \"" + key + "\" (expected \"" + join_names(keys, "\", \"") + "\")");
     }
   }
   const json* find(const char* key) const {

@@ -22,11 +22,13 @@ enum class precision { fp32, bf16 };
 /// "fp32" or "bf16".
 inline const char* to_string(precision p) { return p == precision::bf16 ? "bf16" : "fp32"; }
 
-/// The precision a name stands for; throws std::invalid_argument naming it otherwise.
-inline precision parse_precision(std::string_view name) {
+/// The precision a name stands for; throws std::invalid_argument naming it otherwise, after
+/// `field` (the option it was given for, e.g. "capture_options::network_precision") where one is given.
+inline precision parse_precision(std::string_view name, std::string_view field = {}) {
   if (name == "fp32") return precision::fp32;
   if (name == "bf16") return precision::bf16;
-  throw std::invalid_argument("unknown precision '" + std::string(name) + "' (expected fp32 or bf16)");
+  const std::string prefix = field.empty() ? std::string() : std::string(field) + ": ";
+  throw std::invalid_argument(prefix + "unknown precision '" + std::string(name) + "' (expected fp32 or bf16)");
 }
 
 /// True when this build's convolutions can run in bf16: compiled for a CPU with AVX-512 BF16

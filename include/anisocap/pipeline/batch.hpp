@@ -331,20 +331,17 @@ struct batch_record {
   nlohmann::json json;  ///< {"capture", "out", "options", "inputs": [[file, size, modification time], ...]}
   /// The files of `json["inputs"]` whose size or time differs from `other`'s, or "options" / "capture"; empty when equal.
   std::string differences(const nlohmann::json& other) const {
-    std::string list;
-    auto add = [&](const std::string& what) { list += (list.empty() ? "" : ", ") + what; };
+    std::vector<std::string> changed;
     for (const char* key : {"capture", "options"})
-      if (!other.contains(key) || other[key] != json[key]) add(key);
+      if (!other.contains(key) || other[key] != json[key]) changed.emplace_back(key);
     if (!other.contains("inputs") || other["inputs"] != json["inputs"]) {
       const nlohmann::json& before = other.contains("inputs") ? other["inputs"] : nlohmann::json::array();
-      for (const auto& f : json["inputs"]) {
-        bool same = false;
-        for (const auto& g : before) same = same || g == f;
-        if (!same) add(f[0].get<std::string>());
-      }
-      if (list.empty()) add("inputs");
+      const std::size_t listed = changed.size();
+      for (const auto& f : json["inputs"])
+        if (std::find(before.begin(), before.end(), f) == before.end()) changed.push_back(f[0].get<std::string>());
+      if (changed.size() == listed) changed.emplace_back("inputs");
     }
-    return list;
+    return join_names(changed, ", ");
   }
 };
 
