@@ -2,6 +2,7 @@
 // and gradients against central finite differences (double), at small channel counts and at
 // counts that take the register-blocked SIMD path.
 #include <doctest/doctest.h>
+#include <omp.h>
 
 #include <cmath>
 #include <cstdint>
@@ -152,4 +153,34 @@ TEST_CASE("conv2d gradients match central differences") {
   check_gradients<3, 4, 4, 1, nn::same_padding>(2, 5, 6, 0, 13);
   check_gradients<32, 64, 4, 2, 1>(2, 5, 7, 40, 14);  // SIMD path
   check_gradients<32, 32, 3, 1, 1>(1, 5, 7, 40, 15);
+}
+
+namespace {
+/// bias_gradient on one thread against the plain loop: channel by channel, pixels in order from the
+/// value already there, so the same bits (whole registers, a masked last register, or less than one).
+template <int C>
+void check_bias_gradient(int B, int H, int W, unsigned seed) {
+  std::mt19937 rng(seed);
+  tensor<C> g(B, H, W);
+  fill_random(g, rng);
+  std::vector<float> got(C, 0.5f), want(C, 0.0f);
+  const int saved = omp_get_max_threads();
+  omp_set_num_threads(1);
+  nn::detail::conv::bias_gradient(g, got.data());
+  omp_set_num_threads(saved);
+  for (int b = 0; b < B; ++b)
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x)
+        for (int c = 0; c < C; ++c) want[std::size_t(c)] += g.pixel(b, y, x)[c];
+  for (int c = 0; c < C; ++c) want[std::size_t(c)] += 0.5f;
+  CHECK(got == want);
+}
+}  // namespace
+
+TEST_CASE("the bias gradient sums each channel's pixels in order") {
+  check_bias_gradient<3>(2, 70, 90, 1);
+  check_bias_gradient<12>(1, 256, 260, 2);
+  check_bias_gradient<16>(2, 130, 129, 3);
+  check_bias_gradient<20>(1, 200, 333, 4);
+  check_bias_gradient<64>(1, 64, 64, 5);
 }

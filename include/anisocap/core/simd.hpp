@@ -103,6 +103,22 @@ inline V load_unaligned(const scalar_t<V>* p) {
   if constexpr (lanes_v<V> == 1) return *p;
   else return V::load_unaligned(p);
 }
+/// The first n values at p (0 < n <= lanes) in the first lanes, zeros in the rest; reads nothing past
+/// p + n (a masked load on AVX-512, a copy through the stack elsewhere).
+template <class V>
+inline V load_first(const scalar_t<V>* p, int n) {
+  using T = scalar_t<V>;
+  if constexpr (lanes_v<V> == 1) return *p;
+#if defined(__AVX512F__)
+  else if constexpr (std::is_same_v<T, float> && lanes_v<V> == 16) return V(_mm512_maskz_loadu_ps(__mmask16((1u << n) - 1), p));
+  else if constexpr (std::is_same_v<T, double> && lanes_v<V> == 8) return V(_mm512_maskz_loadu_pd(__mmask8((1u << n) - 1), p));
+#endif
+  else {
+    alignas(alignment) T v[lanes_v<V>] = {};
+    for (int i = 0; i < n; ++i) v[i] = p[i];
+    return V::load_aligned(v);
+  }
+}
 /// Stores lanes_v<V> consecutive values (aligned for batches). U may differ from V's element type
 /// (a double batch into floats): the values are converted (rounded), no alignment needed then.
 template <class V, class U>
@@ -317,7 +333,12 @@ inline void interleave_to_bf16(const float* a, const float* b, int n, std::uint1
     const __m512bh v = _mm512_cvtne2ps_pbh(_mm512_permutex2var_ps(x, hi, y), _mm512_permutex2var_ps(x, lo, y));
     _mm512_storeu_si512(dst + 2 * j, (__m512i)v);
   }
-  for (; j < n; ++j) dst[2 * j] = to_bf16(a[j]), dst[2 * j + 1] = to_bf16(b[j]);
+  if (j < n) {  // the last n - j < 16 channels, masked (12-channel layers have nothing else)
+    const __mmask16 m = __mmask16((1u << (n - j)) - 1);
+    const __m512 x = _mm512_maskz_loadu_ps(m, a + j), y = _mm512_maskz_loadu_ps(m, b + j);
+    const __m512bh v = _mm512_cvtne2ps_pbh(_mm512_permutex2var_ps(x, hi, y), _mm512_permutex2var_ps(x, lo, y));
+    _mm512_mask_storeu_epi32(dst + 2 * j, m, (__m512i)v);
+  }
 }
 /// dst[i] = bf16(src[i]) for i < n (rounded to nearest even; denormal inputs read as zero).
 inline void convert_to_bf16(const float* src, std::ptrdiff_t n, std::uint16_t* dst) {

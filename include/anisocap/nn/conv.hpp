@@ -348,7 +348,7 @@ void conv2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cout, T>& gra
   ps.taps = K * K;
   for (int kh = 0; kh < K; ++kh)
     for (int kw = 0; kw < K; ++kw) ps.a_tap[kh * K + kw] = kh * a.row_stride + kw * Cin;
-  dc::run_weight<dc::vectors_per_tile<T>(Cout)>(ps, Cin, Cout, grad_weight);
+  dc::run_weight_of<Cin, Cout>(ps, grad_weight);
 }
 
 /// A convolution layer (weights [K][K][Cin][Cout] named name+".weight", bias [Cout] name+".bias").

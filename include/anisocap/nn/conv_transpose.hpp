@@ -71,7 +71,7 @@ void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cou
   ps.taps = 16;
   for (int kh = 0; kh < 4; ++kh)
     for (int kw = 0; kw < 4; ++kw) ps.g_tap[kh * 4 + kw] = kh * g.row_stride + kw * ldg;
-  dc::run_weight<dc::vectors_per_tile<T>(Cout)>(ps, Cin, Cout, grad_weight);
+  dc::run_weight_of<Cin, Cout>(ps, grad_weight);
 }
 
 /// A 4x4 stride-2 transposed convolution layer (weights [4][4][Cin][Cout] named

@@ -793,6 +793,32 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   }
 }
 
+/// run_weight for a pass of Ca x Cb channels, with the operands' roles exchanged where Cb is less
+/// than a register and Ca whole registers (the 12-channel output layers): the tiles then hold Ca in
+/// their lanes with no lane left empty and broadcast Cb, fewer loads per multiply-add, and gw is
+/// accumulated through its transpose [taps][Cb][Ca]. Each element still sums the same pixels in
+/// the same order, so the gradient is the same bits either way.
+template <int Ca, int Cb, class T>
+void run_weight_of(const weight_pass<T>& ps, T* gw) {
+  if constexpr (Cb < lanes<T> && Ca % lanes<T> == 0) {
+    weight_pass<T> swapped = ps;
+    swapped.a = ps.g, swapped.a_batch = ps.g_batch, swapped.a_row = ps.g_row, swapped.a_col = ps.g_col;
+    swapped.g = ps.a, swapped.g_batch = ps.a_batch, swapped.g_row = ps.a_row, swapped.g_col = ps.a_col;
+    for (int t = 0; t < ps.taps; ++t) swapped.a_tap[t] = ps.g_tap[t], swapped.g_tap[t] = ps.a_tap[t];
+    const std::size_t per_tap = std::size_t(Ca) * Cb;
+    T* transposed = scratch<T>(3, std::size_t(ps.taps) * per_tap);  // slot 3: the forward's padded bias, not alive here
+    for (int t = 0; t < ps.taps; ++t)
+      for (int i = 0; i < Ca; ++i)
+        for (int o = 0; o < Cb; ++o) transposed[t * per_tap + std::size_t(o) * Ca + i] = gw[t * per_tap + std::size_t(i) * Cb + o];
+    run_weight<vectors_per_tile<T>(Ca)>(swapped, Cb, Ca, transposed);
+    for (int t = 0; t < ps.taps; ++t)
+      for (int i = 0; i < Ca; ++i)
+        for (int o = 0; o < Cb; ++o) gw[t * per_tap + std::size_t(i) * Cb + o] = transposed[t * per_tap + std::size_t(o) * Ca + i];
+  } else {
+    run_weight<vectors_per_tile<T>(Cb)>(ps, Ca, Cb, gw);
+  }
+}
+
 // ---- data movement ----------------------------------------------------------------------------
 
 /// Copies x into a zero-padded dense buffer [B][Hp][Wp][ldc]: x(b, y, x) lands at
@@ -876,12 +902,23 @@ void bias_gradient(const tensor<C, T>& g, T* grad_bias) {
 #pragma omp parallel num_threads(threads)
   {
     const int nt = omp_get_num_threads(), id = omp_get_thread_num();
-    T* sum = partial + std::size_t(id) * C;
+    // Each channel's lane adds the pixels in order from 0, as a scalar loop would, so the sums
+    // are the same bits; the last register of a channel count that is not whole is a masked load.
+    constexpr int W = lanes<T>, NB = (C + W - 1) / W, tail = C - (NB - 1) * W;
+    batch<T> acc[NB];
+    for (auto& a : acc) a = batch<T>(T(0));
     for (int r = rows * id / nt; r < rows * (id + 1) / nt; ++r) {
       const T* p = g.pixel(r / g.height(), r % g.height(), 0);
-      for (int x = 0; x < g.width(); ++x, p += C)
-        for (int c = 0; c < C; ++c) sum[c] += p[c];
+      for (int x = 0; x < g.width(); ++x, p += C) {
+        #pragma GCC unroll 16
+        for (int v = 0; v < NB - 1; ++v) acc[v] += batch<T>::load_unaligned(p + v * W);
+        acc[NB - 1] += tail == W ? batch<T>::load_unaligned(p + (NB - 1) * W) : simd::load_first<batch<T>>(p + (NB - 1) * W, tail);
+      }
     }
+    T* sum = partial + std::size_t(id) * C;
+    for (int v = 0; v < NB; ++v)
+      if (v < NB - 1 || tail == W) acc[v].store_unaligned(sum + v * W);
+      else store_partial(sum + v * W, acc[v], tail);
   }
   for (int t = 0; t < threads; ++t)
     for (int c = 0; c < C; ++c) grad_bias[c] += partial[std::size_t(t) * C + c];
