@@ -91,12 +91,12 @@ inline void add_batch_command(CLI::App& app) {
   auto* c = app.add_subcommand("batch", "capture every sample of a manifest, each an independent unit: skipped when done, resumed when "
                                         "interrupted, locked while it runs (docs/batch.md)");
   c->add_option("manifest", s->manifest, "the manifest: one sample a line, NAME CAPTURE OUT [capture options...]")->required();
-  c->add_option("--sample", s->selection.names, "run only the sample of this name (repeatable; --list names them)");
-  c->add_option("--index", s->selection.index,
+  c->add_option(flag_of(batch_field_flags, "batch_selection::names"), s->selection.names, "run only the sample of this name (repeatable; --list names them)");
+  c->add_option(flag_of(batch_field_flags, "batch_selection::index"), s->selection.index,
                 "run only the sample at this index (0-based, manifest order; e.g. $SLURM_ARRAY_TASK_ID); with --count N, every sample "
                 "whose index is this modulo N")
       ->check(CLI::NonNegativeNumber);
-  c->add_option("--count", s->selection.count, "the number of tasks the samples are divided between (with --index)")->check(CLI::PositiveNumber);
+  c->add_option(flag_of(batch_field_flags, "batch_selection::count"), s->selection.count, "the number of tasks the samples are divided between (with --index)")->check(CLI::PositiveNumber);
   c->add_flag("--list", s->list, "print the selected samples' names, one a line (for GNU parallel), and run nothing");
   c->add_flag("--status", s->status, "print each selected sample's state (new, done, interrupted, changed, running), and run nothing");
   c->add_option("--stale-after", s->stale_seconds,

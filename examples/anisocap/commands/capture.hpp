@@ -385,9 +385,9 @@ inline nlohmann::json run_capture_command(capture_settings s, const CLI::App* pa
 /// The options of a capture (shared with demo).
 inline void add_capture_options(CLI::App* c, capture_settings& s) {
   c->add_option("-o,--out", s.out, "output folder");
-  c->add_option("--stages", s.stages, "stages to run: auto (all when the weights are there, else refine), all, or a list of estimate,encode,finetune,refine");
+  c->add_option(capture_flag("pipeline_stages"), s.stages, "stages to run: auto (all when the weights are there, else refine), all, or a list of estimate,encode,finetune,refine");
   add_model_options(c, s.models);
-  c->add_flag("--resume", s.resume, "continue a killed run from OUT/.checkpoint");
+  c->add_flag(capture_flag("checkpoint_options::resume"), s.resume, "continue a killed run from OUT/.checkpoint");
   c->add_option("--checkpoint-every", s.checkpoint_seconds,
                 "seconds between the fine-tune's check-points in OUT/.checkpoint (0: after every step; the estimate is "
                 "check-pointed when it is done)")

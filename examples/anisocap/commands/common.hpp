@@ -76,7 +76,7 @@ inline std::vector<int> parse_restart_radii(const std::string& list) {
       used = 0;
     }
     if (entry.empty() || used != entry.size() || radius < 1)
-      throw CLI::ValidationError("--neighbour-restarts", "'" + entry + "' is not a radius (a whole number of texels, at least 1); give R,... or none");
+      throw CLI::ValidationError(capture_flag("capture_options::neighbour_restarts"), "'" + entry + "' is not a radius (a whole number of texels, at least 1); give R,... or none");
     radii.push_back(radius);
     begin = end + 1;
   }
@@ -130,7 +130,7 @@ inline void add_model_options(CLI::App* c, model_choice& m) {
 
 /// The second runs' options (second_run_options), bound onto `r`.
 inline void add_second_run_options(CLI::App* c, second_run_options& r) {
-  c->add_option("--also-models-above", r.above,
+  c->add_option(capture_flag("capture_options::second_run.above"), r.above,
                 "run the network stages a second time (--also-residual, the second prior) only where the first run's final image "
                 "loss is above this (0: always)")
       ->check(CLI::NonNegativeNumber);
@@ -138,7 +138,7 @@ inline void add_second_run_options(CLI::App* c, second_run_options& r) {
               "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual) and "
               "keep the result that fits the photographs better; before the second prior's run; on by default where the "
               "fine-tune runs, subject to --also-models-above and --also-residual-ratio");
-  c->add_option("--also-residual-ratio", r.residual_ratio,
+  c->add_option(capture_flag("capture_options::second_run.residual_ratio"), r.residual_ratio,
                 "with --also-residual: run the second time only where the auto-encoder's projection of the estimate fits the "
                 "photographs at least this many times worse than the estimate (0: wherever --also-models-above allows)")
       ->check(CLI::NonNegativeNumber);
@@ -177,59 +177,59 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
       ->check(CLI::IsMember({"fast", "thorough", "auto", "paper"}))
       ->default_str("fast");
   c->add_option_function<std::string>(
-       "--network-precision", [&o](const std::string& name) { o.network_precision = nn::parse_precision(name); },
+       capture_flag("capture_options::network_precision"), [&o](const std::string& name) { o.network_precision = nn::parse_precision(name); },
        "operands of the networks' convolutions in the estimate and fine-tune: fp32, or bf16 (rounded to bfloat16, multiplied "
        "and summed in FP32, FP32 master weights; about 0.7x the fine-tune's time; needs a build for a CPU with AVX-512 BF16, "
        "see --version; docs/program.md)")
       ->check(CLI::IsMember({"fp32", "bf16"}))
       ->default_str("fp32");
-  c->add_option("--estimate-window", o.estimate.window,
+  c->add_option(capture_flag("estimate_options::window"), o.estimate.window,
                 "side of the sliding windows the estimation network sees, texels (the capture is estimated window by window and "
                 "blended; docs/model-card.md measures the choice)")
       ->check(CLI::Range(64, 1 << 16));
-  c->add_option("--estimate-stride", o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
+  c->add_option(capture_flag("estimate_options::stride"), o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
       ->check(CLI::Range(1, 1 << 16));
-  c->add_option("--finetune-steps", o.finetune.steps, "decoder fine-tune steps (paper: " + n(paper.finetune.steps) + ")")->check(finite_number(false));
+  c->add_option(capture_flag("finetune_options::steps"), o.finetune.steps, "decoder fine-tune steps (paper: " + n(paper.finetune.steps) + ")")->check(finite_number(false));
   c->add_flag("--finetune-residual", o.finetune.residual,
               "start the fine-tune at the estimate itself: fit D(z) + r, with r fixed so that the start equals the estimate, "
               "instead of D(z) (docs/method.md section 8.3)");
-  c->add_option("--finetune-lr", o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: " + n(paper.finetune.learning_rate) + ")")->check(finite_number(true));
-  c->add_option("--finetune-warmup", o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
-  c->add_option("--finetune-half-life", o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));
-  c->add_option("--finetune-crop", o.finetune.crop.cells, "fine-tune on random crops of this many latent cells per side (a cell is 32 x 32 texels, 16 x 16 for the compact-fine auto-encoders; 0: the whole tile, as the paper)")->check(finite_number(false));
-  c->add_option("--finetune-shards", o.finetune.shard_cells, "cut each fine-tune step into blocks of this many latent cells per side, decoded apart and their gradients added in a fixed order, so that any number of MPI ranks gives the same maps (0: one decode per step; under mpirun 16; docs/scaling.md)")->check(finite_number(false));
-  c->add_option("--finetune-stop", o.finetune.min_improvement, "stop fine-tuning when " + n(fast.finetune.patience) + " steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
-  c->add_option("--finetune-guard", o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every " + n(fast.finetune.guard.every) + " steps, keeps large rates from losing what they gained");
+  c->add_option(capture_flag("finetune_options::learning_rate"), o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: " + n(paper.finetune.learning_rate) + ")")->check(finite_number(true));
+  c->add_option(capture_flag("finetune_options::warmup"), o.finetune.warmup, "fine-tune learning-rate warm-up: linear ramp over this many steps (paper: none)")->check(finite_number(false));
+  c->add_option(capture_flag("finetune_options::half_life"), o.finetune.half_life, "fine-tune learning rate halves every this many steps (0: constant)")->check(finite_number(false));
+  c->add_option(capture_flag("finetune_options::crop.cells"), o.finetune.crop.cells, "fine-tune on random crops of this many latent cells per side (a cell is 32 x 32 texels, 16 x 16 for the compact-fine auto-encoders; 0: the whole tile, as the paper)")->check(finite_number(false));
+  c->add_option(capture_flag("finetune_options::shard_cells"), o.finetune.shard_cells, "cut each fine-tune step into blocks of this many latent cells per side, decoded apart and their gradients added in a fixed order, so that any number of MPI ranks gives the same maps (0: one decode per step; under mpirun 16; docs/scaling.md)")->check(finite_number(false));
+  c->add_option(capture_flag("finetune_options::min_improvement"), o.finetune.min_improvement, "stop fine-tuning when " + n(fast.finetune.patience) + " steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
+  c->add_option(capture_flag("finetune_options::guard.factor"), o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every " + n(fast.finetune.guard.every) + " steps, keeps large rates from losing what they gained");
   c->add_option_function<int>(
-       "--steps", [&o](int n) { o.refine.steps = o.refine_alone.steps = n; },
+       capture_flag("refine_options::steps"), [&o](int n) { o.refine.steps = o.refine_alone.steps = n; },
        "refine steps (default " + n(fast.refine.steps) + " after the network stages, " + n(alone.steps) + " when they do not run)")
       ->check(finite_number(false));
   c->add_option_function<float>(
-       "--lr", [&o](float r) { o.refine.learning_rate = o.refine_alone.learning_rate = r; },
+       capture_flag("refine_options::learning_rate"), [&o](float r) { o.refine.learning_rate = o.refine_alone.learning_rate = r; },
        "refine learning rate, Adam in unconstrained parameters (default " + n(fast.refine.learning_rate) + " after the network stages, " + n(alone.learning_rate) + " when they do not run)")
       ->check(finite_number(true));
   c->add_option_function<double>(
-       "--refine-stop", [&o](double f) { o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = f; },
+       capture_flag("refine_options::min_relative_improvement"), [&o](double f) { o.refine.min_relative_improvement = o.refine_alone.min_relative_improvement = f; },
        "stop refining when " + n(fast.refine.patience) + " steps improve the loss by less than this fraction (0: never)")
       ->check(CLI::Range(0.0, 1.0));
-  c->add_option("--second-start", o.second_start_lobe_width,
+  c->add_option(capture_flag("capture_options::second_start_lobe_width"), o.second_start_lobe_width,
                 "refine also from the same maps with both lobe widths at least this, and keep per 64-texel group the fit with the "
                 "lower loss (0: one start; docs/method.md section 8.4)")
       ->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
-       "--neighbour-restarts",
+       capture_flag("capture_options::neighbour_restarts"),
        [&o](const std::string& list) { o.neighbour_restarts = o.neighbour_restarts_alone = parse_restart_radii(list); },
        "after the refine, for each radius R in turn (comma-separated texels), refine again from the maps' means over (2R+1)^2 "
        "windows and keep per 64-texel group the fit with the lower loss (none: no restarts; default 8 after the network stages, none "
        "for the refine alone and with --schedule paper; docs/method.md section 8.4)")
       ->type_name("R,...|none");
   c->add_option_function<double>(
-       "--freeze", [&o](double f) { o.refine.freeze_tolerance = o.refine_alone.freeze_tolerance = f; },
+       capture_flag("refine_options::freeze_tolerance"), [&o](double f) { o.refine.freeze_tolerance = o.refine_alone.freeze_tolerance = f; },
        "refine only texels whose loss still moves: freeze a 64-texel group when " + n(fast.refine.freeze_every) +
            " steps improve its loss by less than this fraction (0: never)")
       ->check(CLI::Range(0.0, 1.0));
   c->add_option_function<std::string>(
-       "--kernel", [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },
+       capture_flag("kernel_options"), [&o](const std::string& name) { o.kernel = kernel_options::parse(name); },
        "BRDF terms the fine-tune and refine stages fit: auto (the cheapest kernel that renders the estimate, or the first guess, within "
        "1e-3: the full kernel on anisotropic samples with Fresnel and normals, fewer terms and less time where the sample shows "
        "fewer), full, isotropic, no-fresnel, flat, isotropic-flat, lambert-like")

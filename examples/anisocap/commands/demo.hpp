@@ -30,7 +30,7 @@ inline void add_demo_command(CLI::App& app) {
   c->add_option("-o,--out", syn->out, "output folder");
   c->add_option("--seed", syn->seed, "material seed");
   c->add_option("--size", syn->width, "material size (square)");
-  c->add_option("--stages", cap->stages, "stages to run (see capture --help)");
+  c->add_option(capture_flag("pipeline_stages"), cap->stages, "stages to run (see capture --help)");
   add_model_options(c, cap->models);
   add_optimiser_options(c, cap->options);
   c->callback([syn, cap, c] {

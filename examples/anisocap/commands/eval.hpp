@@ -194,7 +194,7 @@ inline void add_eval_command(CLI::App& app) {
   c->add_option("--families", e->families,
                 "evaluate these families only, comma-separated (e.g. leather,printed or brushed,spun,foil); material m gets the (m mod n)-th")
       ->check(family_list_check());
-  c->add_option("--stages", e->stages,
+  c->add_option(capture_flag("pipeline_stages"), e->stages,
                 "stages each capture runs: all, or a list of estimate,encode,finetune,refine (e.g. estimate,refine leaves the "
                 "auto-encoder out; refine alone starts from the first guess with the refine's own schedule, as capture does)");
   add_model_options(c, *models);

@@ -1,10 +1,21 @@
 #pragma once
 // The flags that set the option fields the library's messages name (core/option_names.hpp), every
-// command's table in this one place: each command passes its errors through naming_options with
-// its table.
+// command's table in this one place: each command binds its flags by field (capture_flag,
+// train_flag) and passes its errors through naming_options with its table, so that a flag is
+// spelt once and the messages cannot name another.
+#include <span>
+#include <string_view>
+
 #include "anisocap/core/option_names.hpp"
 
 namespace anisocap::commands {
+
+/// The flag `table` gives `field`, at compile time: a field the table lacks does not compile.
+consteval const char* flag_of(std::span<const option_name> table, std::string_view field) {
+  for (const option_name& e : table)
+    if (e.field == field) return e.name.data();  // the table's names are string literals
+  throw "the table names no flag for this field";  // not a constant expression: a compile error
+}
 
 /// The fields of capture_options (with its refine_options, finetune_options, estimate_options,
 /// pipeline_stages and kernel_options) that capture, demo and eval set by flags.
@@ -32,6 +43,9 @@ inline constexpr option_name capture_field_flags[] = {
     {"pipeline_stages", "--stages"},
     {"kernel_options", "--kernel"},
 };
+
+/// The flag of capture, demo and eval that sets `field` (capture_field_flags).
+consteval const char* capture_flag(std::string_view field) { return flag_of(capture_field_flags, field); }
 
 /// The flags of train-estimator and train-autoencoder that set each train_options field a library
 /// message names, and the names a resume's hint gives.
@@ -78,6 +92,9 @@ inline constexpr option_name train_field_flags[] = {
     {"train_estimator", "train-estimator"},
     {"the preset", "--preset"},                  // the trainer's template argument
 };
+
+/// The flag of train-estimator and train-autoencoder that sets `field` (train_field_flags).
+consteval const char* train_flag(std::string_view field) { return flag_of(train_field_flags, field); }
 
 /// The flags of batch that set each batch_selection field a library message names.
 inline constexpr option_name batch_field_flags[] = {

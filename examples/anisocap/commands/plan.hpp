@@ -105,7 +105,7 @@ inline void add_plan_command(CLI::App& app) {
   auto* c = app.add_subcommand("plan", "the next 1-4 photographs that most lower a capture's uncertainty, with the reason");
   c->add_option("result", s->result, "a capture's output folder (its maps, report.json and the photographs it names)")->required();
   c->add_option("-o,--out", s->out, "plan file to write (default: RESULT/plan.json)");
-  c->add_option("--photos", s->options.photos, "how many photographs to propose (1-4)")->capture_default_str()->check(CLI::Range(1, 4));
+  c->add_option(flag_of(plan_field_flags, "plan_options::photos"), s->options.photos, "how many photographs to propose (1-4)")->capture_default_str()->check(CLI::Range(1, 4));
   c->add_option("--sample-mm", s->sample_mm, "the sample's longest side in mm: positions in millimetres (default: in sample lengths)")
       ->check(CLI::NonNegativeNumber);
   c->add_flag_callback("--flash-only", [s] { s->options.lamp = false; }, "propose only phone-with-flash photographs");
