@@ -53,7 +53,8 @@ void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cou
   if (in.empty()) return;
   if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
   if (!grad_weight) return;
-  constexpr int ldg = dc::padded_channels<T>(Cout);
+  // The output gradient in whole registers, unless the pass exchanges the operands' roles and only broadcasts it.
+  constexpr int ldg = dc::exchanges_weight_roles<T>(Cin, Cout) ? Cout : dc::padded_channels<T>(Cout);
   // gW[kh][kw] = sum over input pixels (i, j) of in[i][j] (x) grad_out[2i-1+kh][2j-1+kw].
   const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2);
   dc::weight_pass<T> ps;

@@ -793,14 +793,19 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
   }
 }
 
-/// run_weight for a pass of Ca x Cb channels, with the operands' roles exchanged where Cb is less
-/// than a register and Ca whole registers (the 12-channel output layers): the tiles then hold Ca in
-/// their lanes with no lane left empty and broadcast Cb, fewer loads per multiply-add, and gw is
-/// accumulated through its transpose [taps][Cb][Ca]. Each element still sums the same pixels in
-/// the same order, so the gradient is the same bits either way.
+/// Whether run_weight_of exchanges the operands' roles for a pass of Ca x Cb channels (below).
+template <class T>
+constexpr bool exchanges_weight_roles(int Ca, int Cb) { return Cb < lanes<T> && Ca % lanes<T> == 0; }
+
+/// run_weight for a pass of Ca x Cb channels, with the operands' roles exchanged where
+/// exchanges_weight_roles: Cb less than a register and Ca whole registers (the 12-channel output
+/// layers). The tiles then hold Ca in their lanes with no lane left empty and broadcast Cb, fewer
+/// loads per multiply-add, and gw is accumulated through its transpose [taps][Cb][Ca]; the Cb
+/// operand is only broadcast then, so it needs no padding to whole registers. Each element still
+/// sums the same pixels in the same order, so the gradient is the same bits either way.
 template <int Ca, int Cb, class T>
 void run_weight_of(const weight_pass<T>& ps, T* gw) {
-  if constexpr (Cb < lanes<T> && Ca % lanes<T> == 0) {
+  if constexpr (exchanges_weight_roles<T>(Ca, Cb)) {
     weight_pass<T> swapped = ps;
     swapped.a = ps.g, swapped.a_batch = ps.g_batch, swapped.a_row = ps.g_row, swapped.a_col = ps.g_col;
     swapped.g = ps.a, swapped.g_batch = ps.a_batch, swapped.g_row = ps.a_row, swapped.g_col = ps.a_col;
