@@ -2,12 +2,14 @@
 // loops (float) and gradients against central finite differences (double).
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <random>
 #include <vector>
 
 #include "anisocap/nn/conv_transpose.hpp"
+#include "anisocap/nn/precision.hpp"
 #include "reference.hpp"
 #include "support/gradient_check.hpp"
 
@@ -141,4 +143,51 @@ TEST_CASE("conv_transpose2d matches the naive loops") {
 TEST_CASE("conv_transpose2d gradients match central differences") {
   check_gradients<3, 5>(2, 3, 5, 0, 31);
   check_gradients<32, 64>(1, 3, 4, 40, 32);  // SIMD path
+}
+
+namespace {
+/// conv_transpose2d_backward against conv_transpose2d_backward_input and _weight called apart:
+/// the same bits, with or without each gradient asked for.
+template <int Cin, int Cout>
+void check_backward_at_once(int B, int H, int W, unsigned seed) {
+  std::mt19937 rng(seed);
+  tensor<Cin> in(B, H, W);
+  tensor<Cout> gout(B, 2 * H, 2 * W);
+  fill_random(in, rng);
+  fill_random(gout, rng);
+  std::vector<float> w(16 * Cin * Cout);
+  std::uniform_real_distribution<float> u(-1, 1);
+  for (float& v : w) v = u(rng);
+  tensor<Cin> gin_apart(B, H, W), gin_once(B, H, W);
+  fill_random(gin_apart, rng);
+  std::copy(gin_apart.data(), gin_apart.data() + gin_apart.size(), gin_once.data());
+  std::vector<float> gw_apart(w.size(), 0.25f), gw_once = gw_apart, gb_apart(Cout, -0.5f), gb_once = gb_apart;
+  nn::conv_transpose2d_backward_input<Cin, Cout>(gout, w.data(), gin_apart);
+  nn::conv_transpose2d_backward_weight<Cin, Cout>(in, gout, gw_apart.data(), gb_apart.data());
+  nn::conv_transpose2d_backward<Cin, Cout>(in, gout, w.data(), &gin_once, gw_once.data(), gb_once.data());
+  CHECK(std::equal(gin_apart.data(), gin_apart.data() + gin_apart.size(), gin_once.data()));
+  CHECK(gw_once == gw_apart);
+  CHECK(gb_once == gb_apart);
+  // Without the input gradient, and without the weights': the rest as before.
+  std::vector<float> gw_alone(w.size(), 0.25f), gb_alone(Cout, -0.5f);
+  nn::conv_transpose2d_backward<Cin, Cout>(in, gout, w.data(), nullptr, gw_alone.data(), gb_alone.data());
+  CHECK(gw_alone == gw_apart);
+  CHECK(gb_alone == gb_apart);
+  tensor<Cin> gin_alone(B, H, W);
+  std::copy(gin_once.data(), gin_once.data() + gin_once.size(), gin_alone.data());
+  nn::conv_transpose2d_backward<Cin, Cout>(in, gout, w.data(), &gin_alone, nullptr, nullptr);
+  nn::conv_transpose2d_backward_input<Cin, Cout>(gout, w.data(), gin_once);
+  CHECK(std::equal(gin_once.data(), gin_once.data() + gin_once.size(), gin_alone.data()));
+}
+}  // namespace
+
+TEST_CASE("conv_transpose2d_backward pads the output gradient once and gives the passes' own bits") {
+  check_backward_at_once<32, 12>(2, 9, 13, 41);  // the weight pass exchanges roles: one 12-channel copy
+  check_backward_at_once<64, 32>(1, 12, 10, 42);  // whole registers: one copy
+  check_backward_at_once<3, 5>(2, 5, 7, 43);      // a padded 16-channel copy for the weights: two copies
+  if (nn::bf16_available()) {
+    nn::precision_scope bf16(nn::precision::bf16);
+    check_backward_at_once<32, 12>(1, 16, 20, 44);
+    check_backward_at_once<64, 32>(2, 8, 8, 45);
+  }
 }

@@ -25,6 +25,51 @@ void conv_transpose2d_forward(const tensor<Cin, T>& in, const T* weight, const s
   dc::transposed_core<Cin, Cout>(a, w, b, out, false);
 }
 
+namespace detail::conv {
+
+/// Channels a pixel of the output gradient's padded copy holds for the weight gradient: whole
+/// registers, or the layer's own where the pass exchanges the operands' roles and only broadcasts it.
+template <class T, int Cin, int Cout>
+inline constexpr int transposed_gradient_channels = exchanges_weight_roles<T>(Cin, Cout) ? Cout : padded_channels<T>(Cout);
+
+/// The input gradient, ACCUMULATED into grad_in, from the output gradient padded by one pixel on
+/// each side (`a`, Cout channels a pixel): in[i][j] fed out[2i-1+kh][2j-1+kw], so its gradient is
+/// a 4x4 stride-2 pad-1 convolution of the output gradient with the transposed kernel (in <-> out).
+template <int Cin, int Cout, class T>
+void transposed_input_gradient(const padded_source<T>& a, const T* weight, tensor<Cin, T>& grad_in) {
+  if (prefer_in_cache_transpose(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
+    // Few pixels for a large kernel: transpose it block by block inside the work items.
+    conv_core<Cout, Cin, 4, 2>(a, in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
+  } else {
+    conv_core<Cout, Cin, 4, 2>(a, input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, true);
+  }
+}
+
+/// The weight gradient [4][4][Cin][Cout], ACCUMULATED, from the input and the output gradient
+/// padded by one pixel on each side (`g`, ldg channels a pixel):
+/// gW[kh][kw] = sum over input pixels (i, j) of in[i][j] (x) grad_out[2i-1+kh][2j-1+kw].
+template <int Cin, int Cout, class T>
+void transposed_weight_gradient(const tensor<Cin, T>& in, const padded_source<T>& g, int ldg, T* grad_weight) {
+  weight_pass<T> ps;
+  ps.a = in.data();
+  ps.a_batch = in.batch_stride();
+  ps.a_row = in.row_stride();
+  ps.a_col = Cin;
+  ps.g = g.data;
+  ps.g_batch = g.batch_stride;
+  ps.g_row = 2 * g.row_stride;
+  ps.g_col = 2 * ldg;
+  ps.batch = in.batch();
+  ps.rows = in.height();
+  ps.cols = in.width();
+  ps.taps = 16;
+  for (int kh = 0; kh < 4; ++kh)
+    for (int kw = 0; kw < 4; ++kw) ps.g_tap[kh * 4 + kw] = kh * g.row_stride + kw * ldg;
+  run_weight_of<Cin, Cout>(ps, grad_weight);
+}
+
+}  // namespace detail::conv
+
 /// Gradient for the input, ACCUMULATED into grad_in (batch x H x W; grad_out is batch x 2H x 2W).
 template <int Cin, int Cout, class T>
 void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, tensor<Cin, T>& grad_in) {
@@ -32,15 +77,7 @@ void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* w
   const int H = grad_in.height(), W = grad_in.width();
   dc::require_shape(grad_out, grad_in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward_input", "output gradient");
   if (grad_in.empty()) return;
-  // in[i][j] fed out[2i-1+kh][2j-1+kw]: its gradient is a 4x4 stride-2 pad-1 convolution of the
-  // output gradient with the transposed kernel (in <-> out).
-  const auto a = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  if (dc::prefer_in_cache_transpose(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
-    // Few pixels for a large kernel: transpose it block by block inside the work items.
-    dc::conv_core<Cout, Cin, 4, 2>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
-  } else {
-    dc::conv_core<Cout, Cin, 4, 2>(a, dc::input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, true);
-  }
+  dc::transposed_input_gradient<Cin, Cout>(dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0), weight, grad_in);
 }
 
 /// Gradients for the weights [4][4][Cin][Cout] and bias [Cout] (null: skipped), ACCUMULATED.
@@ -53,26 +90,33 @@ void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cou
   if (in.empty()) return;
   if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
   if (!grad_weight) return;
-  // The output gradient in whole registers, unless the pass exchanges the operands' roles and only broadcasts it.
-  constexpr int ldg = dc::exchanges_weight_roles<T>(Cin, Cout) ? Cout : dc::padded_channels<T>(Cout);
-  // gW[kh][kw] = sum over input pixels (i, j) of in[i][j] (x) grad_out[2i-1+kh][2j-1+kw].
-  const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2);
-  dc::weight_pass<T> ps;
-  ps.a = in.data();
-  ps.a_batch = in.batch_stride();
-  ps.a_row = in.row_stride();
-  ps.a_col = Cin;
-  ps.g = g.data;
-  ps.g_batch = g.batch_stride;
-  ps.g_row = 2 * g.row_stride;
-  ps.g_col = 2 * ldg;
-  ps.batch = in.batch();
-  ps.rows = H;
-  ps.cols = W;
-  ps.taps = 16;
-  for (int kh = 0; kh < 4; ++kh)
-    for (int kw = 0; kw < 4; ++kw) ps.g_tap[kh * 4 + kw] = kh * g.row_stride + kw * ldg;
-  dc::run_weight_of<Cin, Cout>(ps, grad_weight);
+  constexpr int ldg = dc::transposed_gradient_channels<T, Cin, Cout>;
+  dc::transposed_weight_gradient<Cin, Cout>(in, dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2), ldg, grad_weight);
+}
+
+/// Every gradient of a transposed convolution at once, ACCUMULATED: the input's into grad_in, the
+/// weights' and the bias's (each null: skipped). The same values as conv_transpose2d_backward_input
+/// and conv_transpose2d_backward_weight; where both passes read the output gradient's padded copy
+/// alike (its channels whole registers, or only broadcast by the weight pass), it is made once.
+template <int Cin, int Cout, class T>
+void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& grad_out, const std::type_identity_t<T>* weight,
+                               tensor<Cin, std::type_identity_t<T>>* grad_in,
+                               std::type_identity_t<T>* grad_weight, std::type_identity_t<T>* grad_bias) {
+  namespace dc = detail::conv;
+  constexpr int ldg = dc::transposed_gradient_channels<T, Cin, Cout>;
+  if (ldg != Cout || !grad_in || !grad_weight) {
+    if (grad_in) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight, *grad_in);
+    conv_transpose2d_backward_weight<Cin, Cout>(in, grad_out, grad_weight, grad_bias);
+    return;
+  }
+  const int H = in.height(), W = in.width();
+  dc::require_shape(*grad_in, in.batch(), H, W, "conv_transpose2d_backward", "input gradient");
+  dc::require_shape(grad_out, in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward", "output gradient");
+  if (in.empty()) return;
+  if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
+  const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
+  dc::transposed_input_gradient<Cin, Cout>(g, weight, *grad_in);
+  dc::transposed_weight_gradient<Cin, Cout>(in, g, Cout, grad_weight);
 }
 
 /// A 4x4 stride-2 transposed convolution layer (weights [4][4][Cin][Cout] named
@@ -102,9 +146,8 @@ class conv_transpose2d {
     if (y.requires_grad) {
       t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, grad_out = y.grad, weight_grad,
                 bias_grad]() mutable {
-        if (input_grad) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight.value.data(), grad_in);
-        conv_transpose2d_backward_weight<Cin, Cout>(input, grad_out, weight_grad ? weight.grad.data() : nullptr,
-                                                    bias_grad ? bias.grad.data() : nullptr);
+        conv_transpose2d_backward<Cin, Cout>(input, grad_out, weight.value.data(), input_grad ? &grad_in : nullptr,
+                                             weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr);
       });
     }
     return y;
