@@ -325,16 +325,11 @@ ANISOCAP_ALWAYS_INLINE xsimd::batch<float, A> dot_bf16_pairs(const xsimd::batch<
 /// dst[2j] = bf16(a[j]) and dst[2j + 1] = bf16(b[j]) for j < n: two rows side by side as the pairs
 /// dot_bf16_pairs reads (rounded to nearest even; denormal inputs read as zero).
 inline void interleave_to_bf16(const float* a, const float* b, int n, std::uint16_t* dst) {
-  int j = 0;
   const __m512i lo = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
   const __m512i hi = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
-  for (; j + 16 <= n; j += 16) {
-    const __m512 x = _mm512_loadu_ps(a + j), y = _mm512_loadu_ps(b + j);
-    const __m512bh v = _mm512_cvtne2ps_pbh(_mm512_permutex2var_ps(x, hi, y), _mm512_permutex2var_ps(x, lo, y));
-    _mm512_storeu_si512(dst + 2 * j, (__m512i)v);
-  }
-  if (j < n) {  // the last n - j < 16 channels, masked (12-channel layers have nothing else)
-    const __mmask16 m = __mmask16((1u << (n - j)) - 1);
+  for (int j = 0; j < n; j += 16) {
+    // 16 channels a step, the last n - j < 16 masked (the 12-channel layers have nothing else).
+    const __mmask16 m = n - j >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (n - j)) - 1);
     const __m512 x = _mm512_maskz_loadu_ps(m, a + j), y = _mm512_maskz_loadu_ps(m, b + j);
     const __m512bh v = _mm512_cvtne2ps_pbh(_mm512_permutex2var_ps(x, hi, y), _mm512_permutex2var_ps(x, lo, y));
     _mm512_mask_storeu_epi32(dst + 2 * j, m, (__m512i)v);

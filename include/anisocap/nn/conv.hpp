@@ -330,8 +330,7 @@ void conv2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cout, T>& gra
   if (grad_out.empty()) return;
   if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
   if (!grad_weight) return;
-  // The output gradient in whole registers, unless the pass exchanges the operands' roles and only broadcasts it.
-  constexpr int ldg = dc::exchanges_weight_roles<T>(Cin, Cout) ? Cout : dc::padded_channels<T>(Cout);
+  constexpr int ldg = dc::weight_gradient_channels<T, Cin, Cout>;
   const auto a = dc::padded(in, G::pad_before, G::pad_before, (Ho - 1) * Stride + K, (Wo - 1) * Stride + K, Cin, 0);
   const auto g = dc::padded(grad_out, 0, 0, Ho, Wo, ldg, 2);
   dc::weight_pass<T> ps;

@@ -27,11 +27,6 @@ void conv_transpose2d_forward(const tensor<Cin, T>& in, const T* weight, const s
 
 namespace detail::conv {
 
-/// Channels a pixel of the output gradient's padded copy holds for the weight gradient: whole
-/// registers, or the layer's own where the pass exchanges the operands' roles and only broadcasts it.
-template <class T, int Cin, int Cout>
-inline constexpr int transposed_gradient_channels = exchanges_weight_roles<T>(Cin, Cout) ? Cout : padded_channels<T>(Cout);
-
 /// The input gradient, ACCUMULATED into grad_in, from the output gradient padded by one pixel on
 /// each side (`a`, Cout channels a pixel): in[i][j] fed out[2i-1+kh][2j-1+kw], so its gradient is
 /// a 4x4 stride-2 pad-1 convolution of the output gradient with the transposed kernel (in <-> out).
@@ -90,7 +85,7 @@ void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cou
   if (in.empty()) return;
   if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
   if (!grad_weight) return;
-  constexpr int ldg = dc::transposed_gradient_channels<T, Cin, Cout>;
+  constexpr int ldg = dc::weight_gradient_channels<T, Cin, Cout>;
   dc::transposed_weight_gradient<Cin, Cout>(in, dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2), ldg, grad_weight);
 }
 
@@ -103,7 +98,7 @@ void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& 
                                tensor<Cin, std::type_identity_t<T>>* grad_in,
                                std::type_identity_t<T>* grad_weight, std::type_identity_t<T>* grad_bias) {
   namespace dc = detail::conv;
-  constexpr int ldg = dc::transposed_gradient_channels<T, Cin, Cout>;
+  constexpr int ldg = dc::weight_gradient_channels<T, Cin, Cout>;
   if (ldg != Cout || !grad_in || !grad_weight) {
     if (grad_in) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight, *grad_in);
     conv_transpose2d_backward_weight<Cin, Cout>(in, grad_out, grad_weight, grad_bias);

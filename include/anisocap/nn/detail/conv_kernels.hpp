@@ -68,13 +68,6 @@ inline T* scratch(int slot, std::size_t n) {
 
 using simd::batch;
 
-/// Loads n < lanes values (the rest zero).
-template <class T>
-inline batch<T> load_partial(const T* p, int n) {
-  alignas(simd::alignment) T b[lanes<T>] = {};
-  for (int i = 0; i < n; ++i) b[i] = p[i];
-  return batch<T>::load_aligned(b);
-}
 /// Stores the first n < lanes values.
 template <class T>
 inline void store_partial(T* p, const batch<T>& v, int n) {
@@ -114,7 +107,7 @@ ANISOCAP_ALWAYS_INLINE void tile_start(batch<T> (&acc)[NX][NV], const T* out, st
     for (int v = 0; v < NV; ++v) {
       if (init == 2) {
         const T* src = out + p * o_col + v * W;
-        acc[p][v] = (v == NV - 1 && last_lanes != W) ? load_partial(src, last_lanes) : batch<T>::load_unaligned(src);
+        acc[p][v] = (v == NV - 1 && last_lanes != W) ? simd::load_first<batch<T>>(src, last_lanes) : batch<T>::load_unaligned(src);
       } else if (init == 1) {
         acc[p][v] = batch<T>::load_unaligned(bias + v * W);
       } else {
@@ -796,6 +789,11 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
 /// Whether run_weight_of exchanges the operands' roles for a pass of Ca x Cb channels (below).
 template <class T>
 constexpr bool exchanges_weight_roles(int Ca, int Cb) { return Cb < lanes<T> && Ca % lanes<T> == 0; }
+
+/// Channels a pixel of the output-gradient operand (Cb channels) holds in a weight pass: whole
+/// registers, or Cb itself where the pass exchanges the operands' roles and only broadcasts it.
+template <class T, int Ca, int Cb>
+inline constexpr int weight_gradient_channels = exchanges_weight_roles<T>(Ca, Cb) ? Cb : padded_channels<T>(Cb);
 
 /// run_weight for a pass of Ca x Cb channels, with the operands' roles exchanged where
 /// exchanges_weight_roles: Cb less than a register and Ca whole registers (the 12-channel output
