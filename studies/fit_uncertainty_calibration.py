@@ -13,7 +13,13 @@ With --cross-validate it also fits once per family on the other families' record
 the coverage on the held-out family (pooled over families): how the table does on a material
 family it was not fitted on.
 
+With --parameters P,... only those parameters are fitted on FIT.csv; the others are fitted on the
+records of --base BASE.csv. The table for colour-subsampled photographs is made so: the diffuse
+albedo and the normal, which the colour blur moves, from JPEG captures, the rest from the larger
+set of linear ones.
+
     fit_uncertainty_calibration.py FIT.csv [--test TEST.csv ...] [--cross-validate] [--plot reliability.png]
+        [--parameters a_d.r,... --base BASE.csv]
 """
 import argparse
 import csv
@@ -82,15 +88,25 @@ def main():
     ap.add_argument("--test", nargs="*", default=[])
     ap.add_argument("--plot")
     ap.add_argument("--cross-validate", action="store_true")
+    ap.add_argument("--parameters", help="fit only these on FIT.csv (comma-separated), the others on --base")
+    ap.add_argument("--base", help="the records the parameters not in --parameters are fitted on")
     a = ap.parse_args()
+    if bool(a.parameters) != bool(a.base):
+        ap.error("--parameters and --base go together")
+    fitted = a.parameters.split(",") if a.parameters else PARAMETERS
+    unknown = [k for k in fitted if k not in PARAMETERS]
+    if unknown:
+        ap.error(f"unknown parameter {unknown[0]} (expected some of {', '.join(PARAMETERS)})")
     data, groups = read(a.fit)
+    base, base_groups = read(a.base) if a.base else (data, groups)
     table = {}
     for k in PARAMETERS:
-        if k not in data:
+        source, source_groups = (data, groups) if k in fitted else (base, base_groups)
+        if k not in source:
             table[k] = (1.0, 0.0, 0.0)
             continue
-        e, s, v, g, _ = data[k]
-        table[k] = fit(e, s, v, g, len(groups))
+        e, s, v, g, _ = source[k]
+        table[k] = fit(e, s, v, g, len(source_groups))
     print("scale    {" + ", ".join(f"{table[k][0]:.3g}" for k in PARAMETERS) + "}")
     print("floor    {" + ", ".join(f"{table[k][1]:.3g}" for k in PARAMETERS) + "}")
     print("relative {" + ", ".join(f"{table[k][2]:.3g}" for k in PARAMETERS) + "}")
@@ -118,7 +134,7 @@ def main():
         print(f"| {k} | " + " | ".join(cells) + " |")
     if a.cross_validate:
         print("\n| parameter | held-out family: within 1 sd | within 2 sd | worst family 1 sd | worst family 2 sd |\n|---|---|---|---|---|")
-        for k in PARAMETERS:
+        for k in fitted:
             if k not in data:
                 continue
             e, s, v, g, fam = data[k]

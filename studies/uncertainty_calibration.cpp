@@ -10,7 +10,8 @@
 // texel (family, light, images, parameter, error, standard deviation, true value) as CSV, for a
 // reliability plot and for fitting the calibration of pipeline/uncertainty.hpp on one seed set and
 // testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit sRGB JPEG of
-// quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone does.
+// quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone does (with the
+// encoding a capture from such files has, so that its calibration applies).
 // --raw reports the uncalibrated standard deviations (uncertainty_options::calibrated off).
 //
 //   anisocap_study_uncertainty_calibration [--size 96] [--images 8,12] [--shot 0.01] [--read 0.002]
@@ -56,7 +57,9 @@ double rotation_difference(double a, double b) {
 
 /// Each photograph as a phone stores it: exposed so that its brightest 0.5% of values clip, sRGB
 /// encoded to 8 bits, JPEG of `quality`, decoded and taken back to linear at the same exposure.
-void jpeg_round_trip(std::vector<image>& photos, int quality) {
+/// Returns how the JPEGs stored the photographs (stb subsamples the colour at quality 90 and below).
+photo_encoding jpeg_round_trip(std::vector<image>& photos, int quality) {
+  bool subsampled = false;
   for (image& photo : photos) {
     std::vector<float> values(photo.plane(0), photo.plane(0) + photo.pixel_count() * std::size_t(photo.channels()));
     std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(values.size() * 995 / 1000), values.end());
@@ -73,6 +76,7 @@ void jpeg_round_trip(std::vector<image>& photos, int quality) {
       out->insert(out->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
     };
     if (!stbi_write_jpg_to_func(append, &bytes, w, h, 3, pixels.data(), quality)) throw std::runtime_error("JPEG encoding failed");
+    subsampled = subsampled || jpeg_colour_subsampled(bytes);
     int rw = 0, rh = 0, rc = 0;
     unsigned char* decoded = stbi_load_from_memory(bytes.data(), int(bytes.size()), &rw, &rh, &rc, 3);
     if (!decoded || rw != w || rh != h) throw std::runtime_error("JPEG decoding failed");
@@ -81,6 +85,7 @@ void jpeg_round_trip(std::vector<image>& photos, int quality) {
         for (int c = 0; c < 3; ++c) photo.at(c, x, y) = float(srgb_to_linear(decoded[(std::size_t(y) * w + x) * 3 + c] / 255.0)) * white;
     stbi_image_free(decoded);
   }
+  return subsampled ? photo_encoding::jpeg_subsampled : photo_encoding::jpeg;
 }
 
 }  // namespace
@@ -140,7 +145,10 @@ int main(int argc, char** argv) {
           else if (light != "lamp") throw std::invalid_argument("--lights takes lamp and flash");
           std::vector<image> photos = render(truth, cap);
           add_sensor_noise(photos, noise, seed);
-          if (jpeg > 0) jpeg_round_trip(photos, jpeg);
+          if (jpeg > 0) {
+            const photo_encoding encoding = jpeg_round_trip(photos, jpeg);
+            for (capture_image& im : cap.images) im.encoding = encoding;  // as capture reads such files
+          }
           const capture_result r = capture_material(cap, photos, nets, options);
           const material_maps& sd = r.uncertainty->sd;
           std::array<double, parameter_count> in1{}, in2{}, n{};

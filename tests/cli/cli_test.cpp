@@ -385,9 +385,11 @@ TEST_CASE("capture from JPEG photographs with clipped highlights: clipping repor
   temp_dir t;
   REQUIRE(run("synthesize -o syn --width 32 --height 24 --images 6 --seed 3", t.path).status == 0);
   // The renders as camera JPEGs, four times over-exposed (so that highlights clip at 255), with
-  // "exposure": 0.25 in the description to bring them back to the renders' units.
+  // "exposure": 0.25 in the description to bring them back to the renders' units. The first three
+  // at quality 90, where stb stores the colour at half resolution, the others at 95, in full.
   anisocap::capture cap = anisocap::read_capture(t.path / "syn/capture.json");
   for (auto& im : cap.images) {
+    const int quality = &im - cap.images.data() < 3 ? 90 : 95;
     const anisocap::image img = anisocap::read_exr(t.path / "syn" / im.file);
     std::vector<unsigned char> codes(img.pixel_count() * 3);
     for (std::size_t i = 0; i < img.pixel_count(); ++i)
@@ -395,7 +397,7 @@ TEST_CASE("capture from JPEG photographs with clipped highlights: clipping repor
         codes[i * 3 + std::size_t(c)] = static_cast<unsigned char>(
             std::lround(255.0 * anisocap::linear_to_srgb(std::min(1.0, 4.0 * double(img.plane(c)[i])))));
     im.file = fs::path(im.file).replace_extension(".jpg").string();
-    REQUIRE(stbi_write_jpg((t.path / "syn" / im.file).c_str(), img.width(), img.height(), 3, codes.data(), 95));
+    REQUIRE(stbi_write_jpg((t.path / "syn" / im.file).c_str(), img.width(), img.height(), 3, codes.data(), quality));
     im.exposure = 0.25f;
   }
   anisocap::write_capture(cap, t.path / "syn/photos.json");
@@ -409,6 +411,12 @@ TEST_CASE("capture from JPEG photographs with clipped highlights: clipping repor
   s << rep.rdbuf();
   CHECK(s.str().find("\"clipped_fraction\"") != std::string::npos);
   CHECK(s.str().find("\"input_05.jpg\"") != std::string::npos);
+  // The subsampled colour is found in the files, said once, and the uncertainty calibrated for it.
+  CHECK(r.output.find("capture: 3 of 6 photographs store their colour at a lower resolution than their brightness") != std::string::npos);
+  const auto report = nlohmann::json::parse(s.str());
+  CHECK(report["uncertainty"]["calibration"] == "jpeg_subsampled");
+  CHECK(report["photos"][0]["encoding"] == "jpeg_subsampled");
+  CHECK(report["photos"][5]["encoding"] == "jpeg");
   // --fit-clipped fits them, and says so.
   r = run("capture syn/photos.json -o fitted --stages refine --steps 5 --fit-clipped", t.path);
   CHECK(r.status == 0);

@@ -53,7 +53,8 @@ const char* valid_entry = R"({"file": "a.exr", "camera": [0, 0, 1], "light": [0,
 TEST_CASE("capture.json: write then read gives the same capture, in a readable file") {
   test_folder dir;
   capture c = sample_capture();
-  c.images.push_back({"IMG_0003.jpg", {0.0f, 0.3f, 2.0f}, {0.0f, -0.3f, 2.0f}, {1.0f, 1.0f, 1.0f}, "masks/mask_03.png", 0.5f, 0.004f});
+  c.images.push_back({"IMG_0003.jpg", {0.0f, 0.3f, 2.0f}, {0.0f, -0.3f, 2.0f}, {1.0f, 1.0f, 1.0f}, "masks/mask_03.png", 0.5f, 0.004f,
+                      anisocap::photo_encoding::jpeg_subsampled});
   anisocap::write_capture(c, dir / "capture.json");
   CHECK(dir.entries() == std::vector<std::string>{"capture.json"});  // no temporaries left
   const capture back = anisocap::read_capture(dir / "capture.json");
@@ -66,6 +67,7 @@ TEST_CASE("capture.json: write then read gives the same capture, in a readable f
     CHECK(back.images[i].mask == c.images[i].mask);
     CHECK(back.images[i].exposure == c.images[i].exposure);
     CHECK(back.images[i].floor == c.images[i].floor);
+    CHECK(back.images[i].encoding == c.images[i].encoding);
   }
   const auto bytes = anisocap::read_file_bytes(dir / "capture.json");
   const std::string text(bytes.begin(), bytes.end());
@@ -77,6 +79,8 @@ TEST_CASE("capture.json: write then read gives the same capture, in a readable f
   CHECK(!contains(text, "\"exposure\": 1"));  // the default is not written
   CHECK(contains(text, "\"floor\": 0.004"));
   CHECK(text.find("\"floor\"") == text.rfind("\"floor\""));  // only the image that has one
+  CHECK(contains(text, "\"encoding\": \"jpeg_subsampled\""));
+  CHECK(text.find("\"encoding\"") == text.rfind("\"encoding\""));  // lossless, the default, is not written
 }
 
 TEST_CASE("capture.json: accepted forms") {
@@ -122,6 +126,8 @@ TEST_CASE("capture.json: every malformed input gives one error naming the file a
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"exposure\": \"2\"")), {"\"exposure\" must hold numbers", "string"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"floor\": -0.01")), {"images[0] (\"b.exr\")", "floor must be a finite number >= 0"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"floor\": [0]")), {"\"floor\" must hold numbers", "array"}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"encoding\": \"png\"")), {"images[0] (\"b.exr\")", "\"encoding\" must be \"lossless\", \"jpeg\" or \"jpeg_subsampled\", got \"png\""}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"encoding\": 2")), {"images[0] (\"b.exr\")", "\"encoding\" must be \"lossless\", \"jpeg\" or \"jpeg_subsampled\", got 2"}},
       {images(with("\"camera\": \"up\", \"light\": [0,0,1], \"intensity\": 1")), {"\"camera\" must be an array", "string"}},
       {images(with("\"camera\": [0,0], \"light\": [0,0,1], \"intensity\": 1")), {"\"camera\" must have 3 elements", "got 2"}},
       {images(with("\"camera\": [0,0,1], \"light\": [0,0,1,1], \"intensity\": 1")), {"\"light\" must have 3 elements", "got 4"}},

@@ -131,6 +131,83 @@ TEST_CASE("JPEG: linearised sRGB, saturated blocks clipped, the rest not") {
   CHECK(contains(error_of([&] { anisocap::read_image(dir / "cut.jpg"); }), "cut.jpg: corrupt JPEG"));
 }
 
+namespace {
+
+/// The bytes of a JPEG up to its frame header: SOI, an APP0 segment, then a frame header of
+/// `marker` (SOF0 0xC0, SOF2 0xC2, ...) whose components have the sampling factors `factors`
+/// (horizontal << 4 | vertical), after `before` (whole segments placed ahead of it).
+std::vector<unsigned char> jpeg_header(unsigned char marker, const std::vector<unsigned char>& factors,
+                                       const std::vector<unsigned char>& before = {}) {
+  std::vector<unsigned char> b = before;  // the segments ahead of the frame header, then prefixed below
+  const std::vector<unsigned char> start = {0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x06, 'J', 'F', 'I', 'F'};
+  b.insert(b.begin(), start.begin(), start.end());
+  const auto count = static_cast<unsigned char>(factors.size());
+  for (const unsigned char v : {0xFF, int(marker), 0x00, 8 + 3 * int(count), 8, 0x00, 0x10, 0x00, 0x10, int(count)})
+    b.push_back(static_cast<unsigned char>(v));
+  for (unsigned char c = 0; c < count; ++c) {
+    b.push_back(static_cast<unsigned char>(c + 1));
+    b.push_back(factors[c]);
+    b.push_back(0);
+  }
+  return b;
+}
+
+}  // namespace
+
+TEST_CASE("JPEG colour subsampling: read from the frame header; each photograph's encoding set on its capture entry") {
+  using anisocap::jpeg_colour_subsampled;
+  CHECK(jpeg_colour_subsampled(jpeg_header(0xC0, {0x22, 0x11, 0x11})));   // 4:2:0
+  CHECK(jpeg_colour_subsampled(jpeg_header(0xC0, {0x21, 0x11, 0x11})));   // 4:2:2
+  CHECK(jpeg_colour_subsampled(jpeg_header(0xC2, {0x22, 0x11, 0x11})));   // progressive
+  CHECK(jpeg_colour_subsampled(jpeg_header(0xC1, {0x12, 0x12, 0x11})));   // one chroma plane at half height
+  CHECK(!jpeg_colour_subsampled(jpeg_header(0xC0, {0x11, 0x11, 0x11})));  // 4:4:4
+  CHECK(!jpeg_colour_subsampled(jpeg_header(0xC0, {0x22, 0x22, 0x22})));  // every plane alike
+  CHECK(!jpeg_colour_subsampled(jpeg_header(0xC0, {0x22})));              // grey
+  // A Huffman table (C4, not a frame header) whose bytes would read as factors is skipped, and so
+  // are fill bytes before a marker.
+  const std::vector<unsigned char> table = {0xFF, 0xC4, 0x00, 0x0B, 8, 0, 16, 0, 16, 3, 1, 0x22, 0};
+  CHECK(!jpeg_colour_subsampled(jpeg_header(0xC0, {0x11, 0x11, 0x11}, table)));
+  CHECK(jpeg_colour_subsampled(jpeg_header(0xC0, {0x22, 0x11, 0x11}, {0xFF, 0xFF})));
+  // Not a JPEG, cut inside the frame header, or a scan before any frame header: false.
+  std::vector<unsigned char> cut = jpeg_header(0xC0, {0x22, 0x11, 0x11});
+  cut.resize(cut.size() - 4);
+  CHECK(!jpeg_colour_subsampled(cut));
+  CHECK(!jpeg_colour_subsampled(std::vector<unsigned char>{0x89, 'P', 'N', 'G', 0, 0, 0, 0}));
+  CHECK(!jpeg_colour_subsampled(std::vector<unsigned char>{0xFF, 0xD8, 0xFF, 0xDA, 0x00, 0x02, 0xFF, 0xC0}));
+  CHECK(!jpeg_colour_subsampled(std::vector<unsigned char>{}));
+
+  // stb_image_write stores the colour at half resolution at quality 90 and below, in full above.
+  test_folder dir;
+  const int w = 16, h = 16;
+  std::vector<unsigned char> codes(std::size_t(w * h * 3));
+  for (std::size_t i = 0; i < codes.size(); ++i) codes[i] = static_cast<unsigned char>(i * 37 % 200 + 20);
+  REQUIRE(stbi_write_jpg((dir / "q90.jpg").c_str(), w, h, 3, codes.data(), 90));
+  REQUIRE(stbi_write_jpg((dir / "q95.jpg").c_str(), w, h, 3, codes.data(), 95));
+  REQUIRE(stbi_write_png((dir / "full.png").c_str(), w, h, 3, codes.data(), w * 3));
+  using anisocap::photo_encoding;
+  CHECK(anisocap::read_photo(dir / "q90.jpg").encoding == photo_encoding::jpeg_subsampled);
+  CHECK(anisocap::read_photo(dir / "q95.jpg").encoding == photo_encoding::jpeg);
+  CHECK(anisocap::read_photo(dir / "full.png").encoding == photo_encoding::lossless);
+
+  // read_capture_photographs sets each entry's encoding from its file; a lossier one given in
+  // capture.json stays (a rectified photograph stored losslessly from a JPEG).
+  capture c;
+  c.images = {entry("q90.jpg"), entry("q95.jpg"), entry("full.png"), entry("copy.png")};
+  fs::copy_file(dir / "full.png", dir / "copy.png");
+  c.images[1].encoding = photo_encoding::jpeg_subsampled;
+  c.images[3].encoding = photo_encoding::jpeg;
+  anisocap::write_capture(c, dir / "capture.json");
+  const anisocap::capture_photographs input = anisocap::read_capture_photographs(dir / "capture.json");
+  CHECK(input.description.images[0].encoding == photo_encoding::jpeg_subsampled);
+  CHECK(input.description.images[1].encoding == photo_encoding::jpeg_subsampled);
+  CHECK(input.description.images[2].encoding == photo_encoding::lossless);
+  CHECK(input.description.images[3].encoding == photo_encoding::jpeg);
+  capture short_capture = c;
+  short_capture.images.pop_back();
+  CHECK_THROWS_WITH_AS(anisocap::set_photo_encodings(short_capture, input.photos),
+                       "set_photo_encodings: one photograph per image of the capture", std::invalid_argument);
+}
+
 TEST_CASE("Radiance HDR: linear values, clipping only above a given saturation level") {
   test_folder dir;
   // Powers of two and small integers are exact in RGBE.

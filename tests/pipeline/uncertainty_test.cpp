@@ -96,6 +96,43 @@ TEST_CASE("texel_uncertainty: the prior where the photographs say nothing, surer
       for (std::size_t i = 0; i < truth.texel_count(); ++i)
         REQUIRE(w.sd.plane(k)[i] == doctest::Approx(uncertainty_calibration.apply(k, u.sd.plane(k)[i], truth.plane(k)[i])).epsilon(1e-5));
     }
+    CHECK(w.calibration == photo_encoding::lossless);
+    // JPEG photographs: the same Laplace deviations through their encoding's table, wider on
+    // average for the diffuse albedo and the normal, and wider still where the colour was
+    // subsampled; the lossiest photograph decides.
+    const uncertainty_result* before = &w;
+    std::vector<uncertainty_result> kept;
+    kept.reserve(2);
+    for (const photo_encoding e : {photo_encoding::jpeg, photo_encoding::jpeg_subsampled}) {
+      CAPTURE(photo_encoding_name(e));
+      capture jpeg = flash;
+      jpeg.images[3].encoding = e;
+      jpeg.images[5].encoding = photo_encoding::jpeg;
+      CHECK(lossiest_encoding(jpeg) == e);
+      const uncertainty_calibration_table& table = calibration_for(e);
+      CHECK(&table != &calibration_for(photo_encoding::lossless));
+      for (const int k : {specular_r, specular_g, specular_b, lobe_x, lobe_y, fresnel_f0, rotation}) {  // only the colour's entries differ
+        const auto i = std::size_t(k);
+        CHECK(table.scale[i] == uncertainty_calibration.scale[i]);
+        CHECK(table.floor[i] == uncertainty_calibration.floor[i]);
+        CHECK(table.relative[i] == uncertainty_calibration.relative[i]);
+      }
+      const uncertainty_result& j = kept.emplace_back(texel_uncertainty(truth, jpeg, flash_targets, c));
+      CHECK(j.calibration == e);
+      for (int k = 0; k < parameter_count; ++k) {
+        CHECK(j.determined_share[std::size_t(k)] == u.determined_share[std::size_t(k)]);
+        for (std::size_t i = 0; i < truth.texel_count(); ++i)
+          REQUIRE(j.sd.plane(k)[i] == doctest::Approx(table.apply(k, u.sd.plane(k)[i], truth.plane(k)[i])).epsilon(1e-5));
+      }
+      auto mean = [](const material_maps& m, int k) {
+        double sum = 0;
+        for (std::size_t i = 0; i < m.texel_count(); ++i) sum += m.plane(k)[i];
+        return sum / double(m.texel_count());
+      };
+      for (const int k : {diffuse_r, diffuse_g, diffuse_b, normal_x, normal_y}) CHECK(mean(j.sd, k) > mean(before->sd, k));
+      before = &j;
+      CHECK_FALSE(texel_uncertainty(truth, jpeg, flash_targets, o).calibration.has_value());  // not calibrated: no table
+    }
   }
   // A flash sees F / F0 = 1: F0 keeps the prior's spread on every texel, the diffuse albedo is measured.
   for (std::size_t i = 0; i < truth.texel_count(); ++i) {

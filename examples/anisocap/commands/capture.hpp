@@ -2,6 +2,7 @@
 // `anisocap capture`: the map set of a material from its photographs (docs/method.md section 8).
 #include <omp.h>
 
+#include <algorithm>
 #include <chrono>
 #include <memory>
 #include <optional>
@@ -72,6 +73,7 @@ inline capture_command_inputs read_capture_command_inputs(const capture_settings
     for (capture_image& im : in.cap.images) im.floor = *s.floor;
   }
   const std::vector<photo> loaded = load_capture_photos(in.cap, s.capture_file.parent_path(), s.photos);
+  set_photo_encodings(in.cap, loaded);
   in.photos = photo_pixels(loaded);
   in.masks = photo_masks(loaded);
   // Clipped and masked pixels, per image: never fitted silently.
@@ -85,8 +87,16 @@ inline capture_command_inputs read_capture_command_inputs(const capture_settings
       std::fprintf(stderr, "capture: image %zu (%s): %.1f%% of pixels left out of the loss (mask %s%s)\n", i, entry.file.c_str(),
                    100.0 * p.masked_fraction(), entry.mask.c_str(), p.clipped > 0 && s.photos.exclude_clipped ? " and clipping" : "");
     in.photo_report.push_back({{"file", entry.file}, {"mask", entry.mask}, {"exposure", entry.exposure}, {"floor", entry.floor},
-                               {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()}});
+                               {"clipped_fraction", p.clipped_fraction()}, {"masked_fraction", p.masked_fraction()},
+                               {"encoding", photo_encoding_name(entry.encoding)}});
   }
+  const auto subsampled = std::count_if(in.cap.images.begin(), in.cap.images.end(),
+                                        [](const capture_image& im) { return im.encoding == photo_encoding::jpeg_subsampled; });
+  if (subsampled > 0)
+    std::fprintf(stderr, "capture: %td of %zu photographs store their colour at a lower resolution than their brightness (JPEG chroma "
+                 "subsampling): the colour blur is alike in all of them, so the fit cannot see it; the uncertainty maps allow for it "
+                 "(save JPEGs with full-resolution colour where the camera offers it)\n",
+                 subsampled, in.cap.images.size());
   if (in.photos.size() < 4)
     std::fprintf(stderr, "capture: warning: %zu photograph%s cannot separate the maps' parameters (the problem is ill-posed: many "
                  "map sets render the same); the method needs about 8 (docs/method.md section 6), at least 4\n",
@@ -220,6 +230,7 @@ inline nlohmann::json capture_report(const capture_settings& s, const capture_op
     nlohmann::json determined;
     for (int k = 0; k < parameter_count; ++k) determined[parameter_name(k)] = result.uncertainty->determined_share[std::size_t(k)];
     report["uncertainty"] = {{"folder", "uncertainty"}, {"noise", result.uncertainty->noise},
+                             {"calibration", photo_encoding_name(result.uncertainty->calibration.value_or(photo_encoding::lossless))},
                              {"determined_ratio", o.uncertainty->determined_ratio}, {"determined_share", determined}};
   }
   report["novel_views"] = nlohmann::json::array();

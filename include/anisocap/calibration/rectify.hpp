@@ -356,6 +356,7 @@ inline rectified_capture rectify(const photos_description& description, const st
     im.intensity = e.intensity;
     im.mask = rectified_file_name(i, "mask", ".png");
     im.floor = options.floor;
+    im.encoding = all[i].picture.encoding;  // the source's JPEG error stays in the resampled values
     result.configurations.images.push_back(im);
     if (options.progress) {
       char line[256];

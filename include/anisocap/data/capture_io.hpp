@@ -10,11 +10,15 @@
 /// multiplied by it; data/photo_io.hpp reads both) and `"floor": 0.005` (the level, in the file's
 /// own linear values, below which they are not measurements, such as a JPEG's darkest codes: the
 /// image loss counts the photograph and the render as at least floor x exposure; render/renderer.hpp,
-/// loss_targets). Positions are in units of the material's longest
-/// side, origin at its centre, z up, the material in the plane z = 0 (docs/method.md section 4). The reader is strict
-/// so that a typo cannot silently change an experiment: unknown fields, missing fields, wrong types,
-/// non-finite numbers, cameras that cannot see the material, non-positive intensities and repeated
-/// files are errors, each reported once with the file, the image index and the problem.
+/// loss_targets) and `"encoding": "jpeg"` (how the photograph's file, or the one it was rectified
+/// from, stored its values: "lossless", "jpeg" or "jpeg_subsampled", render/capture.hpp
+/// photo_encoding; it chooses the per-texel deviations' calibration, pipeline/uncertainty.hpp).
+/// Positions are in units of the material's longest side, origin at its centre, z up, the
+/// material in the plane z = 0 (docs/method.md section 4). The reader is strict so that a typo
+/// cannot silently change an experiment: unknown fields, missing fields, wrong types, non-finite
+/// numbers, cameras that cannot see the material, non-positive intensities and repeated files are
+/// errors, each reported once with the file, the image index and the problem.
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -110,8 +114,10 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     const std::string where = detail::capture_entry_name(i, im.file);
     auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
     for (const auto& [key, v] : o.items())
-      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure" && key != "floor")
-        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\", \"floor\")");
+      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure" && key != "floor" &&
+          key != "encoding")
+        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\", \"floor\", "
+             "\"encoding\")");
     for (const char* key : {"file", "camera", "light", "intensity"})
       if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
     if (!o.at("file").is_string()) fail(std::string("\"file\" must be a string, got ") + json_kind_name(o.at("file")));
@@ -145,6 +151,14 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     }
     if (o.contains("exposure")) im.exposure = to_float(o.at("exposure"), "exposure");
     if (o.contains("floor")) im.floor = to_float(o.at("floor"), "floor");
+    if (o.contains("encoding")) {
+      const json& v = o.at("encoding");
+      constexpr photo_encoding encodings[] = {photo_encoding::lossless, photo_encoding::jpeg, photo_encoding::jpeg_subsampled};
+      const auto* e = std::find_if(std::begin(encodings), std::end(encodings),
+                                   [&](photo_encoding c) { return v.is_string() && v.get<std::string>() == photo_encoding_name(c); });
+      if (e == std::end(encodings)) fail("\"encoding\" must be \"lossless\", \"jpeg\" or \"jpeg_subsampled\", got " + v.dump());
+      im.encoding = *e;
+    }
     detail::check_capture_image(im, i, path);
     result.images.push_back(std::move(im));
   }
@@ -174,6 +188,7 @@ inline std::string capture_to_json(const capture& c, const std::filesystem::path
     if (!im.mask.empty()) entry["mask"] = im.mask;
     if (im.exposure != 1.0f) entry["exposure"] = detail::float_to_json(im.exposure);
     if (im.floor != 0.0f) entry["floor"] = detail::float_to_json(im.floor);
+    if (im.encoding != photo_encoding::lossless) entry["encoding"] = photo_encoding_name(im.encoding);
     images.push_back(std::move(entry));
   }
   json root = json::object();

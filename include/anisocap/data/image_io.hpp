@@ -24,6 +24,7 @@
 #include <filesystem>
 #include <memory>
 #include <random>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -259,6 +260,50 @@ enum class png_encoding {
   linear,  ///< data (lobe widths, mapped normals): clamp to [0,1], store as is, so a code reads as the value
 };
 
+/// Whether the JPEG in `bytes` stores its colour at a lower resolution than its brightness (chroma
+/// subsampling: 4:2:0, 4:2:2, 4:1:1), read from its frame header: some component is sampled less
+/// often than the most finely sampled one in either direction. False for a grey JPEG, for colour at
+/// full resolution (4:4:4), and for bytes that are not a JPEG or end before the frame header.
+/// Encoders choose it by quality: stb_image_write subsamples at quality 90 and below, phones
+/// usually do at every quality.
+inline bool jpeg_colour_subsampled(std::span<const unsigned char> bytes) {
+  if (bytes.size() < 4 || bytes[0] != 0xFF || bytes[1] != 0xD8) return false;
+  std::size_t at = 2;
+  while (at + 4 <= bytes.size()) {
+    if (bytes[at] != 0xFF) return false;  // not at a marker: damaged
+    const unsigned char marker = bytes[at + 1];
+    if (marker == 0xFF) {  // a fill byte before the marker
+      ++at;
+      continue;
+    }
+    at += 2;
+    if (marker == 0x01 || (marker >= 0xD0 && marker <= 0xD7)) continue;  // markers without a length
+    if (marker == 0xD9 || marker == 0xDA) return false;                   // the end, or the scan, before any frame header
+    const std::size_t length = std::size_t(bytes[at]) << 8 | bytes[at + 1];
+    if (length < 2 || at + length > bytes.size()) return false;
+    // SOF0-SOF15 are frame headers, except DHT (C4), JPG (C8) and DAC (CC).
+    if (marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 && marker != 0xCC) {
+      // length (2), precision (1), height (2), width (2), component count (1), then per component
+      // its id, its sampling factors (horizontal << 4 | vertical) and its table.
+      const std::size_t count = length >= 8 ? bytes[at + 7] : 0;
+      if (count < 3 || length < 8 + 3 * count) return false;
+      int most_h = 0, most_v = 0;
+      for (std::size_t c = 0; c < count; ++c) {
+        const unsigned char factors = bytes[at + 8 + 3 * c + 1];
+        most_h = std::max(most_h, factors >> 4);
+        most_v = std::max(most_v, factors & 15);
+      }
+      for (std::size_t c = 0; c < count; ++c) {
+        const unsigned char factors = bytes[at + 8 + 3 * c + 1];
+        if ((factors >> 4) < most_h || (factors & 15) < most_v) return true;
+      }
+      return false;
+    }
+    at += length;
+  }
+  return false;
+}
+
 namespace detail {
 
 /// Integer-coded, sRGB-encoded file formats.
@@ -267,9 +312,12 @@ enum class srgb_format { png, jpeg };
 /// Reads an sRGB-encoded PNG (8 or 16 bit) or JPEG (8 bit; grey, grey+alpha, RGB or RGBA; alpha
 /// ignored, grey replicated), linearised exactly, into a 3-channel image. When `at_maximum` is not
 /// null it receives one entry per pixel: 1 where any colour channel holds the format's largest code
-/// (255, or 65535 for 16-bit PNG), i.e. where the sensor or the encoder clipped, else 0.
-inline image read_srgb(const std::filesystem::path& path, srgb_format format, std::vector<std::uint8_t>* at_maximum) {
+/// (255, or 65535 for 16-bit PNG), i.e. where the sensor or the encoder clipped, else 0. When
+/// `colour_subsampled` is not null it receives jpeg_colour_subsampled of the file (false for a PNG).
+inline image read_srgb(const std::filesystem::path& path, srgb_format format, std::vector<std::uint8_t>* at_maximum,
+                       bool* colour_subsampled = nullptr) {
   const std::vector<unsigned char> bytes = read_file_bytes(path);
+  if (colour_subsampled) *colour_subsampled = format == srgb_format::jpeg && jpeg_colour_subsampled(bytes);
   const char* name = format == srgb_format::png ? "PNG" : "JPEG";
   static constexpr unsigned char png_signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
   static constexpr unsigned char jpeg_signature[3] = {0xFF, 0xD8, 0xFF};

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,9 @@ struct photo {
   image mask;                ///< 1 channel, same size: the pixel's weight in the loss (1 = full, 0 = left out)
   std::size_t clipped = 0;   ///< pixels found clipped (counted whether or not they are excluded)
   std::size_t masked = 0;    ///< pixels with mask 0 (clipped, given mask, or both)
+  /// How the file stored the values: lossless, or a JPEG with its colour at full or lower
+  /// resolution (jpeg_colour_subsampled; capture_image::encoding says what it changes).
+  photo_encoding encoding = photo_encoding::lossless;
 
   /// Share of clipped pixels in [0, 1].
   double clipped_fraction() const { return pixels.empty() ? 0.0 : double(clipped) / double(pixels.pixel_count()); }
@@ -72,7 +76,11 @@ inline photo read_photo(const std::filesystem::path& path, const photo_options& 
   std::vector<std::uint8_t> at_maximum;
   const std::string ext = detail::lower_extension(path);
   if (ext == ".png") p.pixels = detail::read_srgb(path, detail::srgb_format::png, &at_maximum);
-  else if (ext == ".jpg" || ext == ".jpeg") p.pixels = detail::read_srgb(path, detail::srgb_format::jpeg, &at_maximum);
+  else if (ext == ".jpg" || ext == ".jpeg") {
+    bool subsampled = false;
+    p.pixels = detail::read_srgb(path, detail::srgb_format::jpeg, &at_maximum, &subsampled);
+    p.encoding = subsampled ? photo_encoding::jpeg_subsampled : photo_encoding::jpeg;
+  }
   else p.pixels = read_image(path);
   validate_pixels(p.pixels, path);
   const std::size_t n = p.pixels.pixel_count();
@@ -168,6 +176,14 @@ inline std::vector<image> load_capture_images(const capture& c, const std::files
   return images;
 }
 
+/// Sets each image's encoding in `c` from its photograph's file (one photograph per image, as
+/// load_capture_photos returns them), keeping the description's where it names a lossier one (a
+/// rectified photograph stored losslessly from a JPEG).
+inline void set_photo_encodings(capture& c, const std::vector<photo>& photos) {
+  if (photos.size() != c.images.size()) throw std::invalid_argument("set_photo_encodings: one photograph per image of the capture");
+  for (std::size_t i = 0; i < photos.size(); ++i) c.images[i].encoding = std::max(c.images[i].encoding, photos[i].encoding);
+}
+
 /// The pixels of each photograph (for the estimator and first guesses).
 inline std::vector<image> photo_pixels(const std::vector<photo>& photos) {
   std::vector<image> out;
@@ -195,11 +211,13 @@ struct capture_photographs {
 };
 
 /// Reads `capture_file` (read_capture) and loads its photographs and masks relative to its folder
-/// (load_capture_photos with `options`). Throws io_error naming the file and the problem.
+/// (load_capture_photos with `options`), and sets each image's encoding from its file
+/// (set_photo_encodings). Throws io_error naming the file and the problem.
 inline capture_photographs read_capture_photographs(const std::filesystem::path& capture_file, const photo_options& options = {}) {
   capture_photographs c;
   c.description = read_capture(capture_file);
   c.photos = load_capture_photos(c.description, capture_file.parent_path(), options);
+  set_photo_encodings(c.description, c.photos);
   return c;
 }
 

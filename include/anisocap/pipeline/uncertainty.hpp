@@ -20,10 +20,12 @@
 /// the maps, at least uncertainty_options::min_noise: the capture's own sensor noise and misfit.
 #include <Eigen/Dense>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <filesystem>
 #include <numbers>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -69,8 +71,9 @@ struct uncertainty_options {
   /// A parameter is determined at a texel where its posterior standard deviation (the Laplace
   /// approximation's, before the calibration) is at most this share of its prior's.
   double determined_ratio = 0.5;
-  /// Applies uncertainty_calibration to the Laplace standard deviations (what is written and
-  /// summarised); off: the Laplace approximation's own.
+  /// Applies the calibration for the photographs' encoding (calibration_for their
+  /// lossiest_encoding) to the Laplace standard deviations (what is written and summarised); off:
+  /// the Laplace approximation's own.
   bool calibrated = true;
   /// Throws std::invalid_argument for impossible values.
   void validate() const {
@@ -100,16 +103,69 @@ struct uncertainty_calibration_table {
   }
 };
 
-/// The fitted calibration (see uncertainty_calibration_table), in parameter order a_d (r, g, b),
-/// a'_s (r, g, b), sigma_x, sigma_y, F0, n_x, n_y, alpha. Fitted by
-/// studies/fit_uncertainty_calibration.py on 24 captures: 8 families under a lamp and a flash with 8
-/// linear photographs with sensor noise, and 4 of them with 12 JPEG photographs. Where the table
-/// shrinks a deviation (scale below 1) most texels fit better than the residuals' RMS says;
-/// sigma_y's error grows with its value (relative 0.3).
+/// The fitted calibration for photographs stored losslessly (see uncertainty_calibration_table), in
+/// parameter order a_d (r, g, b), a'_s (r, g, b), sigma_x, sigma_y, F0, n_x, n_y, alpha. Fitted by
+/// studies/fit_uncertainty_calibration.py on 16 captures: 8 families under a lamp and a flash with
+/// 8 linear photographs with sensor noise. Where the table shrinks a deviation (scale below 1)
+/// most texels fit better than the residuals' RMS says; sigma_y's error grows with its value
+/// (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
-    {0.894, 0.491, 1.09, 1.21, 1.21, 1.09, 0.809, 0.221, 0.6, 0.809, 0.733, 0.894},
-    {0.001, 0.002, 0, 0, 0, 0, 0, 0, 0, 0.01, 0.002, 0.001},
-    {0, 0, 0, 0, 0, 0.02, 0, 0.3, 0, 0, 0.1, 0}};
+    {0.27, 0.221, 0.543, 1.09, 1.09, 0.988, 0.809, 0.2, 0.6, 0.663, 0.663, 0.809},
+    {0.002, 0.002, 0.001, 0, 0, 0, 0, 0, 0, 0.001, 0, 0},
+    {0, 0, 0, 0, 0, 0, 0, 0.3, 0, 0, 0, 0}};
+
+namespace uncertainty_detail {
+
+/// `base` with the entries of the diffuse albedo (r, g, b) and the normal (x, y), the parameters
+/// a JPEG's colour error moves, replaced by `scale`, `floor` and `relative` in that order.
+constexpr uncertainty_calibration_table with_colour_entries(uncertainty_calibration_table base, const std::array<double, 5>& scale,
+                                                            const std::array<double, 5>& floor, const std::array<double, 5>& relative) {
+  constexpr std::array<int, 5> at = {diffuse_r, diffuse_g, diffuse_b, normal_x, normal_y};
+  for (std::size_t j = 0; j < at.size(); ++j) {
+    const auto k = std::size_t(at[j]);
+    base.scale[k] = scale[j];
+    base.floor[k] = floor[j];
+    base.relative[k] = relative[j];
+  }
+  return base;
+}
+
+}  // namespace uncertainty_detail
+
+/// The calibration for photographs stored as JPEGs with their colour at full resolution
+/// (photo_encoding::jpeg). JPEG quantises the colour more coarsely than the brightness, an error
+/// alike in every photograph that the residuals cannot show, so the diffuse albedo and the normal
+/// read from the shading need wider deviations than uncertainty_calibration's: those five are
+/// fitted on 8 captures of 4 families with 12 JPEG photographs of quality 95, the rest are
+/// uncertainty_calibration's.
+inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg =
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.894, 0.663, 0.733, 0.894, 0.809},
+                                            {0.002, 0.002, 0.002, 0.005, 0.005}, {0, 0, 0, 0, 0});
+
+/// The calibration for JPEGs with their colour at a lower resolution than their brightness
+/// (photo_encoding::jpeg_subsampled, most phones' JPEGs): the colour is also blurred, alike in
+/// every photograph. The diffuse albedo and the normal are fitted on the same 8 captures stored at
+/// quality 90 (4:2:0), the rest are uncertainty_calibration's.
+inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg_subsampled =
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {1.63, 0.809, 1.63, 1.47, 1.09}, {0, 0.002, 0, 0.002, 0.01},
+                                            {0, 0, 0, 0, 0.02});
+
+/// The lossiest encoding among the photographs `cap` describes (capture_image::encoding).
+inline photo_encoding lossiest_encoding(const capture& cap) {
+  photo_encoding e = photo_encoding::lossless;
+  for (const capture_image& im : cap.images) e = std::max(e, im.encoding);
+  return e;
+}
+
+/// The table for photographs stored with encoding `e`: uncertainty_calibration,
+/// uncertainty_calibration_jpeg or uncertainty_calibration_jpeg_subsampled.
+inline const uncertainty_calibration_table& calibration_for(photo_encoding e) {
+  switch (e) {
+    case photo_encoding::jpeg: return uncertainty_calibration_jpeg;
+    case photo_encoding::jpeg_subsampled: return uncertainty_calibration_jpeg_subsampled;
+    default: return uncertainty_calibration;
+  }
+}
 
 /// Per-texel posterior standard deviations and their summary.
 struct uncertainty_result {
@@ -117,6 +173,9 @@ struct uncertainty_result {
   material_maps sd;
   /// The measurement noise used (uncertainty_options::noise or the residuals' RMS).
   double noise = 0;
+  /// The encoding whose table the deviations went through (calibration_for the capture's
+  /// lossiest_encoding); empty when they are the Laplace approximation's own.
+  std::optional<photo_encoding> calibration;
   /// Per parameter, the share of texels where it is determined (sd <= determined_ratio x prior sd).
   std::array<double, parameter_count> determined_share{};
   /// Whether the photographs determine parameter k on at least half of the texels.
@@ -214,6 +273,8 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
   result.sd = material_maps(maps.width(), maps.height());
   Eigen::Matrix<double, parameter_count, parameter_count> prior = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
   for (int i = 0; i < parameter_count; ++i) prior(i, i) = 1.0 / (uncertainty_prior_sd[std::size_t(i)] * uncertainty_prior_sd[std::size_t(i)]);
+  const uncertainty_calibration_table& table = calibration_for(lossiest_encoding(cap));
+  if (options.calibrated) result.calibration = lossiest_encoding(cap);
   const double inv_noise2 = 1.0 / (result.noise * result.noise);
   std::array<double, parameter_count> determined{};
   const int w = maps.width(), h = maps.height();
@@ -228,7 +289,7 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
             precision.ldlt().solve(Eigen::Matrix<double, parameter_count, parameter_count>::Identity());
         for (int i = 0; i < parameter_count; ++i) {
           const double laplace = std::sqrt(std::max(0.0, covariance(i, i)));
-          result.sd.at(i, x, y) = float(options.calibrated ? uncertainty_calibration.apply(i, laplace, maps.at(i, x, y)) : laplace);
+          result.sd.at(i, x, y) = float(options.calibrated ? table.apply(i, laplace, maps.at(i, x, y)) : laplace);
           // What the photographs determine is the data's information, before the calibration.
           if (laplace <= options.determined_ratio * uncertainty_prior_sd[std::size_t(i)]) mine[std::size_t(i)] += 1;
         }

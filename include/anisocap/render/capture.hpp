@@ -13,6 +13,22 @@ namespace anisocap {
 using vec3f = std::array<float, 3>;
 
 /// One photograph's configuration.
+/// How a photograph's file stored its values, ordered from the least to the most lossy.
+enum class photo_encoding {
+  lossless,         ///< EXR, Radiance HDR or PNG
+  jpeg,             ///< JPEG with its colour at full resolution (4:4:4)
+  jpeg_subsampled,  ///< JPEG with its colour at a lower resolution than its brightness (4:2:0, 4:2:2): most phones' JPEGs
+};
+
+/// The name of `e` in capture.json and report.json: "lossless", "jpeg", "jpeg_subsampled".
+inline const char* photo_encoding_name(photo_encoding e) {
+  switch (e) {
+    case photo_encoding::jpeg: return "jpeg";
+    case photo_encoding::jpeg_subsampled: return "jpeg_subsampled";
+    default: return "lossless";
+  }
+}
+
 struct capture_image {
   std::string file;        ///< image file name, relative to the capture description's folder
   vec3f camera{0, 0, 1};   ///< camera position
@@ -26,6 +42,11 @@ struct capture_image {
   /// darkest codes); the image loss takes photograph and render as at least floor x exposure
   /// (render/renderer.hpp, loss_targets). 0: none.
   float floor = 0.0f;
+  /// How the photograph's file (or the one it was rectified from) stored its values: JPEG's lossy
+  /// colour leaves an error alike in every photograph, which the residuals cannot show, so the
+  /// per-texel deviations use the calibration fitted on such photographs (pipeline/uncertainty.hpp,
+  /// calibration_for). It changes nothing else of the capture.
+  photo_encoding encoding = photo_encoding::lossless;
 };
 
 /// The configurations of all photographs of one material.
