@@ -450,6 +450,27 @@ loaded_networks* capture_networks_py(const capture_options& o, bool has_start, c
   return !folder.empty() || explicit_stages ? &cached_networks(folder, preset, also_models) : nullptr;
 }
 
+/// The encoding `name` names; ValueError otherwise.
+photo_encoding encoding_from_py(const std::string& name) {
+  const std::optional<photo_encoding> e = photo_encoding_from_name(name);
+  if (!e) throw py::value_error("encoding: 'lossless', 'jpeg' or 'jpeg_subsampled', got '" + name + "'");
+  return *e;
+}
+
+/// capture()'s per-texel uncertainty: the standard deviations as a map set, the noise, the share
+/// of texels each parameter is determined on, and the encoding whose calibration applied.
+py::object uncertainty_py(const std::optional<uncertainty_result>& u) {
+  if (!u) return py::none();
+  py::dict out;
+  out["sd"] = from_maps(u->sd);
+  out["noise"] = u->noise;
+  py::dict determined;
+  for (int k = 0; k < parameter_count; ++k) determined[parameter_name(k)] = u->determined_share[std::size_t(k)];
+  out["determined_share"] = determined;
+  out["calibration"] = u->calibration ? py::object(py::str(photo_encoding_name(*u->calibration))) : py::object(py::none());
+  return out;
+}
+
 /// capture()'s answer: the maps and how they were made.
 py::dict capture_result_py(const capture_result& result, const loaded_networks* nets) {
   py::dict out;
@@ -462,6 +483,7 @@ py::dict capture_result_py(const capture_result& result, const loaded_networks* 
   out["networks"] = nets ? nets->nets.describe() : std::string("none");
   out["kernel"] = feature_name(result.features);
   out["exposure_scale"] = result.exposure_scale;
+  out["uncertainty"] = uncertainty_py(result.uncertainty);
   return out;
 }
 
@@ -576,11 +598,13 @@ PYBIND11_MODULE(_anisocap, m) {
   m.attr("LOSS_EPSILON") = loss_epsilon;
 
   py::class_<capture_image>(m, "Configuration", "One photograph's configuration: camera and point-light positions, light intensity")
-      .def(py::init([](vec3f camera, vec3f light, vec3f intensity, std::string file, std::string mask, float exposure, float floor) {
-             return capture_image{std::move(file), camera, light, intensity, std::move(mask), exposure, floor};
+      .def(py::init([](vec3f camera, vec3f light, vec3f intensity, std::string file, std::string mask, float exposure, float floor,
+                       const std::string& encoding) {
+             return capture_image{std::move(file), camera, light, intensity, std::move(mask), exposure, floor, encoding_from_py(encoding)};
            }),
            py::arg("camera") = vec3f{0, 0, 1}, py::arg("light") = vec3f{0, 0, 1}, py::arg("intensity") = vec3f{1, 1, 1},
-           py::arg("file") = "", py::arg("mask") = "", py::arg("exposure") = 1.0f, py::arg("floor") = 0.0f)
+           py::arg("file") = "", py::arg("mask") = "", py::arg("exposure") = 1.0f, py::arg("floor") = 0.0f,
+           py::arg("encoding") = "lossless")
       .def_readwrite("camera", &capture_image::camera, "camera position (x, y, z), units of the material's longest side")
       .def_readwrite("light", &capture_image::light, "point-light position (x, y, z)")
       .def_readwrite("intensity", &capture_image::intensity, "light intensity per colour channel")
@@ -588,6 +612,11 @@ PYBIND11_MODULE(_anisocap, m) {
       .def_readwrite("mask", &capture_image::mask, "mask file name (empty: none)")
       .def_readwrite("exposure", &capture_image::exposure, "factor the photograph's values are multiplied by on loading")
       .def_readwrite("floor", &capture_image::floor, "level below which the photograph's values are not measurements (0: none)")
+      .def_property(
+          "encoding", [](const capture_image& c) { return std::string(photo_encoding_name(c.encoding)); },
+          [](capture_image& c, const std::string& name) { c.encoding = encoding_from_py(name); },
+          "how the photograph's file stored it: 'lossless', 'jpeg' or 'jpeg_subsampled' (read_capture sets it from the file); "
+          "it chooses the uncertainty's calibration")
       .def("__repr__", [](const capture_image& c) {
         char s[256];
         std::snprintf(s, sizeof s, "Configuration(camera=(%g, %g, %g), light=(%g, %g, %g), intensity=(%g, %g, %g), file='%s')", c.camera[0],

@@ -160,6 +160,31 @@ def test_capture_refines_towards_the_truth(material):
                          estimate_stride=65)
 
 
+def test_capture_returns_the_uncertainty_calibrated_for_the_photographs_encoding(tmp_path):
+    material = anisocap.synthesize(width=24, height=16, images=6, seed=3)
+    anisocap.write_capture(material["configurations"], material["photos"], tmp_path)
+    description = json.loads((tmp_path / "capture.json").read_text())
+    description["images"][2]["encoding"] = "jpeg_subsampled"  # as rectify writes for a phone's JPEG
+    (tmp_path / "capture.json").write_text(json.dumps(description))
+    read = anisocap.read_capture(tmp_path / "capture.json")
+    assert [c.encoding for c in read["configurations"]] == ["lossless"] * 2 + ["jpeg_subsampled"] + ["lossless"] * 3
+    result = {}
+    for name, configurations in (("lossless", material["configurations"]), ("jpeg_subsampled", read["configurations"])):
+        result[name] = anisocap.capture(read["photos"], configurations, models=False, steps=50)
+        u = result[name]["uncertainty"]
+        assert u["calibration"] == name
+        assert u["sd"].shape == result[name]["maps"].shape
+        assert np.all(np.isfinite(u["sd"])) and np.all(u["sd"] > 0)
+        assert set(u["determined_share"]) == {"a_d.r", "a_d.g", "a_d.b", "a_s.r", "a_s.g", "a_s.b", "sigma_x", "sigma_y", "F0",
+                                              "n_x", "n_y", "alpha"}
+        assert all(0 <= v <= 1 for v in u["determined_share"].values())
+    # The same fit, the diffuse albedo's deviations wider for the subsampled colour.
+    np.testing.assert_array_equal(result["lossless"]["maps"], result["jpeg_subsampled"]["maps"])
+    assert np.mean(result["jpeg_subsampled"]["uncertainty"]["sd"][..., 0]) > np.mean(result["lossless"]["uncertainty"]["sd"][..., 0])
+    with pytest.raises(ValueError, match="encoding: 'lossless', 'jpeg' or 'jpeg_subsampled', got 'png'"):
+        anisocap.Configuration(encoding="png")
+
+
 def test_capture_reports_progress_and_stops_when_the_callback_raises(material):
     heard = []
 

@@ -18,10 +18,10 @@
 /// cannot silently change an experiment: unknown fields, missing fields, wrong types, non-finite
 /// numbers, cameras that cannot see the material, non-positive intensities and repeated files are
 /// errors, each reported once with the file, the image index and the problem.
-#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -153,10 +153,8 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     if (o.contains("floor")) im.floor = to_float(o.at("floor"), "floor");
     if (o.contains("encoding")) {
       const json& v = o.at("encoding");
-      constexpr photo_encoding encodings[] = {photo_encoding::lossless, photo_encoding::jpeg, photo_encoding::jpeg_subsampled};
-      const auto* e = std::find_if(std::begin(encodings), std::end(encodings),
-                                   [&](photo_encoding c) { return v.is_string() && v.get<std::string>() == photo_encoding_name(c); });
-      if (e == std::end(encodings)) fail("\"encoding\" must be \"lossless\", \"jpeg\" or \"jpeg_subsampled\", got " + v.dump());
+      const std::optional<photo_encoding> e = v.is_string() ? photo_encoding_from_name(v.get<std::string>()) : std::nullopt;
+      if (!e) fail("\"encoding\" must be \"lossless\", \"jpeg\" or \"jpeg_subsampled\", got " + v.dump());
       im.encoding = *e;
     }
     detail::check_capture_image(im, i, path);

@@ -4,7 +4,9 @@
 /// Positions are in units of the material's longest side, origin at the material's centre, z up,
 /// the material in the plane z = 0; image rows run top to bottom along -y (docs/method.md section 4).
 #include <array>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace anisocap {
@@ -27,6 +29,13 @@ inline const char* photo_encoding_name(photo_encoding e) {
     case photo_encoding::jpeg_subsampled: return "jpeg_subsampled";
     default: return "lossless";
   }
+}
+
+/// The encoding `name` names (photo_encoding_name), or none.
+inline std::optional<photo_encoding> photo_encoding_from_name(std::string_view name) {
+  for (const photo_encoding e : {photo_encoding::lossless, photo_encoding::jpeg, photo_encoding::jpeg_subsampled})
+    if (name == photo_encoding_name(e)) return e;
+  return std::nullopt;
 }
 
 struct capture_image {
