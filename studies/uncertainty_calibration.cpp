@@ -11,11 +11,12 @@
 // reliability plot and for fitting the calibration of pipeline/uncertainty.hpp on one seed set and
 // testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit sRGB JPEG of
 // quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone does (with the
-// encoding a capture from such files has, so that its calibration applies).
+// encoding a capture from such files has, so that its calibration applies); --png8 1 stores
+// them as 8-bit sRGB codes without JPEG, as an 8-bit PNG does.
 // --raw reports the uncalibrated standard deviations (uncertainty_options::calibrated off).
 //
 //   anisocap_study_uncertainty_calibration [--size 96] [--images 8,12] [--shot 0.01] [--read 0.002]
-//       [--families plain,twill,...] [--lights lamp,flash] [--seed 500] [--jpeg 0|Q] [--raw 0|1]
+//       [--families plain,twill,...] [--lights lamp,flash] [--seed 500] [--jpeg 0|Q] [--png8 0|1] [--raw 0|1]
 //       [--dump FILE] [--models DIR]
 #include <stb/stb_image.h>
 #include <stb/stb_image_write.h>
@@ -56,9 +57,23 @@ double rotation_difference(double a, double b) {
 }
 
 /// Each photograph as a phone stores it: exposed so that its brightest 0.5% of values clip, sRGB
-/// encoded to 8 bits, JPEG of `quality`, decoded and taken back to linear at the same exposure.
-/// Returns how the JPEGs stored the photographs (stb subsamples the colour at quality 90 and below).
-photo_encoding jpeg_round_trip(std::vector<image>& photos, int quality) {
+/// encoded to 8 bits, JPEG of `quality` (0: the 8-bit codes as a PNG keeps them), decoded and taken
+/// back to linear at the same exposure. Returns how the files stored the photographs (stb
+/// subsamples the colour at quality 90 and below).
+photo_encoding eight_bit_round_trip(std::vector<image>& photos, int quality) {
+  if (quality == 0) {
+    for (image& photo : photos) {
+      std::vector<float> values(photo.plane(0), photo.plane(0) + photo.pixel_count() * std::size_t(photo.channels()));
+      std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(values.size() * 995 / 1000), values.end());
+      const float white = std::max(values[values.size() * 995 / 1000], 1e-6f);
+      for (int c = 0; c < photo.channels(); ++c)
+        for (std::size_t i = 0; i < photo.pixel_count(); ++i) {
+          const double code = std::lround(255.0 * linear_to_srgb(std::clamp(photo.plane(c)[i] / white, 0.0f, 1.0f)));
+          photo.plane(c)[i] = float(srgb_to_linear(code / 255.0)) * white;
+        }
+    }
+    return photo_encoding::eight_bit;
+  }
   bool subsampled = false;
   for (image& photo : photos) {
     std::vector<float> values(photo.plane(0), photo.plane(0) + photo.pixel_count() * std::size_t(photo.channels()));
@@ -97,7 +112,7 @@ int main(int argc, char** argv) {
   sensor_noise noise{0.01, 0.002};
   std::uint64_t seed_base = 500;
   int jpeg = 0;
-  bool raw = false;
+  bool raw = false, png8 = false;
   std::string dump;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string a = argv[i], v = argv[i + 1];
@@ -111,6 +126,7 @@ int main(int argc, char** argv) {
     else if (a == "--seed") seed_base = std::strtoull(v.c_str(), nullptr, 10);
     else if (a == "--jpeg") jpeg = std::atoi(v.c_str());
     else if (a == "--raw") raw = std::atoi(v.c_str()) != 0;
+    else if (a == "--png8") png8 = std::atoi(v.c_str()) != 0;
     else if (a == "--dump") dump = v;
     else { std::fprintf(stderr, "uncertainty_calibration: unknown option %s\n", a.c_str()); return 2; }
   }
@@ -145,8 +161,8 @@ int main(int argc, char** argv) {
           else if (light != "lamp") throw std::invalid_argument("--lights takes lamp and flash");
           std::vector<image> photos = render(truth, cap);
           add_sensor_noise(photos, noise, seed);
-          if (jpeg > 0) {
-            const photo_encoding encoding = jpeg_round_trip(photos, jpeg);
+          if (jpeg > 0 || png8) {
+            const photo_encoding encoding = eight_bit_round_trip(photos, png8 ? 0 : jpeg);
             for (capture_image& im : cap.images) im.encoding = encoding;  // as capture reads such files
           }
           const capture_result r = capture_material(cap, photos, nets, options);

@@ -453,7 +453,7 @@ loaded_networks* capture_networks_py(const capture_options& o, bool has_start, c
 /// The encoding `name` names; ValueError otherwise.
 photo_encoding encoding_from_py(const std::string& name) {
   const std::optional<photo_encoding> e = photo_encoding_from_name(name);
-  if (!e) throw py::value_error("encoding: 'lossless', 'jpeg' or 'jpeg_subsampled', got '" + name + "'");
+  if (!e) throw py::value_error("encoding: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled', got '" + name + "'");
   return *e;
 }
 
@@ -615,7 +615,8 @@ PYBIND11_MODULE(_anisocap, m) {
       .def_property(
           "encoding", [](const capture_image& c) { return std::string(photo_encoding_name(c.encoding)); },
           [](capture_image& c, const std::string& name) { c.encoding = encoding_from_py(name); },
-          "how the photograph's file stored it: 'lossless', 'jpeg' or 'jpeg_subsampled' (read_capture sets it from the file); "
+          "how the photograph's file stored it: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled' (read_capture sets it from the "
+          "file); "
           "it chooses the uncertainty's calibration")
       .def("__repr__", [](const capture_image& c) {
         char s[256];

@@ -10,6 +10,7 @@
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/memory.hpp"
 #include "anisocap/core/option_names.hpp"
+#include "anisocap/core/photo_encoding.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/simd.hpp"
 #include "anisocap/core/srgb.hpp"

@@ -187,7 +187,10 @@ TEST_CASE("JPEG colour subsampling: read from the frame header; each photograph'
   using anisocap::photo_encoding;
   CHECK(anisocap::read_photo(dir / "q90.jpg").encoding == photo_encoding::jpeg_subsampled);
   CHECK(anisocap::read_photo(dir / "q95.jpg").encoding == photo_encoding::jpeg);
-  CHECK(anisocap::read_photo(dir / "full.png").encoding == photo_encoding::lossless);
+  CHECK(anisocap::read_photo(dir / "full.png").encoding == photo_encoding::eight_bit);
+  const std::vector<std::uint16_t> deep(std::size_t(w * h * 3), 30000);
+  write_bytes(dir / "deep.png", png16(w, h, 3, deep));
+  CHECK(anisocap::read_photo(dir / "deep.png").encoding == photo_encoding::lossless);
 
   // read_capture_photographs sets each entry's encoding from its file; a lossier one given in
   // capture.json stays (a rectified photograph stored losslessly from a JPEG).
@@ -200,7 +203,7 @@ TEST_CASE("JPEG colour subsampling: read from the frame header; each photograph'
   const anisocap::capture_photographs input = anisocap::read_capture_photographs(dir / "capture.json");
   CHECK(input.description.images[0].encoding == photo_encoding::jpeg_subsampled);
   CHECK(input.description.images[1].encoding == photo_encoding::jpeg_subsampled);
-  CHECK(input.description.images[2].encoding == photo_encoding::lossless);
+  CHECK(input.description.images[2].encoding == photo_encoding::eight_bit);
   CHECK(input.description.images[3].encoding == photo_encoding::jpeg);
   capture short_capture = c;
   short_capture.images.pop_back();

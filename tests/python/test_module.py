@@ -181,7 +181,7 @@ def test_capture_returns_the_uncertainty_calibrated_for_the_photographs_encoding
     # The same fit, the diffuse albedo's deviations wider for the subsampled colour.
     np.testing.assert_array_equal(result["lossless"]["maps"], result["jpeg_subsampled"]["maps"])
     assert np.mean(result["jpeg_subsampled"]["uncertainty"]["sd"][..., 0]) > np.mean(result["lossless"]["uncertainty"]["sd"][..., 0])
-    with pytest.raises(ValueError, match="encoding: 'lossless', 'jpeg' or 'jpeg_subsampled', got 'png'"):
+    with pytest.raises(ValueError, match="encoding: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled', got 'png'"):
         anisocap.Configuration(encoding="png")
 
 

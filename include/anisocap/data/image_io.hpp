@@ -33,6 +33,7 @@
 
 #include "anisocap/core/files.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/photo_encoding.hpp"
 #include "anisocap/core/srgb.hpp"
 
 namespace anisocap {
@@ -313,11 +314,11 @@ enum class srgb_format { png, jpeg };
 /// ignored, grey replicated), linearised exactly, into a 3-channel image. When `at_maximum` is not
 /// null it receives one entry per pixel: 1 where any colour channel holds the format's largest code
 /// (255, or 65535 for 16-bit PNG), i.e. where the sensor or the encoder clipped, else 0. When
-/// `colour_subsampled` is not null it receives jpeg_colour_subsampled of the file (false for a PNG).
+/// `encoding` is not null it receives how the file stored the values: eight_bit or lossless (16
+/// bits) for a PNG, jpeg or jpeg_subsampled (jpeg_colour_subsampled) for a JPEG.
 inline image read_srgb(const std::filesystem::path& path, srgb_format format, std::vector<std::uint8_t>* at_maximum,
-                       bool* colour_subsampled = nullptr) {
+                       photo_encoding* encoding = nullptr) {
   const std::vector<unsigned char> bytes = read_file_bytes(path);
-  if (colour_subsampled) *colour_subsampled = format == srgb_format::jpeg && jpeg_colour_subsampled(bytes);
   const char* name = format == srgb_format::png ? "PNG" : "JPEG";
   static constexpr unsigned char png_signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
   static constexpr unsigned char jpeg_signature[3] = {0xFF, 0xD8, 0xFF};
@@ -329,6 +330,10 @@ inline image read_srgb(const std::filesystem::path& path, srgb_format format, st
   const int size = int(bytes.size());
   int width = 0, height = 0, channels = 0;
   const bool sixteen = format == srgb_format::png && stbi_is_16_bit_from_memory(bytes.data(), size) != 0;
+  if (encoding)
+    *encoding = format == srgb_format::png ? (sixteen ? photo_encoding::lossless : photo_encoding::eight_bit)
+                : jpeg_colour_subsampled(bytes) ? photo_encoding::jpeg_subsampled
+                                                : photo_encoding::jpeg;
   std::unique_ptr<void, void (*)(void*)> pixels(nullptr, &stbi_image_free);
   if (sixteen) pixels.reset(stbi_load_16_from_memory(bytes.data(), size, &width, &height, &channels, 0));
   else pixels.reset(stbi_load_from_memory(bytes.data(), size, &width, &height, &channels, 0));

@@ -43,8 +43,8 @@ struct photo {
   image mask;                ///< 1 channel, same size: the pixel's weight in the loss (1 = full, 0 = left out)
   std::size_t clipped = 0;   ///< pixels found clipped (counted whether or not they are excluded)
   std::size_t masked = 0;    ///< pixels with mask 0 (clipped, given mask, or both)
-  /// How the file stored the values: lossless, or a JPEG with its colour at full or lower
-  /// resolution (jpeg_colour_subsampled; capture_image::encoding says what it changes).
+  /// How the file stored the values: lossless (EXR, HDR, 16-bit PNG), as 8-bit codes, or as a JPEG
+  /// with its colour at full or lower resolution (capture_image::encoding says what it changes).
   photo_encoding encoding = photo_encoding::lossless;
 
   /// Share of clipped pixels in [0, 1].
@@ -75,12 +75,8 @@ inline photo read_photo(const std::filesystem::path& path, const photo_options& 
   photo p;
   std::vector<std::uint8_t> at_maximum;
   const std::string ext = detail::lower_extension(path);
-  if (ext == ".png") p.pixels = detail::read_srgb(path, detail::srgb_format::png, &at_maximum);
-  else if (ext == ".jpg" || ext == ".jpeg") {
-    bool subsampled = false;
-    p.pixels = detail::read_srgb(path, detail::srgb_format::jpeg, &at_maximum, &subsampled);
-    p.encoding = subsampled ? photo_encoding::jpeg_subsampled : photo_encoding::jpeg;
-  }
+  if (ext == ".png") p.pixels = detail::read_srgb(path, detail::srgb_format::png, &at_maximum, &p.encoding);
+  else if (ext == ".jpg" || ext == ".jpeg") p.pixels = detail::read_srgb(path, detail::srgb_format::jpeg, &at_maximum, &p.encoding);
   else p.pixels = read_image(path);
   validate_pixels(p.pixels, path);
   const std::size_t n = p.pixels.pixel_count();

@@ -103,10 +103,10 @@ struct uncertainty_calibration_table {
   }
 };
 
-/// The fitted calibration for photographs stored losslessly (see uncertainty_calibration_table), in
-/// parameter order a_d (r, g, b), a'_s (r, g, b), sigma_x, sigma_y, F0, n_x, n_y, alpha. Fitted by
-/// studies/fit_uncertainty_calibration.py on 16 captures: 8 families under a lamp and a flash with
-/// 8 linear photographs with sensor noise. Where the table shrinks a deviation (scale below 1)
+/// The fitted calibration for photographs stored losslessly, as floats or 16-bit codes (see
+/// uncertainty_calibration_table), in parameter order a_d (r, g, b), a'_s (r, g, b), sigma_x,
+/// sigma_y, F0, n_x, n_y, alpha. Fitted by studies/fit_uncertainty_calibration.py on 16 captures:
+/// 8 families under a lamp and a flash with 8 linear photographs with sensor noise. Where the table shrinks a deviation (scale below 1)
 /// most texels fit better than the residuals' RMS says; sigma_y's error grows with its value
 /// (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
@@ -131,6 +131,14 @@ constexpr uncertainty_calibration_table with_colour_entries(uncertainty_calibrat
 }
 
 }  // namespace uncertainty_detail
+
+/// The calibration for photographs stored as 8-bit codes without JPEG (photo_encoding::eight_bit,
+/// 8-bit PNGs): each value is rounded to one of 256 codes, alike in every photograph where the
+/// texel's shading is alike. The diffuse albedo and the normal are fitted on 8 captures of 4
+/// families with 12 photographs stored so, the rest are uncertainty_calibration's.
+inline constexpr uncertainty_calibration_table uncertainty_calibration_eight_bit =
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.491, 0.6, 0.402, 0.733, 0.663}, {0.002, 0.002, 0.002, 0, 0},
+                                            {0, 0, 0, 0, 0});
 
 /// The calibration for photographs stored as JPEGs with their colour at full resolution
 /// (photo_encoding::jpeg). JPEG quantises the colour more coarsely than the brightness, an error
@@ -158,9 +166,11 @@ inline photo_encoding lossiest_encoding(const capture& cap) {
 }
 
 /// The table for photographs stored with encoding `e`: uncertainty_calibration,
-/// uncertainty_calibration_jpeg or uncertainty_calibration_jpeg_subsampled.
+/// uncertainty_calibration_eight_bit, uncertainty_calibration_jpeg or
+/// uncertainty_calibration_jpeg_subsampled.
 inline const uncertainty_calibration_table& calibration_for(photo_encoding e) {
   switch (e) {
+    case photo_encoding::eight_bit: return uncertainty_calibration_eight_bit;
     case photo_encoding::jpeg: return uncertainty_calibration_jpeg;
     case photo_encoding::jpeg_subsampled: return uncertainty_calibration_jpeg_subsampled;
     default: return uncertainty_calibration;

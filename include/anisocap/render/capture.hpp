@@ -4,10 +4,10 @@
 /// Positions are in units of the material's longest side, origin at the material's centre, z up,
 /// the material in the plane z = 0; image rows run top to bottom along -y (docs/method.md section 4).
 #include <array>
-#include <optional>
 #include <string>
-#include <string_view>
 #include <vector>
+
+#include "anisocap/core/photo_encoding.hpp"
 
 namespace anisocap {
 
@@ -15,29 +15,6 @@ namespace anisocap {
 using vec3f = std::array<float, 3>;
 
 /// One photograph's configuration.
-/// How a photograph's file stored its values, ordered from the least to the most lossy.
-enum class photo_encoding {
-  lossless,         ///< EXR, Radiance HDR or PNG
-  jpeg,             ///< JPEG with its colour at full resolution (4:4:4)
-  jpeg_subsampled,  ///< JPEG with its colour at a lower resolution than its brightness (4:2:0, 4:2:2): most phones' JPEGs
-};
-
-/// The name of `e` in capture.json and report.json: "lossless", "jpeg", "jpeg_subsampled".
-inline const char* photo_encoding_name(photo_encoding e) {
-  switch (e) {
-    case photo_encoding::jpeg: return "jpeg";
-    case photo_encoding::jpeg_subsampled: return "jpeg_subsampled";
-    default: return "lossless";
-  }
-}
-
-/// The encoding `name` names (photo_encoding_name), or none.
-inline std::optional<photo_encoding> photo_encoding_from_name(std::string_view name) {
-  for (const photo_encoding e : {photo_encoding::lossless, photo_encoding::jpeg, photo_encoding::jpeg_subsampled})
-    if (name == photo_encoding_name(e)) return e;
-  return std::nullopt;
-}
-
 struct capture_image {
   std::string file;        ///< image file name, relative to the capture description's folder
   vec3f camera{0, 0, 1};   ///< camera position
@@ -51,10 +28,10 @@ struct capture_image {
   /// darkest codes); the image loss takes photograph and render as at least floor x exposure
   /// (render/renderer.hpp, loss_targets). 0: none.
   float floor = 0.0f;
-  /// How the photograph's file (or the one it was rectified from) stored its values: JPEG's lossy
-  /// colour leaves an error alike in every photograph, which the residuals cannot show, so the
-  /// per-texel deviations use the calibration fitted on such photographs (pipeline/uncertainty.hpp,
-  /// calibration_for). It changes nothing else of the capture.
+  /// How the photograph's file (or the one it was rectified from) stored its values: 8-bit codes
+  /// and JPEG's lossy colour leave an error alike in every photograph, which the residuals cannot
+  /// show, so the per-texel deviations use the calibration fitted on such photographs
+  /// (pipeline/uncertainty.hpp, calibration_for). It changes nothing else of the capture.
   photo_encoding encoding = photo_encoding::lossless;
 };
 
