@@ -615,9 +615,8 @@ PYBIND11_MODULE(_anisocap, m) {
       .def_property(
           "encoding", [](const capture_image& c) { return std::string(photo_encoding_name(c.encoding)); },
           [](capture_image& c, const std::string& name) { c.encoding = encoding_from_py(name); },
-          "how the photograph's file stored it: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled' (read_capture sets it from the "
-          "file); "
-          "it chooses the uncertainty's calibration")
+          "how the photograph's file stored it: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled' "
+          "(read_capture sets it from the file); it chooses the uncertainty's calibration")
       .def("__repr__", [](const capture_image& c) {
         char s[256];
         std::snprintf(s, sizeof s, "Configuration(camera=(%g, %g, %g), light=(%g, %g, %g), intensity=(%g, %g, %g), file='%s')", c.camera[0],

@@ -46,10 +46,10 @@ def write_maps(maps, folder, previews=True):
 
 def read_capture(file, saturation=0.0, exclude_clipped=True):
     """Reads a capture description (capture.json) and its photographs as ``anisocap capture``
-    does. Returns a dict: ``configurations`` (list of Configuration), ``photos`` (N x H x W x 3,
-    exposure applied) and ``masks`` (N x H x W: the given masks, clipped pixels 0 unless
-    ``exclude_clipped`` is False; ``saturation``: the linear level counting as clipped, 0: the
-    format's largest code)."""
+    does. Returns a dict: ``configurations`` (list of Configuration, each with the ``encoding``
+    of its file), ``photos`` (N x H x W x 3, exposure applied) and ``masks`` (N x H x W: the
+    given masks, clipped pixels 0 unless ``exclude_clipped`` is False; ``saturation``: the linear
+    level counting as clipped, 0: the format's largest code)."""
     return _anisocap.read_capture(os.fspath(file), saturation, exclude_clipped)
 
 
@@ -142,7 +142,10 @@ def capture(photos, configurations=None, masks=None, *, models=None, preset="com
 
     Returns a dict: ``maps`` (H x W x 12, canonical), ``loss`` (the final image loss),
     ``stages`` (name, ran, steps, loss, seconds of each), ``networks_ran``, ``networks``,
-    ``kernel`` and ``exposure_scale``.
+    ``kernel``, ``exposure_scale`` and ``uncertainty``: ``sd`` (H x W x 12, each parameter's
+    standard deviation per texel), ``noise``, ``determined_share`` (per parameter, the share of
+    texels the photographs determine it on) and ``calibration`` (the photographs' encoding whose
+    table applied, from each Configuration's ``encoding``).
     """
     if isinstance(photos, (str, os.PathLike)):
         if configurations is not None or masks is not None:
