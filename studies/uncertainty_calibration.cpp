@@ -26,6 +26,7 @@
 #include <cstdio>
 #include <fstream>
 #include <cstdlib>
+#include <memory>
 #include <numbers>
 #include <sstream>
 #include <string>
@@ -61,19 +62,6 @@ double rotation_difference(double a, double b) {
 /// back to linear at the same exposure. Returns how the files stored the photographs (stb
 /// subsamples the colour at quality 90 and below).
 photo_encoding eight_bit_round_trip(std::vector<image>& photos, int quality) {
-  if (quality == 0) {
-    for (image& photo : photos) {
-      std::vector<float> values(photo.plane(0), photo.plane(0) + photo.pixel_count() * std::size_t(photo.channels()));
-      std::nth_element(values.begin(), values.begin() + std::ptrdiff_t(values.size() * 995 / 1000), values.end());
-      const float white = std::max(values[values.size() * 995 / 1000], 1e-6f);
-      for (int c = 0; c < photo.channels(); ++c)
-        for (std::size_t i = 0; i < photo.pixel_count(); ++i) {
-          const double code = std::lround(255.0 * linear_to_srgb(std::clamp(photo.plane(c)[i] / white, 0.0f, 1.0f)));
-          photo.plane(c)[i] = float(srgb_to_linear(code / 255.0)) * white;
-        }
-    }
-    return photo_encoding::eight_bit;
-  }
   bool subsampled = false;
   for (image& photo : photos) {
     std::vector<float> values(photo.plane(0), photo.plane(0) + photo.pixel_count() * std::size_t(photo.channels()));
@@ -85,22 +73,25 @@ photo_encoding eight_bit_round_trip(std::vector<image>& photos, int quality) {
       for (int x = 0; x < w; ++x)
         for (int c = 0; c < 3; ++c)
           pixels[(std::size_t(y) * w + x) * 3 + c] = (unsigned char)std::lround(255.0 * linear_to_srgb(std::clamp(photo.at(c, x, y) / white, 0.0f, 1.0f)));
-    std::vector<unsigned char> bytes;
-    auto append = [](void* context, void* data, int size) {
-      auto* out = static_cast<std::vector<unsigned char>*>(context);
-      out->insert(out->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
-    };
-    if (!stbi_write_jpg_to_func(append, &bytes, w, h, 3, pixels.data(), quality)) throw std::runtime_error("JPEG encoding failed");
-    subsampled = subsampled || jpeg_colour_subsampled(bytes);
-    int rw = 0, rh = 0, rc = 0;
-    unsigned char* decoded = stbi_load_from_memory(bytes.data(), int(bytes.size()), &rw, &rh, &rc, 3);
-    if (!decoded || rw != w || rh != h) throw std::runtime_error("JPEG decoding failed");
+    std::unique_ptr<unsigned char, void (*)(void*)> decoded(nullptr, &stbi_image_free);
+    if (quality > 0) {
+      std::vector<unsigned char> bytes;
+      auto append = [](void* context, void* data, int size) {
+        auto* out = static_cast<std::vector<unsigned char>*>(context);
+        out->insert(out->end(), static_cast<unsigned char*>(data), static_cast<unsigned char*>(data) + size);
+      };
+      if (!stbi_write_jpg_to_func(append, &bytes, w, h, 3, pixels.data(), quality)) throw std::runtime_error("JPEG encoding failed");
+      subsampled = subsampled || jpeg_colour_subsampled(bytes);
+      int rw = 0, rh = 0, rc = 0;
+      decoded.reset(stbi_load_from_memory(bytes.data(), int(bytes.size()), &rw, &rh, &rc, 3));
+      if (!decoded || rw != w || rh != h) throw std::runtime_error("JPEG decoding failed");
+    }
+    const unsigned char* codes = decoded ? decoded.get() : pixels.data();  // the PNG keeps the codes as they are
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x)
-        for (int c = 0; c < 3; ++c) photo.at(c, x, y) = float(srgb_to_linear(decoded[(std::size_t(y) * w + x) * 3 + c] / 255.0)) * white;
-    stbi_image_free(decoded);
+        for (int c = 0; c < 3; ++c) photo.at(c, x, y) = float(srgb_to_linear(codes[(std::size_t(y) * w + x) * 3 + c] / 255.0)) * white;
   }
-  return subsampled ? photo_encoding::jpeg_subsampled : photo_encoding::jpeg;
+  return quality == 0 ? photo_encoding::eight_bit : subsampled ? photo_encoding::jpeg_subsampled : photo_encoding::jpeg;
 }
 
 }  // namespace

@@ -453,7 +453,7 @@ loaded_networks* capture_networks_py(const capture_options& o, bool has_start, c
 /// The encoding `name` names; ValueError otherwise.
 photo_encoding encoding_from_py(const std::string& name) {
   const std::optional<photo_encoding> e = photo_encoding_from_name(name);
-  if (!e) throw py::value_error("encoding: 'lossless', 'eight_bit', 'jpeg' or 'jpeg_subsampled', got '" + name + "'");
+  if (!e) throw py::value_error("encoding: " + photo_encoding_choices('\'') + ", got '" + name + "'");
   return *e;
 }
 

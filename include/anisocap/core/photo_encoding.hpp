@@ -3,7 +3,9 @@
 /// How a photograph's file stored its values (photo_encoding): what the per-texel uncertainty's
 /// calibration follows (pipeline/uncertainty.hpp), read from the files (data/photo_io.hpp) and
 /// written in capture.json (data/capture_io.hpp).
+#include <iterator>
 #include <optional>
+#include <string>
 #include <string_view>
 
 namespace anisocap {
@@ -27,11 +29,28 @@ inline const char* photo_encoding_name(photo_encoding e) {
   }
 }
 
+/// Every encoding, in order.
+inline constexpr photo_encoding photo_encodings[] = {photo_encoding::lossless, photo_encoding::eight_bit, photo_encoding::jpeg,
+                                                     photo_encoding::jpeg_subsampled};
+
 /// The encoding `name` names (photo_encoding_name), or none.
 inline std::optional<photo_encoding> photo_encoding_from_name(std::string_view name) {
-  for (const photo_encoding e : {photo_encoding::lossless, photo_encoding::eight_bit, photo_encoding::jpeg, photo_encoding::jpeg_subsampled})
+  for (const photo_encoding e : photo_encodings)
     if (name == photo_encoding_name(e)) return e;
   return std::nullopt;
+}
+
+/// The names an encoding may have, for messages, each between `quote`s: "lossless", "eight_bit",
+/// "jpeg" or "jpeg_subsampled".
+inline std::string photo_encoding_choices(char quote) {
+  std::string text;
+  for (std::size_t i = 0; i < std::size(photo_encodings); ++i) {
+    if (i > 0) text += i + 1 == std::size(photo_encodings) ? " or " : ", ";
+    text += quote;
+    text += photo_encoding_name(photo_encodings[i]);
+    text += quote;
+  }
+  return text;
 }
 
 }  // namespace anisocap

@@ -11,8 +11,8 @@
 /// own linear values, below which they are not measurements, such as a JPEG's darkest codes: the
 /// image loss counts the photograph and the render as at least floor x exposure; render/renderer.hpp,
 /// loss_targets) and `"encoding": "jpeg"` (how the photograph's file, or the one it was rectified
-/// from, stored its values: "lossless", "eight_bit", "jpeg" or "jpeg_subsampled", render/capture.hpp
-/// photo_encoding; it chooses the per-texel deviations' calibration, pipeline/uncertainty.hpp).
+/// from, stored its values: "lossless", "eight_bit", "jpeg" or "jpeg_subsampled",
+/// core/photo_encoding.hpp; it chooses the per-texel deviations' calibration, pipeline/uncertainty.hpp).
 /// Positions are in units of the material's longest side, origin at its centre, z up, the
 /// material in the plane z = 0 (docs/method.md section 4). The reader is strict so that a typo
 /// cannot silently change an experiment: unknown fields, missing fields, wrong types, non-finite
@@ -154,7 +154,7 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     if (o.contains("encoding")) {
       const json& v = o.at("encoding");
       const std::optional<photo_encoding> e = v.is_string() ? photo_encoding_from_name(v.get<std::string>()) : std::nullopt;
-      if (!e) fail("\"encoding\" must be \"lossless\", \"eight_bit\", \"jpeg\" or \"jpeg_subsampled\", got " + v.dump());
+      if (!e) fail("\"encoding\" must be " + photo_encoding_choices('"') + ", got " + v.dump());
       im.encoding = *e;
     }
     detail::check_capture_image(im, i, path);

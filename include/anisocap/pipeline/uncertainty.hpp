@@ -106,9 +106,9 @@ struct uncertainty_calibration_table {
 /// The fitted calibration for photographs stored losslessly, as floats or 16-bit codes (see
 /// uncertainty_calibration_table), in parameter order a_d (r, g, b), a'_s (r, g, b), sigma_x,
 /// sigma_y, F0, n_x, n_y, alpha. Fitted by studies/fit_uncertainty_calibration.py on 16 captures:
-/// 8 families under a lamp and a flash with 8 linear photographs with sensor noise. Where the table shrinks a deviation (scale below 1)
-/// most texels fit better than the residuals' RMS says; sigma_y's error grows with its value
-/// (relative 0.3).
+/// 8 families under a lamp and a flash with 8 linear photographs with sensor noise. Where the table
+/// shrinks a deviation (scale below 1) most texels fit better than the residuals' RMS says;
+/// sigma_y's error grows with its value (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
     {0.27, 0.221, 0.543, 1.09, 1.09, 0.988, 0.809, 0.2, 0.6, 0.663, 0.663, 0.809},
     {0.002, 0.002, 0.001, 0, 0, 0, 0, 0, 0, 0.001, 0, 0},
@@ -283,8 +283,9 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
   result.sd = material_maps(maps.width(), maps.height());
   Eigen::Matrix<double, parameter_count, parameter_count> prior = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
   for (int i = 0; i < parameter_count; ++i) prior(i, i) = 1.0 / (uncertainty_prior_sd[std::size_t(i)] * uncertainty_prior_sd[std::size_t(i)]);
-  const uncertainty_calibration_table& table = calibration_for(lossiest_encoding(cap));
-  if (options.calibrated) result.calibration = lossiest_encoding(cap);
+  const photo_encoding encoding = lossiest_encoding(cap);
+  const uncertainty_calibration_table& table = calibration_for(encoding);
+  if (options.calibrated) result.calibration = encoding;
   const double inv_noise2 = 1.0 / (result.noise * result.noise);
   std::array<double, parameter_count> determined{};
   const int w = maps.width(), h = maps.height();
