@@ -116,7 +116,7 @@ TEST_CASE("capture.json: every malformed input gives one error naming the file a
       {images("3"), {"images[0]", "expected an object"}},
       {images(entry + ", " + with("\"camera\": [0,0,1], \"light\": [0,0,1]")), {"images[1] (\"b.exr\")", "missing field \"intensity\""}},
       {images("{\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0]", "missing field \"file\""}},
-      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"intesity\": 2")), {"images[0] (\"b.exr\")", "unknown field \"intesity\""}},
+      {images(with("\"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1, \"intesity\": 2")), {"images[0] (\"b.exr\")", "unknown field \"intesity\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\", \"floor\", \"encoding\")"}},
       {images("{\"file\": 7, \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0]", "\"file\" must be a string"}},
       {images("{\"file\": \"\", \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0]", "\"file\" is empty"}},
       {images("{\"file\": \"a.tif\", \"camera\": [0,0,1], \"light\": [0,0,1], \"intensity\": 1}"), {"images[0] (\"a.tif\")", ".jpg"}},

@@ -18,6 +18,8 @@
 /// cannot silently change an experiment: unknown fields, missing fields, wrong types, non-finite
 /// numbers, cameras that cannot see the material, non-positive intensities and repeated files are
 /// errors, each reported once with the file, the image index and the problem.
+#include <algorithm>
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -28,6 +30,7 @@
 
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/json_parse.hpp"
+#include "anisocap/core/text.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/render/capture.hpp"
 
@@ -67,6 +70,10 @@ inline void check_capture_image(const capture_image& im, std::size_t index, cons
     fail("light z = " + std::to_string(im.light[2]) +
          " is at or below the material plane z = 0; the light must shine on the material from above");
 }
+
+/// The fields every entry of "images" has, and those it may have.
+inline constexpr std::array<const char*, 4> entry_fields = {"file", "camera", "light", "intensity"};
+inline constexpr std::array<const char*, 4> optional_entry_fields = {"mask", "exposure", "floor", "encoding"};
 
 /// Checks every image and that no file is used twice.
 inline void check_capture(const capture& c, const std::filesystem::path& path) {
@@ -114,11 +121,11 @@ inline capture parse_capture(std::string_view text, const std::filesystem::path&
     const std::string where = detail::capture_entry_name(i, im.file);
     auto fail = [&](const std::string& problem) { throw io_error(path, where + ": " + problem); };
     for (const auto& [key, v] : o.items())
-      if (key != "file" && key != "camera" && key != "light" && key != "intensity" && key != "mask" && key != "exposure" && key != "floor" &&
-          key != "encoding")
-        fail("unknown field \"" + key + "\" (expected \"file\", \"camera\", \"light\", \"intensity\", optional \"mask\", \"exposure\", \"floor\", "
-             "\"encoding\")");
-    for (const char* key : {"file", "camera", "light", "intensity"})
+      if (std::ranges::find(detail::entry_fields, key) == detail::entry_fields.end() &&
+          std::ranges::find(detail::optional_entry_fields, key) == detail::optional_entry_fields.end())
+        fail("unknown field \"" + key + "\" (expected \"" + join_names(detail::entry_fields, "\", \"") + "\", optional \"" +
+             join_names(detail::optional_entry_fields, "\", \"") + "\")");
+    for (const char* key : detail::entry_fields)
       if (!o.contains(key)) fail(std::string("missing field \"") + key + "\"");
     if (!o.at("file").is_string()) fail(std::string("\"file\" must be a string, got ") + json_kind_name(o.at("file")));
     // One number as a float, refusing values that do not fit (they would become infinite).
