@@ -52,16 +52,29 @@ inline double to_network(int k, double v) {
   }
 }
 
+/// The map from network value u to parameter value v of a channel where it is affine (every
+/// channel but the lobe widths): v = scale u + offset. from_network, network_to_maps and the chain
+/// rule (add_network_gradient, whose factor is `scale`) all read it here.
+struct affine_channel {
+  double scale = 1, offset = 0;
+};
+
+/// Channel k's affine map (k not a lobe width): normals as they are, the rotation times pi / 2,
+/// the albedos and F0 (u + 1) / 2.
+constexpr affine_channel affine_of(int k) {
+  switch (k) {
+    case normal_x:
+    case normal_y: return {1, 0};
+    case rotation: return {std::numbers::pi / 2, 0};
+    default: return {0.5, 0.5};
+  }
+}
+
 /// Parameter value of channel k for network value u (normals not yet limited to the disc).
 inline double from_network(int k, double u) {
-  switch (k) {
-    case lobe_x:
-    case lobe_y: return std::exp(log_min_lobe + (u + 1) / 2 * (-log_min_lobe));
-    case normal_x:
-    case normal_y: return u;
-    case rotation: return u * (std::numbers::pi / 2);
-    default: return (u + 1) / 2;
-  }
+  if (k == lobe_x || k == lobe_y) return std::exp(log_min_lobe + (u + 1) / 2 * (-log_min_lobe));
+  const affine_channel a = affine_of(k);
+  return a.scale * u + a.offset;
 }
 
 /// Writes the map set in network space into entry `b` of `out` (same height and width).
@@ -139,12 +152,9 @@ void network_to_maps(const tensor<parameter_count, T>& u, int b, material_maps& 
       if (k == lobe_x || k == lobe_y) {
         const double* l = lobes + (k == lobe_y ? padded : 0);
         for (int x = 0; x < width; ++x) out[x] = float(l[x]);
-      } else if (k == normal_x || k == normal_y) {
-        for (int x = 0; x < width; ++x) out[x] = float(in[std::size_t(x) * parameter_count]);
-      } else if (k == rotation) {
-        for (int x = 0; x < width; ++x) out[x] = float(double(in[std::size_t(x) * parameter_count]) * (std::numbers::pi / 2));
       } else {
-        for (int x = 0; x < width; ++x) out[x] = float((double(in[std::size_t(x) * parameter_count]) + 1) / 2);
+        const affine_channel a = affine_of(k);
+        for (int x = 0; x < width; ++x) out[x] = float(a.scale * double(in[std::size_t(x) * parameter_count]) + a.offset);
       }
     }
     float* out_x = &maps.at(normal_x, 0, y);
@@ -214,7 +224,7 @@ tensor<parameter_count, float> shift_to(const tensor<parameter_count, T>& u, con
 template <class T>
 void add_network_gradient(const tensor<parameter_count, T>& u, int b, const material_maps& grad_maps, double scale,
                           tensor<parameter_count, T>& grad_u) {
-  const double half = 0.5, lobe_factor = -log_min_lobe / 2, rotation_factor = std::numbers::pi / 2;
+  const double lobe_factor = -log_min_lobe / 2;
   const int width = u.width();
   detail::rows_with_lobe_widths(u, b, [&](int y, const T* row, const double* lobes, std::size_t padded) {
     T* grad_row = grad_u.pixel(b, y, 0);
@@ -228,8 +238,8 @@ void add_network_gradient(const tensor<parameter_count, T>& u, int b, const mate
         const double* l = lobes + (k == lobe_y ? padded : 0);
         for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * (l[x] * lobe_factor));
       } else {
-        // Normals: 1, corrected below where they were scaled onto the circle.
-        const double d = k == normal_x || k == normal_y ? 1.0 : k == rotation ? rotation_factor : half;
+        // The affine channels' scale (normals: 1, corrected below where they were scaled onto the circle).
+        const double d = affine_of(k).scale;
         for (int x = 0; x < width; ++x) g[std::size_t(x) * parameter_count] += T(scale * double(in[x]) * d);
       }
     }
