@@ -211,3 +211,20 @@ TEST_CASE("check-points: resuming with other photographs, configurations or opti
   CHECK(resume_error(cap, photos, o).find("fingerprint") != std::string::npos);
   fs::remove_all(o.checkpoint.folder);
 }
+
+TEST_CASE("check-points: a file's step is read from its header, and a file cut short has none") {
+  const fs::path file = fresh_folder("checkpoint_step");
+  nn::safetensors_file f;
+  const std::vector<float> values(64, 1.5f);
+  f.add<float>("w", {64}, values.data(), values.size());
+  f.metadata.emplace_back("step", "7");
+  nn::write_safetensors(file, f);
+  CHECK(finetune_detail::checkpoint_step(file) == "7");
+  fs::resize_file(file, fs::file_size(file) - 4);  // the data cut short: the header's offsets run past the end
+  CHECK(finetune_detail::checkpoint_step(file) == "");
+  CHECK(finetune_detail::checkpoint_step(file.string() + ".absent") == "");
+  f.metadata.clear();
+  nn::write_safetensors(file, f);
+  CHECK(finetune_detail::checkpoint_step(file) == "");
+  fs::remove(file);
+}

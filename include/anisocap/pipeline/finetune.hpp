@@ -349,10 +349,10 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
 }
 
 /// The "step" save_checkpoint wrote into `file`'s metadata; "" when the file is unreadable, half
-/// written or has none.
+/// written (its header's offsets run past its end) or has none. Reads the header alone.
 inline std::string checkpoint_step(const std::filesystem::path& file) {
   try {
-    for (const auto& [key, value] : nn::read_safetensors(file).metadata)
+    for (const auto& [key, value] : nn::read_safetensors_header(file).metadata)
       if (key == "step") return value;
   } catch (const std::exception&) {
   }
