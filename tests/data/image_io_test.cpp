@@ -2,6 +2,7 @@
 // (through a tiny PNG writer below, since stb cannot write 16-bit), validation and atomic writes.
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -9,9 +10,11 @@
 #include <fstream>
 #include <limits>
 #include <random>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "data/png16_writer.hpp"
 #include "data/test_folder.hpp"
@@ -297,6 +300,37 @@ TEST_CASE("file_transaction: nothing appears before commit, discarded temporarie
   const auto bytes = anisocap::read_file_bytes(dir / "a.txt");
   CHECK(std::string(bytes.begin(), bytes.end()) == "new");
   CHECK(dir.entries() == std::vector<std::string>{"a.txt"});
+}
+
+TEST_CASE("file_transaction: files staged from many threads at once are all committed, each whole") {
+  test_folder dir;
+  anisocap::file_transaction t;
+  constexpr std::size_t count = 64;
+  anisocap::for_each_index_in_parallel(count, [&](std::size_t i) {
+    t.stage(dir / ("f" + std::to_string(i) + ".txt"), std::string(1000 + i, char('a' + i % 26)));
+  });
+  CHECK(t.staged() == count);
+  t.commit();
+  CHECK(dir.entries().size() == count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const auto bytes = anisocap::read_file_bytes(dir / ("f" + std::to_string(i) + ".txt"));
+    CHECK(std::string(bytes.begin(), bytes.end()) == std::string(1000 + i, char('a' + i % 26)));
+  }
+}
+
+TEST_CASE("for_each_index_in_parallel: every job runs once, and the lowest index's exception is rethrown after all have run") {
+  std::vector<int> runs(100, 0);
+  anisocap::for_each_index_in_parallel(runs.size(), [&](std::size_t i) { runs[i] += 1; });
+  CHECK(std::count(runs.begin(), runs.end(), 1) == 100);
+  std::fill(runs.begin(), runs.end(), 0);
+  CHECK_THROWS_WITH_AS(anisocap::for_each_index_in_parallel(runs.size(),
+                                                            [&](std::size_t i) {
+                                                              runs[i] += 1;
+                                                              if (i == 70 || i == 30 || i == 99) throw std::runtime_error("job " + std::to_string(i));
+                                                            }),
+                       "job 30", std::runtime_error);
+  CHECK(std::count(runs.begin(), runs.end(), 1) == 100);
+  anisocap::for_each_index_in_parallel(0, [&](std::size_t) { FAIL("no job for n = 0"); });
 }
 
 TEST_CASE("EXR: tiled files are reassembled from their tiles") {

@@ -22,6 +22,7 @@
 #include "anisocap/core/image.hpp"
 #include "anisocap/core/json_parse.hpp"
 #include "anisocap/core/memory.hpp"
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/core/random.hpp"
 #include "anisocap/core/simd.hpp"
 #include "anisocap/core/srgb.hpp"
@@ -215,9 +216,13 @@ inline void stage_images(const std::vector<image>& images, const capture& cap, c
                          const std::vector<fs::path>& inputs = {}) {
   refuse_overwriting_inputs(image_outputs(cap, out), inputs);
   create_output_folder(out);
+  std::vector<fs::path> targets;
   for (std::size_t i = 0; i < images.size(); ++i) {
-    const fs::path target = output_inside(out, cap.images[i].file);
-    if (target.has_parent_path()) create_output_folder(target.parent_path());
+    targets.push_back(output_inside(out, cap.images[i].file));
+    if (targets.back().has_parent_path()) create_output_folder(targets.back().parent_path());
+  }
+  for_each_index_in_parallel(images.size(), [&](std::size_t i) {  // each image's files encoded on a thread of its own
+    const fs::path& target = targets[i];
     const auto ext = target.extension().string();
     if (ext == ".exr" || ext == ".EXR") {
       write_exr(images[i], target, files);
@@ -225,7 +230,7 @@ inline void stage_images(const std::vector<image>& images, const capture& cap, c
     } else {
       write_png(images[i], target, files);
     }
-  }
+  });
 }
 
 /// Writes `images` into `out` as stage_images lays them out; all files appear together or not at all.

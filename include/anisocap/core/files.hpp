@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -72,7 +73,8 @@ class file_transaction {
   ~file_transaction() { discard(); }
 
   /// Writes `bytes` to a temporary file that `commit` will rename to `target`. The target's folder
-  /// must exist. Throws io_error (and removes the partial temporary) on failure.
+  /// must exist. Throws io_error (and removes the partial temporary) on failure. Threads may stage
+  /// into one transaction at once (for_each_index_in_parallel encodes and stages files so).
   void stage(const std::filesystem::path& target, const void* bytes, std::size_t size) {
     const std::filesystem::path temporary = temporary_name(target);
     std::FILE* f = std::fopen(temporary.c_str(), "wb");
@@ -85,6 +87,7 @@ class file_transaction {
       std::filesystem::remove(temporary, ec);
       throw io_error(target, "write failed (disk full?)");
     }
+    const std::lock_guard lock(mutex_);
     pending_.emplace_back(temporary, target);
   }
   /// `stage` for a string's bytes.
@@ -131,6 +134,7 @@ class file_transaction {
   }
 
   std::vector<std::pair<std::filesystem::path, std::filesystem::path>> pending_;
+  std::mutex mutex_;  // guards pending_ while threads stage
 };
 
 /// Writes `bytes` to `target` atomically (temporary file, then rename).

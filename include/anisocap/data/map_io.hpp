@@ -34,6 +34,7 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/core/text.hpp"
 #include "anisocap/data/image_io.hpp"
 
@@ -280,14 +281,14 @@ inline std::vector<std::filesystem::path> stage_maps(const material_maps& maps, 
   std::filesystem::create_directories(dir, ec);
   if (!std::filesystem::is_directory(dir, ec)) throw io_error(dir, "cannot create the map set folder");
   const std::vector<image> images = detail::map_images(canonical);
-  for (std::size_t f = 0; f < images.size(); ++f) {
+  for_each_index_in_parallel(images.size(), [&](std::size_t f) {  // each map's files encoded on a thread of its own
     write_exr(images[f], dir / map_file_names[f], transaction);
     if (previews) {
       png_encoding encoding;
       const image preview = detail::map_preview(images[f], f, encoding);
       write_png(preview, detail::preview_name(dir, map_file_names[f]), transaction, 0.0f, encoding);
     }
-  }
+  });
   std::vector<std::filesystem::path> stale;
   if (!canonical.has_height()) {
     stale.push_back(dir / map_file_names[6]);

@@ -31,6 +31,7 @@
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/brdf/ward.hpp"
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/ad/forward/dual.hpp"
 #include "anisocap/data/image_io.hpp"
 #include "anisocap/data/map_io.hpp"
@@ -334,7 +335,7 @@ inline std::vector<image> uncertainty_images(const uncertainty_result& u) {
 inline void write_uncertainty(const uncertainty_result& u, const std::filesystem::path& folder, file_transaction& transaction) {
   std::filesystem::create_directories(folder);
   const std::vector<image> images = uncertainty_images(u);
-  for (std::size_t i = 0; i < images.size(); ++i) write_exr(images[i], folder / map_file_names[i], transaction);
+  for_each_index_in_parallel(images.size(), [&](std::size_t i) { write_exr(images[i], folder / map_file_names[i], transaction); });
 }
 
 }  // namespace anisocap
