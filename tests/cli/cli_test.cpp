@@ -3,6 +3,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <cstdlib>
@@ -23,6 +24,7 @@
 #include "anisocap/brdf/canonical_maps.hpp"
 #include "anisocap/networks/presets.hpp"
 #include "anisocap/nn/safetensors.hpp"
+#include "commands/field_flags.hpp"
 
 namespace fs = std::filesystem;
 
@@ -188,6 +190,52 @@ TEST_CASE("synthesize, capture with truth, render: outputs and report") {
   const auto a = anisocap::read_exr(t.path / "again/input_02.exr");
   const auto b = anisocap::read_exr(t.path / "syn/input_02.exr");
   for (std::size_t i = 0; i < a.pixel_count(); ++i) REQUIRE(a.plane(1)[i] == b.plane(1)[i]);
+}
+
+TEST_CASE("capture: every option field report.json lists (the field visitors' names) has a flag in --help, or is set only by --schedule or --kernel") {
+  temp_dir t;
+  REQUIRE(run("synthesize -o syn --width 32 --height 32 --images 5 --seed 6", t.path).status == 0);
+  REQUIRE(run("capture syn/capture.json -o out --stages all --finetune-steps 2 --steps 2 --no-view", t.path).status == 0);
+  std::ifstream in(t.path / "out" / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  const std::string help = run("capture --help", t.path).output;
+  auto in_help = [&](std::string_view flag) {  // the flag as a whole word of --help
+    for (std::size_t at = help.find(flag); at != std::string::npos; at = help.find(flag, at + 1)) {
+      const std::size_t end = at + flag.size();
+      if (end == help.size() || !(std::isalnum(static_cast<unsigned char>(help[end])) || help[end] == '-')) return true;
+    }
+    return false;
+  };
+  // Fields no flag sets: the schedules' (--schedule) and the automatic kernel's (--kernel auto)
+  // constants, Adam's, and the networks' second prior (chosen by --also-models / --no-also-models).
+  const std::vector<std::string> unbound = {
+      "finetune_options::patience", "finetune_options::min_steps", "finetune_options::guard.every", "finetune_options::crop.seed",
+      "refine_options::beta1", "refine_options::beta2", "refine_options::epsilon", "refine_options::patience", "refine_options::min_steps",
+      "refine_options::freeze_every", "kernel_options::auto_tolerance", "kernel_options::prior_f0", "capture_options::second_run.second_prior"};
+  // report.json's sections and the prefixes of their fields in the library's messages.
+  const std::vector<std::pair<std::string, std::string>> sections = {{"finetune", "finetune_options::"}, {"refine", "refine_options::"},
+                                                                     {"estimate", "estimate_options::"}, {"second_run", "capture_options::second_run."},
+                                                                     {"kernel_options", "kernel_options::"}};
+  std::vector<std::string> seen;
+  for (const auto& [section, prefix] : sections) {
+    REQUIRE(report.contains(section));
+    for (const auto& [key, value] : report[section].items()) {
+      if (section == "finetune" && key == "preset") continue;       // the auto-encoder's preset, not an option
+      if (section == "refine" && key == "neighbour_restarts") continue;  // capture_options', checked below
+      const std::string field = section == "kernel_options" && key == "features" ? "kernel_options" : prefix + key;
+      CAPTURE(field);
+      seen.push_back(field);
+      const auto& table = anisocap::commands::capture_field_flags;
+      const auto entry = std::find_if(std::begin(table), std::end(table), [&](const anisocap::option_name& e) { return e.field == field; });
+      const bool bound = entry != std::end(table);
+      const bool listed = std::find(unbound.begin(), unbound.end(), field) != unbound.end();
+      CHECK(bound != listed);  // a flag, or listed above: a new field must be given one or the other
+      if (bound) CHECK(in_help(entry->name));
+    }
+  }
+  for (const std::string& field : unbound) CHECK_MESSAGE(std::find(seen.begin(), seen.end(), field) != seen.end(), field);  // no stale entry
+  CHECK(report["refine"].contains("neighbour_restarts"));
+  for (const anisocap::option_name& e : anisocap::commands::capture_field_flags) CHECK_MESSAGE(in_help(e.name), e.name);  // every flag bound
 }
 
 TEST_CASE("capture --schedule thorough fine-tunes for 2000 steps; options beside it override its values") {

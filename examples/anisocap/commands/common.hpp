@@ -134,7 +134,7 @@ inline void add_second_run_options(CLI::App* c, second_run_options& r) {
                 "run the network stages a second time (--also-residual, the second prior) only where the first run's final image "
                 "loss is above this (0: always)")
       ->check(CLI::NonNegativeNumber);
-  c->add_flag("--also-residual,!--no-also-residual", r.residual,
+  c->add_flag(std::string(capture_flag("capture_options::second_run.residual")) + ",!--no-also-residual", r.residual,
               "run the network stages a second time with the fine-tune started at the estimate itself (--finetune-residual) and "
               "keep the result that fits the photographs better; before the second prior's run; on by default where the "
               "fine-tune runs, subject to --also-models-above and --also-residual-ratio");
@@ -151,15 +151,13 @@ inline std::string help_number(double v) {
   return text;
 }
 
-/// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
-/// comes first so that options after it on the command line refine it.
-inline void add_optimiser_options(CLI::App* c, capture_options& o) {
+/// --schedule and --network-precision, bound onto `o`.
+inline void add_schedule_options(CLI::App* c, capture_options& o) {
   // The schedules' numbers in the help are read from the options themselves, so that --help
   // cannot disagree with what a schedule runs; the measured costs beside them are docs/results.md's.
   const auto n = help_number;
   const capture_options fast = capture_options::fast(), thorough = capture_options::thorough(), automatic = capture_options::automatic(),
                         paper = capture_options::paper();
-  const refine_options alone = fast.refine_alone;
   c->add_option_function<std::string>(
        "--schedule",
        [&o](const std::string& name) { o.apply_schedule(name); },
@@ -183,6 +181,12 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "see --version; docs/program.md)")
       ->check(CLI::IsMember({"fp32", "bf16"}))
       ->default_str("fp32");
+}
+
+/// The estimate's and the fine-tune's options, bound onto `o`.
+inline void add_network_stage_options(CLI::App* c, capture_options& o) {
+  const auto n = help_number;
+  const capture_options fast = capture_options::fast(), paper = capture_options::paper();
   c->add_option(capture_flag("estimate_options::window"), o.estimate.window,
                 "side of the sliding windows the estimation network sees, texels (the capture is estimated window by window and "
                 "blended; docs/model-card.md measures the choice)")
@@ -190,7 +194,7 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option(capture_flag("estimate_options::stride"), o.estimate.stride, "step between the estimation windows, texels (at most --estimate-window)")
       ->check(CLI::Range(1, 1 << 16));
   c->add_option(capture_flag("finetune_options::steps"), o.finetune.steps, "decoder fine-tune steps (paper: " + n(paper.finetune.steps) + ")")->check(finite_number(false));
-  c->add_flag("--finetune-residual", o.finetune.residual,
+  c->add_flag(capture_flag("finetune_options::residual"), o.finetune.residual,
               "start the fine-tune at the estimate itself: fit D(z) + r, with r fixed so that the start equals the estimate, "
               "instead of D(z) (docs/method.md section 8.3)");
   c->add_option(capture_flag("finetune_options::learning_rate"), o.finetune.learning_rate, "decoder fine-tune learning rate after the warm-up (paper: " + n(paper.finetune.learning_rate) + ")")->check(finite_number(true));
@@ -200,6 +204,13 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
   c->add_option(capture_flag("finetune_options::shard_cells"), o.finetune.shard_cells, "cut each fine-tune step into blocks of this many latent cells per side, decoded apart and their gradients added in a fixed order, so that any number of MPI ranks gives the same maps (0: one decode per step; under mpirun 16; docs/scaling.md)")->check(finite_number(false));
   c->add_option(capture_flag("finetune_options::min_improvement"), o.finetune.min_improvement, "stop fine-tuning when " + n(fast.finetune.patience) + " steps improve the loss by less than this fraction (0: never)")->check(CLI::Range(0.0, 1.0));
   c->add_option(capture_flag("finetune_options::guard.factor"), o.finetune.guard.factor, "divergence guard: a step whose loss exceeds this factor times the best goes back to the last snapshot at half the rate (0: off); costs a copy of the decoder every " + n(fast.finetune.guard.every) + " steps, keeps large rates from losing what they gained");
+}
+
+/// The refine's options (and its restarts, kernel and arithmetic), bound onto `o`.
+inline void add_refine_options(CLI::App* c, capture_options& o) {
+  const auto n = help_number;
+  const capture_options fast = capture_options::fast();
+  const refine_options alone = fast.refine_alone;
   c->add_option_function<int>(
        capture_flag("refine_options::steps"), [&o](int n) { o.refine.steps = o.refine_alone.steps = n; },
        "refine steps (default " + n(fast.refine.steps) + " after the network stages, " + n(alone.steps) + " when they do not run)")
@@ -241,6 +252,14 @@ inline void add_optimiser_options(CLI::App* c, capture_options& o) {
        "arithmetic of the image-loss kernels: float or double (maps stay float; double is ~1.9x slower)")
       ->check(CLI::IsMember({"float", "double"}))
       ->default_str(o.render.double_precision ? "double" : "float");
+}
+
+/// The fine-tune and refine options of capture, eval and demo, bound onto `o`. `--schedule paper`
+/// comes first so that options after it on the command line refine it.
+inline void add_optimiser_options(CLI::App* c, capture_options& o) {
+  add_schedule_options(c, o);
+  add_network_stage_options(c, o);
+  add_refine_options(c, o);
   add_second_run_options(c, o.second_run);
 }
 
