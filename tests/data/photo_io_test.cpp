@@ -169,8 +169,9 @@ TEST_CASE("JPEG colour subsampling: read from the frame header; each photograph'
   CHECK(!jpeg_colour_subsampled(jpeg_header(0xC0, {0x11, 0x11, 0x11}, table)));
   CHECK(jpeg_colour_subsampled(jpeg_header(0xC0, {0x22, 0x11, 0x11}, {0xFF, 0xFF})));
   // Not a JPEG, cut inside the frame header, or a scan before any frame header: false.
-  std::vector<unsigned char> cut = jpeg_header(0xC0, {0x22, 0x11, 0x11});
-  cut.resize(cut.size() - 4);
+  const std::vector<unsigned char> whole = jpeg_header(0xC0, {0x22, 0x11, 0x11});
+  REQUIRE(whole.size() > 4);
+  const std::vector<unsigned char> cut(whole.begin(), whole.end() - 4);
   CHECK(!jpeg_colour_subsampled(cut));
   CHECK(!jpeg_colour_subsampled(std::vector<unsigned char>{0x89, 'P', 'N', 'G', 0, 0, 0, 0}));
   CHECK(!jpeg_colour_subsampled(std::vector<unsigned char>{0xFF, 0xD8, 0xFF, 0xDA, 0x00, 0x02, 0xFF, 0xC0}));
