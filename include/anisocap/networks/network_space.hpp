@@ -34,27 +34,10 @@ inline const double log_min_lobe = log_min_lobe_width;
 /// Largest |(n_x, n_y)| a decoded normal may have.
 inline constexpr double max_normal_xy = 0.999;
 
-/// Parameter value v of channel k in network space.
-inline double to_network(int k, double v) {
-  switch (k) {
-    case lobe_x:
-    case lobe_y: {
-      const double s = std::max(v, double(min_lobe_width));
-      return 2 * (std::log(s) - log_min_lobe) / (-log_min_lobe) - 1;
-    }
-    case normal_x:
-    case normal_y: return v;
-    case rotation: {
-      const double wrapped = v - std::numbers::pi * std::nearbyint(v / std::numbers::pi);
-      return wrapped / (std::numbers::pi / 2);
-    }
-    default: return 2 * v - 1;
-  }
-}
-
 /// The map from network value u to parameter value v of a channel where it is affine (every
-/// channel but the lobe widths): v = scale u + offset. from_network, network_to_maps and the chain
-/// rule (add_network_gradient, whose factor is `scale`) all read it here.
+/// channel but the lobe widths): v = scale u + offset. to_network (its inverse), from_network,
+/// network_to_maps and the chain rule (add_network_gradient, whose factor is `scale`) all read it
+/// here.
 struct affine_channel {
   double scale = 1, offset = 0;
 };
@@ -68,6 +51,17 @@ constexpr affine_channel affine_of(int k) {
     case rotation: return {std::numbers::pi / 2, 0};
     default: return {0.5, 0.5};
   }
+}
+
+/// Parameter value v of channel k in network space (the rotation wrapped into [-pi/2, pi/2] first).
+inline double to_network(int k, double v) {
+  if (k == lobe_x || k == lobe_y) {
+    const double s = std::max(v, double(min_lobe_width));
+    return 2 * (std::log(s) - log_min_lobe) / (-log_min_lobe) - 1;
+  }
+  if (k == rotation) v -= std::numbers::pi * std::nearbyint(v / std::numbers::pi);
+  const affine_channel a = affine_of(k);
+  return (v - a.offset) / a.scale;
 }
 
 /// Parameter value of channel k for network value u (normals not yet limited to the disc).
