@@ -18,8 +18,12 @@ records of --base BASE.csv. The table for colour-subsampled photographs is made 
 albedo and the normal, which the colour blur moves, from JPEG captures, the rest from the larger
 set of linear ones.
 
+With --step each record's deviation is first widened by its remaining Gauss-Newton step (the
+records' `step` column), sqrt(sd^2 + step^2): whether the refine stopping short of the
+photographs' fit explains the misses (it does not: docs/results.md).
+
     fit_uncertainty_calibration.py FIT.csv [--test TEST.csv ...] [--cross-validate] [--plot reliability.png]
-        [--parameters a_d.r,... --base BASE.csv]
+        [--parameters a_d.r,... --base BASE.csv] [--step]
 """
 import argparse
 import csv
@@ -33,14 +37,19 @@ import numpy as np
 PARAMETERS = ["a_d.r", "a_d.g", "a_d.b", "a_s.r", "a_s.g", "a_s.b", "sigma_x", "sigma_y", "F0", "n_x", "n_y", "alpha"]
 
 
-def read(path):
-    """{parameter: (error, sd, value, group index, family)} arrays, and the group names."""
+def read(path, step=False):
+    """{parameter: (error, sd, value, group index, family)} arrays, and the group names. With
+    `step`, sd is widened by the record's remaining Gauss-Newton step."""
     rows = defaultdict(lambda: ([], [], [], [], []))
     groups = {}
     with open(path) as f:
         for r in csv.DictReader(f):
             g = groups.setdefault((r["family"], r["light"], r["images"]), len(groups))
             e, s, t = float(r["error"]), float(r["sd"]), float(r["truth"])
+            if step:
+                if "step" not in r:
+                    sys.exit(f"{path}: no step column (records of an older study)")
+                s = float(np.hypot(s, float(r["step"])))
             cols = rows[r["parameter"]]
             cols[0].append(e)
             cols[1].append(s)
@@ -90,6 +99,7 @@ def main():
     ap.add_argument("--cross-validate", action="store_true")
     ap.add_argument("--parameters", help="fit only these on FIT.csv (comma-separated), the others on --base")
     ap.add_argument("--base", help="the records the parameters not in --parameters are fitted on")
+    ap.add_argument("--step", action="store_true", help="widen each deviation by the record's remaining Gauss-Newton step")
     a = ap.parse_args()
     if bool(a.parameters) != bool(a.base):
         ap.error("--parameters and --base go together")
@@ -97,8 +107,8 @@ def main():
     unknown = [k for k in fitted if k not in PARAMETERS]
     if unknown:
         ap.error(f"unknown parameter {unknown[0]} (expected some of {', '.join(PARAMETERS)})")
-    data, groups = read(a.fit)
-    base, base_groups = read(a.base) if a.base else (data, groups)
+    data, groups = read(a.fit, a.step)
+    base, base_groups = read(a.base, a.step) if a.base else (data, groups)
     table = {}
     for k in PARAMETERS:
         source, source_groups = (data, groups) if k in fitted else (base, base_groups)
@@ -113,7 +123,7 @@ def main():
     sets = [("fit", a.fit)] + [(f"test {i + 1}" if len(a.test) > 1 else "test", t) for i, t in enumerate(a.test)]
     print("\n| parameter | " + " | ".join(f"{n}: raw 1 sd | raw 2 sd | calibrated 1 sd | calibrated 2 sd | worst group 1 sd | worst group 2 sd" for n, _ in sets) + " |")
     print("|---" * (1 + 6 * len(sets)) + "|")
-    loaded = [(n, read(p)) for n, p in sets]
+    loaded = [(n, read(p, a.step)) for n, p in sets]
     curves = {}
     for k in PARAMETERS:
         cells = []

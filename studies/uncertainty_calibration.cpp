@@ -7,13 +7,14 @@
 // networks runs on renders with shot and read noise; the coverage is counted over every texel
 // (alpha only where the true lobe is anisotropic, |sx - sy| > 0.2 max(sx, sy), since alpha means
 // nothing on an isotropic one). Prints a markdown table; with --dump FILE it writes every counted
-// texel (family, light, images, parameter, error, standard deviation, true value) as CSV, for a
-// reliability plot and for fitting the calibration of pipeline/uncertainty.hpp on one seed set and
-// testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit sRGB JPEG of
+// texel (family, light, images, parameter, error, standard deviation, true value, remaining step)
+// as CSV, for a reliability plot and for fitting the calibration of pipeline/uncertainty.hpp on one
+// seed set and testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit sRGB JPEG of
 // quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone does (with the
 // encoding a capture from such files has, so that its calibration applies); --png8 1 stores
 // them as 8-bit sRGB codes without JPEG, as an 8-bit PNG does.
-// --raw reports the uncalibrated standard deviations (uncertainty_options::calibrated off).
+// --raw reports the uncalibrated standard deviations (uncertainty_options::calibrated off). The
+// records hold each texel's remaining Gauss-Newton step beside them (uncertainty_result::step).
 //
 //   anisocap_study_uncertainty_calibration [--size 96] [--images 8,12] [--shot 0.01] [--read 0.002]
 //       [--families plain,twill,...] [--lights lamp,flash] [--seed 500] [--jpeg 0|Q] [--png8 0|1] [--raw 0|1]
@@ -128,7 +129,7 @@ int main(int argc, char** argv) {
     if (!dump.empty()) {
       records.open(dump);
       if (!records) throw std::runtime_error("cannot write " + dump);
-      records << "family,light,images,parameter,error,sd,truth\n";
+      records << "family,light,images,parameter,error,sd,truth,step\n";
     }
     capture_options options;
     options.uncertainty->calibrated = !raw;
@@ -171,7 +172,7 @@ int main(int argc, char** argv) {
               in2[std::size_t(k)] += std::abs(error) <= 2 * s;
               if (records)
                 records << material_kind_name(kind) << ',' << light << ',' << count << ',' << parameter_name(k) << ',' << error << ','
-                        << s << ',' << truth.plane(k)[i] << '\n';
+                        << s << ',' << truth.plane(k)[i] << ',' << r.uncertainty->step.plane(k)[i] << '\n';
             }
           }
           std::printf("%-12s N=%-2d %-5s", material_kind_name(kind), count, light.c_str());

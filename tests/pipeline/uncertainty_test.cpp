@@ -53,7 +53,8 @@ TEST_CASE("texel_information is the Gauss-Newton sum of the log radiance's deriv
   const capture cap = random_capture(3, 12);
   const std::vector<image> photos = render(maps, cap);
   const loss_targets targets = make_loss_targets(photos);
-  for (auto [x, y] : {std::pair{0, 0}, std::pair{3, 2}, std::pair{4, 3}}) {
+  for (const auto& [px, py] : {std::pair{0, 0}, std::pair{3, 2}, std::pair{4, 3}}) {
+    const int x = px, y = py;  // INFO captures in a lambda, which Clang 14 cannot do with a binding
     Eigen::Matrix<double, parameter_count, parameter_count> expected = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
     for (std::size_t k = 0; k < cap.images.size(); ++k)
       for (int c = 0; c < 3; ++c) {
@@ -74,6 +75,71 @@ TEST_CASE("texel_information is the Gauss-Newton sum of the log radiance's deriv
   masks[0].at(0, 3, 2) = masks[1].at(0, 3, 2) = masks[2].at(0, 3, 2) = 0.0f;
   CHECK(texel_information(maps, cap, make_loss_targets(photos, masks), 3, 2).isZero());
   CHECK(texel_information(maps, cap, make_loss_targets(photos, {}, std::vector<float>(3, 1e9f)), 0, 0).isZero());
+}
+
+TEST_CASE("texel_gauss_newton: the gradient of half the squared log residuals, checked by finite differences") {
+  const material_maps truth = random_maps(5, 4, 21);
+  const capture cap = random_capture(4, 22);
+  std::vector<image> masks(cap.images.size(), image(5, 4, 1));
+  for (std::size_t k = 0; k < masks.size(); ++k) std::fill(masks[k].plane(0), masks[k].plane(0) + masks[k].pixel_count(), 0.25f * float(k + 1));
+  const loss_targets targets = make_loss_targets(render(truth, cap), masks);
+  const material_maps maps = random_maps(5, 4, 23);  // other parameters: the residuals are not 0
+  // Half the weighted squared log residuals of texel (x, y), in double.
+  auto half_squares = [&](const ward_parameters<double>& p, int x, int y) {
+    double sum = 0;
+    for (std::size_t k = 0; k < cap.images.size(); ++k) {
+      const auto r = texel_radiance<double>(p, cap.images[k], x, y, maps.width(), maps.height());
+      for (int c = 0; c < 3; ++c) {
+        const double d = std::log(r[std::size_t(c)] + double(loss_epsilon)) - double(targets.log_images[k].at(c, x, y));
+        sum += 0.5 * double(masks[k].at(0, x, y)) * d * d;
+      }
+    }
+    return sum;
+  };
+  for (const auto& [px, py] : {std::pair{1, 1}, std::pair{4, 3}}) {
+    const int x = px, y = py;  // INFO captures in a lambda, which Clang 14 cannot do with a binding
+    const texel_normal_equations e = texel_gauss_newton(maps, cap, targets, x, y);
+    CHECK(e.information.isApprox(texel_information(maps, cap, targets, x, y)));
+    CHECK(e.gradient.norm() > 1e-3);
+    for (int i = 0; i < parameter_count; ++i) {
+      material_maps plus = maps, minus = maps;
+      const double h = 1e-6;
+      plus.at(i, x, y) = float(maps.at(i, x, y) + h);
+      minus.at(i, x, y) = float(maps.at(i, x, y) - h);
+      const double step = double(plus.at(i, x, y)) - double(minus.at(i, x, y));  // what float kept of 2h
+      const double expected = (half_squares(texel_ward_parameters<double>(plus, x, y), x, y) -
+                                half_squares(texel_ward_parameters<double>(minus, x, y), x, y)) / step;
+      INFO("texel (" << x << ", " << y << "), parameter " << std::string(parameter_name(i)));
+      CHECK(e.gradient[i] == doctest::Approx(expected).epsilon(2e-3).scale(1e-2 * (e.gradient.norm() + 1)));
+    }
+  }
+}
+
+TEST_CASE("texel_uncertainty: the remaining Gauss-Newton step finds a texel the capture left off the photographs' fit") {
+  const int n = 8;
+  const material_maps truth = random_maps(n, n, 31);
+  const capture cap = set_alpha(12, 32, n, n);
+  const loss_targets targets = make_loss_targets(render(truth, cap));
+  material_maps off = truth;
+  const std::array<std::pair<int, float>, 3> moved = {std::pair{diffuse_g, 0.004f}, std::pair{normal_x, -0.003f}, std::pair{specular_r, 0.003f}};
+  for (auto [k, d] : moved) off.at(k, 5, 2) += d;
+  uncertainty_options o;
+  o.calibrated = false;
+  o.noise = 0.01;
+  const uncertainty_result u = texel_uncertainty(off, cap, targets, o);
+  for (int k = 0; k < parameter_count; ++k)
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x) {
+        if (x == 5 && y == 2) continue;
+        // A texel at the photographs' fit: nothing left but float rounding.
+        INFO(std::string(parameter_name(k)) << " at (" << x << ", " << y << ")");
+        REQUIRE(std::abs(u.step.at(k, x, y)) < 1e-2 * u.sd.at(k, x, y) + 1e-5);
+      }
+  // The moved texel: the step points back by what was moved (the prior damps it a little).
+  for (const auto& m : moved) {
+    INFO(std::string(parameter_name(m.first)));
+    CHECK(u.step.at(m.first, 5, 2) == doctest::Approx(-m.second).epsilon(0.1).scale(0));
+  }
 }
 
 TEST_CASE("texel_uncertainty: the prior where the photographs say nothing, surer with more photographs") {

@@ -87,9 +87,10 @@ struct uncertainty_options {
 
 /// How the Laplace standard deviations are widened into calibrated ones: sd' = sqrt((scale_k sd)^2
 /// + (floor_k + relative_k |value|)^2) for parameter k. The Laplace approximation sees only the
-/// curvature at the solution; the captured value's error also holds what it cannot see: where the
-/// refine stopped along a valley of the loss (a'_s against the lobe width and F0 on narrow metal
-/// highlights), and the model's mismatch with the photographs. The constants are fitted on
+/// curvature at the solution; the captured value's error also holds what it cannot see: the
+/// model's mismatch with the photographs, errors alike in every photograph (8-bit codes, JPEG's
+/// colour), and a loss that is not Gaussian (most texels fit better than the residuals' RMS says,
+/// a few much worse). The constants are fitted on
 /// synthetic captures (docs/results.md, "Per-texel uncertainty: calibration": the study, its seeds
 /// and the coverage on other seeds) so that 68% and 95% of true values lie within 1 and 2 sd.
 struct uncertainty_calibration_table {
@@ -182,6 +183,11 @@ inline const uncertainty_calibration_table& calibration_for(photo_encoding e) {
 struct uncertainty_result {
   /// Plane k holds parameter k's posterior standard deviation, in the maps' units.
   material_maps sd;
+  /// Plane k holds parameter k's remaining Gauss-Newton step at each texel (texel_gauss_newton),
+  /// -(H + noise^2 prior)^-1 g: how far the least-squares fit of the photographs, damped by the
+  /// prior, lies from the captured value, in the maps' units and with its sign. Near 0 where the
+  /// capture settled at the photographs' fit, whatever its error.
+  material_maps step;
   /// The measurement noise used (uncertainty_options::noise or the residuals' RMS).
   double noise = 0;
   /// The encoding whose table the deviations went through (calibration_for the capture's
@@ -225,26 +231,64 @@ inline double floor_of(const loss_targets& t, std::size_t k) { return t.floors.e
 
 }  // namespace uncertainty_detail
 
-/// The Gauss-Newton information of texel (x, y) for one measurement noise of 1 (divide by
-/// noise^2): sum over images and channels of m g g^T with g = d log(max(R, floor) + 0.01) / d theta.
-inline Eigen::Matrix<double, parameter_count, parameter_count> texel_information(const material_maps& maps, const capture& cap,
-                                                                               const loss_targets& targets, int x, int y) {
-  using namespace uncertainty_detail;
-  Eigen::Matrix<double, parameter_count, parameter_count> h = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
+namespace uncertainty_detail {
+
+using texel_matrix = Eigen::Matrix<double, parameter_count, parameter_count>;
+using texel_vector = Eigen::Matrix<double, parameter_count, 1>;
+
+/// The sums texel_information and texel_gauss_newton share: the information sum m g g^T and,
+/// with `residuals`, the gradient sum m g r with r = log(max(R, floor) + 0.01) - log(max(B, floor)
+/// + 0.01), B the target. Where the render is at or below its image's floor, g is 0.
+template <bool residuals>
+void accumulate_texel(const material_maps& maps, const capture& cap, const loss_targets& targets, int x, int y, texel_matrix& h,
+                      texel_vector& b) {
+  h.setZero();
+  b.setZero();
   const ward_parameters<texel_dual> p = variables(maps, x, y);
   for (std::size_t k = 0; k < cap.images.size(); ++k) {
     const double m = pixel_weight(targets, k, x, y);
     if (m <= 0) continue;
     const auto radiance = texel_radiance<texel_dual>(p, cap.images[k], x, y, maps.width(), maps.height());
     for (int c = 0; c < 3; ++c) {
-      if (!(radiance[std::size_t(c)].value > floor_of(targets, k))) continue;  // max(R, floor) does not move
-      Eigen::Matrix<double, parameter_count, 1> g;
-      const double scale = 1.0 / (radiance[std::size_t(c)].value + double(loss_epsilon));
+      const double value = radiance[std::size_t(c)].value;
+      if (!(value > floor_of(targets, k))) continue;  // max(R, floor) does not move
+      texel_vector g;
+      const double scale = 1.0 / (value + double(loss_epsilon));
       for (int i = 0; i < parameter_count; ++i) g[i] = radiance[std::size_t(c)].grad[std::size_t(i)] * scale;
       h.noalias() += m * g * g.transpose();
+      if constexpr (residuals) b.noalias() += (m * (std::log(value + double(loss_epsilon)) - double(targets.log_images[k].at(c, x, y)))) * g;
     }
   }
+}
+
+}  // namespace uncertainty_detail
+
+/// The Gauss-Newton information of texel (x, y) for one measurement noise of 1 (divide by
+/// noise^2): sum over images and channels of m g g^T with g = d log(max(R, floor) + 0.01) / d theta.
+inline Eigen::Matrix<double, parameter_count, parameter_count> texel_information(const material_maps& maps, const capture& cap,
+                                                                               const loss_targets& targets, int x, int y) {
+  uncertainty_detail::texel_matrix h;
+  uncertainty_detail::texel_vector unused;
+  uncertainty_detail::accumulate_texel<false>(maps, cap, targets, x, y, h, unused);
   return h;
+}
+
+/// Texel (x, y)'s Gauss-Newton normal equations for one measurement noise of 1: the information
+/// (texel_information) and the gradient of half the squared log residuals, sum of m g r with
+/// r = log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01). Where the texel's parameters sit at
+/// the least-squares fit of the photographs the gradient is 0; the Gauss-Newton step from them is
+/// -(information + noise^2 prior)^-1 gradient.
+struct texel_normal_equations {
+  Eigen::Matrix<double, parameter_count, parameter_count> information;  ///< sum of m g g^T
+  Eigen::Matrix<double, parameter_count, 1> gradient;                   ///< sum of m g r
+};
+
+/// texel_normal_equations of texel (x, y) of `maps` against the photographs behind `targets`.
+inline texel_normal_equations texel_gauss_newton(const material_maps& maps, const capture& cap, const loss_targets& targets, int x,
+                                                 int y) {
+  texel_normal_equations e;
+  uncertainty_detail::accumulate_texel<true>(maps, cap, targets, x, y, e.information, e.gradient);
+  return e;
 }
 
 /// The weighted RMS of the log residuals log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01) of
@@ -282,6 +326,7 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
   uncertainty_result result;
   result.noise = options.noise > 0 ? options.noise : std::max(options.min_noise, residual_rms(maps, cap, targets));
   result.sd = material_maps(maps.width(), maps.height());
+  result.step = material_maps(maps.width(), maps.height());
   Eigen::Matrix<double, parameter_count, parameter_count> prior = Eigen::Matrix<double, parameter_count, parameter_count>::Zero();
   for (int i = 0; i < parameter_count; ++i) prior(i, i) = 1.0 / (uncertainty_prior_sd[std::size_t(i)] * uncertainty_prior_sd[std::size_t(i)]);
   const photo_encoding encoding = lossiest_encoding(cap);
@@ -296,10 +341,12 @@ inline uncertainty_result texel_uncertainty(const material_maps& maps, const cap
 #pragma omp for schedule(dynamic, 4)
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
-        const Eigen::Matrix<double, parameter_count, parameter_count> precision = texel_information(maps, cap, targets, x, y) * inv_noise2 + prior;
-        const Eigen::Matrix<double, parameter_count, parameter_count> covariance =
-            precision.ldlt().solve(Eigen::Matrix<double, parameter_count, parameter_count>::Identity());
+        const texel_normal_equations e = texel_gauss_newton(maps, cap, targets, x, y);
+        const Eigen::LDLT<uncertainty_detail::texel_matrix> precision(e.information * inv_noise2 + prior);
+        const uncertainty_detail::texel_matrix covariance = precision.solve(uncertainty_detail::texel_matrix::Identity());
+        const uncertainty_detail::texel_vector step = -precision.solve(e.gradient * inv_noise2);
         for (int i = 0; i < parameter_count; ++i) {
+          result.step.at(i, x, y) = float(step[i]);
           const double laplace = std::sqrt(std::max(0.0, covariance(i, i)));
           result.sd.at(i, x, y) = float(options.calibrated ? table.apply(i, laplace, maps.at(i, x, y)) : laplace);
           // What the photographs determine is the data's information, before the calibration.
