@@ -457,12 +457,14 @@ photo_encoding encoding_from_py(const std::string& name) {
   return *e;
 }
 
-/// capture()'s per-texel uncertainty: the standard deviations as a map set, the noise, the share
-/// of texels each parameter is determined on, and the encoding whose calibration applied.
+/// capture()'s per-texel uncertainty: the standard deviations and the remaining Gauss-Newton steps
+/// as map sets, the noise, the share of texels each parameter is determined on, and the encoding
+/// whose calibration applied.
 py::object uncertainty_py(const std::optional<uncertainty_result>& u) {
   if (!u) return py::none();
   py::dict out;
   out["sd"] = from_maps(u->sd);
+  out["step"] = from_maps(u->step);
   out["noise"] = u->noise;
   py::dict determined;
   for (int k = 0; k < parameter_count; ++k) determined[parameter_name(k)] = u->determined_share[std::size_t(k)];

@@ -1,6 +1,7 @@
-// pipeline/uncertainty.hpp: the information's derivatives against finite differences, the
-// posterior falling back to the prior where the photographs say nothing (F0 under a flash), more
-// photographs making parameters surer, and the files' layout.
+// pipeline/uncertainty.hpp: the information's and the residual gradient's derivatives against
+// finite differences, the remaining Gauss-Newton step finding a texel moved off the photographs'
+// fit, the posterior falling back to the prior where the photographs say nothing (F0 under a
+// flash), more photographs making parameters surer, and the files' layout.
 #include <doctest/doctest.h>
 
 #include <cmath>

@@ -175,6 +175,10 @@ def test_capture_returns_the_uncertainty_calibrated_for_the_photographs_encoding
         assert u["calibration"] == name
         assert u["sd"].shape == result[name]["maps"].shape
         assert np.all(np.isfinite(u["sd"])) and np.all(u["sd"] > 0)
+        # The remaining Gauss-Newton step: as the maps, and small against the deviations where
+        # the refine settled at the photographs' fit (most texels).
+        assert u["step"].shape == result[name]["maps"].shape and np.all(np.isfinite(u["step"]))
+        assert np.median(np.abs(u["step"]) / u["sd"]) < 0.5
         assert set(u["determined_share"]) == {"a_d.r", "a_d.g", "a_d.b", "a_s.r", "a_s.g", "a_s.b", "sigma_x", "sigma_y", "F0",
                                               "n_x", "n_y", "alpha"}
         assert all(0 <= v <= 1 for v in u["determined_share"].values())
