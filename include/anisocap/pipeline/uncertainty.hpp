@@ -136,29 +136,29 @@ constexpr uncertainty_calibration_table with_colour_entries(uncertainty_calibrat
 
 /// The calibration for photographs stored as 8-bit codes without JPEG (photo_encoding::eight_bit,
 /// 8-bit PNGs): each value is rounded to one of 256 codes, alike in every photograph where the
-/// texel's shading is alike. The diffuse albedo and the normal are fitted on 8 captures of 4
+/// texel's shading is alike. The diffuse albedo and the normal are fitted on 16 captures of the 8
 /// families with 12 photographs stored so, the rest are uncertainty_calibration's.
 inline constexpr uncertainty_calibration_table uncertainty_calibration_eight_bit =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.491, 0.6, 0.402, 0.733, 0.663}, {0.002, 0.002, 0.002, 0, 0},
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.402, 0.445, 0.402, 0.733, 0.894}, {0.002, 0.002, 0.002, 0, 0},
                                             {0, 0, 0, 0, 0});
 
 /// The calibration for photographs stored as JPEGs with their colour at full resolution
 /// (photo_encoding::jpeg). JPEG quantises the colour more coarsely than the brightness, an error
 /// alike in every photograph that the residuals cannot show, so the diffuse albedo and the normal
 /// read from the shading need wider deviations than uncertainty_calibration's: those five are
-/// fitted on 8 captures of 4 families with 12 JPEG photographs of quality 95, the rest are
+/// fitted on 16 captures of the 8 families with 12 JPEG photographs of quality 95, the rest are
 /// uncertainty_calibration's.
 inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.894, 0.663, 0.733, 0.894, 0.809},
-                                            {0.002, 0.002, 0.002, 0.005, 0.005}, {0, 0, 0, 0, 0});
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.6, 0.6, 0.733, 0.894, 0.988}, {0.002, 0.002, 0.002, 0, 0},
+                                            {0, 0, 0, 0.02, 0});
 
 /// The calibration for JPEGs with their colour at a lower resolution than their brightness
 /// (photo_encoding::jpeg_subsampled, most phones' JPEGs): the colour is also blurred, alike in
-/// every photograph. The diffuse albedo and the normal are fitted on the same 8 captures stored at
-/// quality 90 (4:2:0), the rest are uncertainty_calibration's.
+/// every photograph. The diffuse albedo and the normal are fitted on the same 16 captures stored
+/// at quality 90 (4:2:0), the rest are uncertainty_calibration's.
 inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg_subsampled =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {1.63, 0.809, 1.63, 1.47, 1.09}, {0, 0.002, 0, 0.002, 0.01},
-                                            {0, 0, 0, 0, 0.02});
+    uncertainty_detail::with_colour_entries(uncertainty_calibration, {1.47, 0.809, 1.47, 1.21, 1.33}, {0, 0.002, 0, 0.005, 0.002},
+                                            {0, 0, 0, 0.02, 0});
 
 /// The lossiest encoding among the photographs `cap` describes (capture_image::encoding).
 inline photo_encoding lossiest_encoding(const capture& cap) {
