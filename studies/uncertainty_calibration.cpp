@@ -9,10 +9,10 @@
 // nothing on an isotropic one). Prints a markdown table; with --dump FILE it writes every counted
 // texel (family, light, images, parameter, error, standard deviation, true value, remaining step)
 // as CSV, for a reliability plot and for fitting the calibration of pipeline/uncertainty.hpp on one
-// seed set and testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit sRGB JPEG of
-// quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone does (with the
-// encoding a capture from such files has, so that its calibration applies); --png8 1 stores
-// them as 8-bit sRGB codes without JPEG, as an 8-bit PNG does.
+// seed set and testing it on another (--seed). --jpeg Q stores each noisy photograph as an 8-bit
+// sRGB JPEG of quality Q (exposed so that its brightest 0.5% clip) and reads it back, as a phone
+// does (with the encoding a capture from such files has, so that its calibration applies); --png8 1
+// stores them as 8-bit sRGB codes without JPEG, as an 8-bit PNG does.
 // --raw reports the uncalibrated standard deviations (uncertainty_options::calibrated off). The
 // records hold each texel's remaining Gauss-Newton step beside them (uncertainty_result::step).
 //

@@ -229,6 +229,12 @@ inline double pixel_weight(const loss_targets& t, std::size_t k, int x, int y) {
 
 inline double floor_of(const loss_targets& t, std::size_t k) { return t.floors.empty() ? 0.0 : double(t.floors[k]); }
 
+/// The log residual of render value R in channel c of pixel (x, y) of image k:
+/// log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01), the target B's term precomputed.
+inline double log_residual(const loss_targets& t, std::size_t k, int c, int x, int y, double radiance) {
+  return std::log(std::max(radiance, floor_of(t, k)) + double(loss_epsilon)) - double(t.log_images[k].at(c, x, y));
+}
+
 }  // namespace uncertainty_detail
 
 namespace uncertainty_detail {
@@ -256,7 +262,7 @@ void accumulate_texel(const material_maps& maps, const capture& cap, const loss_
       const double scale = 1.0 / (value + double(loss_epsilon));
       for (int i = 0; i < parameter_count; ++i) g[i] = radiance[std::size_t(c)].grad[std::size_t(i)] * scale;
       h.noalias() += m * g * g.transpose();
-      if constexpr (residuals) b.noalias() += (m * (std::log(value + double(loss_epsilon)) - double(targets.log_images[k].at(c, x, y)))) * g;
+      if constexpr (residuals) b.noalias() += (m * log_residual(targets, k, c, x, y, value)) * g;
     }
   }
 }
@@ -305,8 +311,7 @@ inline double residual_rms(const material_maps& maps, const capture& cap, const 
         if (m <= 0) continue;
         const auto radiance = texel_radiance<double>(p, cap.images[k], x, y, maps.width(), maps.height());
         for (int c = 0; c < 3; ++c) {
-          const double r = std::log(std::max(radiance[std::size_t(c)], floor_of(targets, k)) + double(loss_epsilon)) -
-                           double(targets.log_images[k].at(c, x, y));
+          const double r = log_residual(targets, k, c, x, y, radiance[std::size_t(c)]);
           sum += m * r * r;
           weight += m;
         }
