@@ -195,7 +195,7 @@ struct progress_hook {
   }
 };
 
-/// The precomputed loss targets of photographs (log images, masks, floors), reused across calls.
+/// The precomputed loss targets of photographs (max(B, floor) + 0.01, masks, floors), reused across calls.
 struct py_targets {
   loss_targets targets;
 };
@@ -215,8 +215,8 @@ py::tuple loss_and_gradient_py(const py::handle& maps_obj, const std::vector<cap
   const material_maps maps = to_maps(maps_obj);
   const capture cap = to_capture(configurations);
   check_size(maps, t.targets.width, t.targets.height, "the photographs");
-  if (cap.images.size() != t.targets.log_images.size())
-    throw py::value_error(std::to_string(cap.images.size()) + " configurations for " + std::to_string(t.targets.log_images.size()) + " photographs");
+  if (cap.images.size() != t.targets.images.size())
+    throw py::value_error(std::to_string(cap.images.size()) + " configurations for " + std::to_string(t.targets.images.size()) + " photographs");
   const brdf_features f = features_of(features);
   const render_options o = render_options_of(precision, cull);
   std::optional<material_maps> grad;
@@ -627,10 +627,10 @@ PYBIND11_MODULE(_anisocap, m) {
         return std::string(s);
       });
 
-  py::class_<py_targets>(m, "LossTargets", "log(photograph + 0.01), masks and floors, precomputed for loss_and_gradient")
+  py::class_<py_targets>(m, "LossTargets", "max(photograph, floor) + 0.01, masks and floors, precomputed for loss_and_gradient")
       .def_property_readonly("width", [](const py_targets& t) { return t.targets.width; })
       .def_property_readonly("height", [](const py_targets& t) { return t.targets.height; })
-      .def_property_readonly("count", [](const py_targets& t) { return t.targets.log_images.size(); });
+      .def_property_readonly("count", [](const py_targets& t) { return t.targets.images.size(); });
 
   m.def("read_maps", [](const fs::path& folder) {
     material_maps maps;

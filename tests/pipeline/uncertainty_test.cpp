@@ -91,7 +91,7 @@ TEST_CASE("texel_gauss_newton: the gradient of half the squared log residuals, c
     for (std::size_t k = 0; k < cap.images.size(); ++k) {
       const auto r = texel_radiance<double>(p, cap.images[k], x, y, maps.width(), maps.height());
       for (int c = 0; c < 3; ++c) {
-        const double d = std::log(r[std::size_t(c)] + double(loss_epsilon)) - double(targets.log_images[k].at(c, x, y));
+        const double d = std::log(r[std::size_t(c)] + double(loss_epsilon)) - std::log(double(targets.images[k].at(c, x, y)));
         sum += 0.5 * double(masks[k].at(0, x, y)) * d * d;
       }
     }

@@ -1,6 +1,7 @@
 // Texel-group skipping and the double-precision path of the fused loss (render/renderer.hpp).
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -107,4 +108,37 @@ TEST_CASE("the loss targets reject NaN and infinite pixels") {
   CHECK_THROWS_WITH_AS(make_loss_targets(photos), doctest::Contains("image 1 has a non-finite value"), std::invalid_argument);
   photos[1].plane(2)[5] = INFINITY;
   CHECK_THROWS_AS(make_loss_targets(photos), std::invalid_argument);
+}
+
+TEST_CASE("the loss's one log for three channels agrees with three logs, also where the products leave float's range") {
+  const int w = 23, h = 19;  // the last block has padding lanes
+  const material_maps maps = random_maps(w, h, 31);
+  for (const float brightness : {1.0f, 1e15f}) {
+    // 1e15: renders near 1e14 against photographs near 1, so a pixel's three max(R', B') multiply
+    // past float's range (3.4e38) and the kernel must take the logs one by one.
+    CAPTURE(brightness);
+    capture cap = random_capture(6, 32);
+    const loss_targets targets = make_loss_targets(render(random_maps(w, h, 33), cap));
+    for (auto& im : cap.images)
+      for (float& i : im.intensity) i *= brightness;
+    std::vector<double> reference_gradient;
+    const double reference = reference_loss<all_features>(maps, cap, targets, reference_gradient);
+    material_maps g(w, h);
+    const double simd = loss_and_gradient(maps, cap, targets, &g);
+    const double scalar = loss_and_gradient<all_features, float>(maps, cap, targets, nullptr);
+    REQUIRE(std::isfinite(simd));
+    CHECK(simd == doctest::Approx(reference).epsilon(1e-5));
+    CHECK(scalar == doctest::Approx(reference).epsilon(1e-5));
+    if (brightness > 1.0f) CHECK(reference > 6.0 * std::log(1e10));  // the renders are that far off
+    // The gradient of the albedos is that of three separate terms.
+    double scale = 0, diff = 0;
+    for (int k = diffuse_r; k <= specular_b; ++k)
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const double r = reference_gradient[std::size_t(k) * w * h + std::size_t(y) * w + x];
+          scale = std::max(scale, std::abs(r));
+          diff = std::max(diff, std::abs(double(g.at(k, x, y)) - r));
+        }
+    CHECK(diff <= 1e-4 * scale);
+  }
 }

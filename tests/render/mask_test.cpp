@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -84,16 +85,17 @@ TEST_CASE("masked pixels: loss and gradient bit-identical whatever their targets
     losses.push_back(l);
     grads.push_back(g);
   });
-  // Targets changed at masked pixels only, directly in the log domain (huge, tiny, the rendered value).
+  // Targets changed at masked pixels only, directly (huge, tiny, negative, NaN, the rendered value).
   const auto rendered = render(s.maps, s.cap);
-  for (int variant = 0; variant < 3; ++variant) {
+  for (int variant = 0; variant < 5; ++variant) {
     loss_targets t = base;
-    for (std::size_t k = 0; k < t.log_images.size(); ++k)
+    for (std::size_t k = 0; k < t.images.size(); ++k)
       for (int c = 0; c < 3; ++c)
-        for (std::size_t i = 0; i < t.log_images[k].pixel_count(); ++i)
-          if (t.masks[k].plane(0)[i] == 0.0f)
-            t.log_images[k].plane(c)[i] = variant == 0 ? 1e6f : variant == 1 ? -1e6f
-                                                                 : std::log(rendered[k].plane(c)[i] + loss_epsilon);
+        for (std::size_t i = 0; i < t.images[k].pixel_count(); ++i)
+          if (t.masks[k].plane(0)[i] == 0.0f) {
+            const float values[4] = {1e30f, 1e-30f, -1e6f, std::numeric_limits<float>::quiet_NaN()};
+            t.images[k].plane(c)[i] = variant < 4 ? values[variant] : rendered[k].plane(c)[i] + loss_epsilon;
+          }
     std::size_t path = 0;
     for_each_path(s, t, [&](double l, const material_maps& g) {
       INFO("variant " << variant << " path " << path);
@@ -122,7 +124,7 @@ TEST_CASE("masked pixels: an unmasked change does move the loss (the test above 
   const double before = loss_and_gradient(s.maps, s.cap, t, nullptr);
   std::size_t used = 0;
   while (t.masks[0].plane(0)[used] == 0.0f) ++used;
-  t.log_images[0].plane(1)[used] += 1.0f;
+  t.images[0].plane(1)[used] *= 2.0f;
   CHECK(loss_and_gradient(s.maps, s.cap, t, nullptr) != before);
 }
 

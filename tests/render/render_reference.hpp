@@ -95,7 +95,7 @@ double reference_loss(const material_maps& m, const capture& cap, const loss_tar
       for (std::size_t k = 0; k < cap.images.size(); ++k) {
         const auto r = reference_radiance<D, F>(p, cap.images[k], x, y, w, h);
         for (int c = 0; c < 3; ++c) {
-          const double d = std::log(r[c].value + loss_epsilon) - targets.log_images[k].at(c, x, y);
+          const double d = std::log(r[c].value + loss_epsilon) - std::log(double(targets.images[k].at(c, x, y)));
           loss += std::abs(d) * scale;
           const double dl = (d >= 0 ? scale : -scale) / (r[c].value + loss_epsilon);
           for (int q = 0; q < 12; ++q) grad[std::size_t(q) * w * h + std::size_t(y) * w + x] += dl * r[c].grad[q];

@@ -95,3 +95,34 @@ TEST_CASE("specular culling changes the loss by at most its stated bound") {
     CHECK(std::abs(culled - exact) <= double(tol) * double(cap.images.size()) + 1e-6);
   }
 }
+
+TEST_CASE("a lobe past exp(max_log_lobe) renders at that bound, with no gradient in its shape") {
+  // Camera and lamp grazing from opposite sides, 2e-6 radians above a flat texel of the narrowest
+  // lobe and the smallest F0: E = log(h.h F/F0 / h_z^4) - log(pi sx sy) is about 51.4.
+  CHECK(ward_limits::max_lobe == float(std::exp(double(ward_limits::max_log_lobe))));
+  material_maps maps(1, 1);
+  for (int c = 0; c < 3; ++c) {
+    maps.at(diffuse_r + c, 0, 0) = 0.0f;
+    maps.at(specular_r + c, 0, 0) = 1.0f;
+  }
+  maps.at(lobe_x, 0, 0) = maps.at(lobe_y, 0, 0) = ward_limits::min_lobe;
+  maps.at(fresnel_f0, 0, 0) = ward_limits::min_f0;
+  maps.at(normal_x, 0, 0) = maps.at(normal_y, 0, 0) = maps.at(rotation, 0, 0) = 0.0f;
+  const float z = 4e-6f;
+  capture cap;
+  capture_image im;
+  im.light = {2.0f, 0.0f, z};
+  im.camera = {-2.0f, 0.0f, z};
+  cap.images.push_back(im);
+  const double r2 = 4.0 + double(z) * z, cos_l = double(z) / std::sqrt(r2);
+  const double bound = double(ward_limits::max_lobe) * cos_l / r2;  // a'_s = 1, intensity 1
+  for (const auto& images : {render(maps, cap), render<all_features, float>(maps, cap)})
+    for (int c = 0; c < 3; ++c) CHECK(double(images[0].at(c, 0, 0)) == doctest::Approx(bound).epsilon(1e-4));
+  CHECK(double(reference_radiance<double>(maps, im, 0, 0, all_features)[0]) == doctest::Approx(bound).epsilon(1e-4));
+  // The gradient in the lobe's shape is zero at the bound; the albedo's is not.
+  const loss_targets targets = make_loss_targets({image(1, 1, 3)});
+  material_maps g(1, 1);
+  loss_and_gradient(maps, cap, targets, &g);
+  for (int k : {lobe_x, lobe_y, fresnel_f0, rotation}) CHECK(g.at(k, 0, 0) == 0.0f);
+  CHECK(g.at(specular_r, 0, 0) > 0.0f);
+}

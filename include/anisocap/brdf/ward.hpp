@@ -38,6 +38,8 @@ inline constexpr float min_hz = 1e-6f;
 /// The log of the specular lobe is clamped above at this value (exp(50) ~ 5e21): reached only in
 /// degenerate configurations (near-opposite grazing l and v with sigma ~ 1e-4); keeps values finite.
 inline constexpr float max_log_lobe = 50.0f;
+/// exp(max_log_lobe) rounded to float: the lobe's own bound, for kernels that form exp(E) without E.
+inline constexpr float max_lobe = 5.18470553e21f;
 /// Squared light distance is clamped below at this value (a light touching the surface).
 inline constexpr float min_distance2 = 1e-6f;
 /// 1 - n_x^2 - n_y^2 is clamped below at this value (normals at the horizon).

@@ -136,7 +136,7 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
   o.validate();
   uo.validate();
   if (!(noise > 0) || !std::isfinite(noise)) throw std::invalid_argument("plan: the noise must be a positive number");
-  if (targets.width != maps.width() || targets.height != maps.height() || targets.log_images.size() != cap.images.size())
+  if (targets.width != maps.width() || targets.height != maps.height() || targets.images.size() != cap.images.size())
     throw std::invalid_argument("plan: the maps, the configurations and the photographs' targets disagree in size");
   plan_result result;
   result.noise = noise;
@@ -158,7 +158,7 @@ inline plan_result plan_photographs(const material_maps& maps, const capture& ca
   loss_targets one;
   one.width = maps.width();
   one.height = maps.height();
-  one.log_images.assign(1, image(1, 1, 3));
+  one.images.assign(1, image(1, 1, 3));
   std::vector<capture> singles(candidates.size());
   for (std::size_t c = 0; c < candidates.size(); ++c) singles[c].images.push_back(candidates[c].config);
   auto information = [&](std::size_t c, const texel& t) { return texel_information(maps, singles[c], one, t.x, t.y); };

@@ -230,9 +230,9 @@ inline double pixel_weight(const loss_targets& t, std::size_t k, int x, int y) {
 inline double floor_of(const loss_targets& t, std::size_t k) { return t.floors.empty() ? 0.0 : double(t.floors[k]); }
 
 /// The log residual of render value R in channel c of pixel (x, y) of image k:
-/// log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01), the target B's term precomputed.
+/// log(max(R, floor) + 0.01) - log(max(B, floor) + 0.01), the target's max(B, floor) + 0.01 precomputed.
 inline double log_residual(const loss_targets& t, std::size_t k, int c, int x, int y, double radiance) {
-  return std::log(std::max(radiance, floor_of(t, k)) + double(loss_epsilon)) - double(t.log_images[k].at(c, x, y));
+  return std::log(std::max(radiance, floor_of(t, k)) + double(loss_epsilon)) - std::log(double(t.images[k].at(c, x, y)));
 }
 
 }  // namespace uncertainty_detail
@@ -326,7 +326,7 @@ inline double residual_rms(const material_maps& maps, const capture& cap, const 
 inline uncertainty_result texel_uncertainty(const material_maps& maps, const capture& cap, const loss_targets& targets,
                                             const uncertainty_options& options = {}) {
   options.validate();
-  if (targets.width != maps.width() || targets.height != maps.height() || targets.log_images.size() != cap.images.size())
+  if (targets.width != maps.width() || targets.height != maps.height() || targets.images.size() != cap.images.size())
     throw std::invalid_argument("texel_uncertainty: the maps, the configurations and the photographs' targets disagree in size");
   uncertainty_result result;
   result.noise = options.noise > 0 ? options.noise : std::max(options.min_noise, residual_rms(maps, cap, targets));

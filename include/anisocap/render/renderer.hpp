@@ -191,7 +191,7 @@ template <class V, std::size_t N>
 struct shading {
   V valid;                    ///< 1 where the texel is lit and seen, else 0
   V lobe;                     ///< exp(E): specular lobe times Fresnel ratio (0 if culled/invalid)
-  ad::dual<V, N> log_lobe;    ///< E with its gradient
+  ad::dual<V, N> log_lobe;    ///< the gradient of E (its value is not formed: `lobe` is exp(E))
   /// G = max(0, n.l) / r^2 with its gradient (intensity not included); only the normal slots of
   /// the gradient are set (G depends on no other parameter), the others are left unset.
   ad::dual<V, N> geometry;
@@ -291,10 +291,13 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
     ratio = V(1) + t.inv_f0m1 * m5;
     log_arg = log_arg * ratio;
   }
-  // E = -q / h_z^2 + log((h.h) * F/F0 / h_z^4) - log(pi sx sy): the whole lobe as one exp.
-  const V e_raw = simd::log_positive(log_arg) + t.log_norm - q * inv_hn2;
-  const auto e_below = e_raw < V(max_log_lobe);
-  s.log_lobe.value = simd::select(e_below, e_raw, V(max_log_lobe));
+  // E = -q / h_z^2 + log((h.h) * F/F0 / h_z^4) - log(pi sx sy), and the lobe exp(E) taken as
+  // (h.h) F/F0 / h_z^4 * exp(-log(pi sx sy) - q / h_z^2): one exp and no log. The product stays
+  // below 2e36 (h.h <= 4, h_z >= 1e-6, F0 >= 1e-4, sx, sy >= 1e-4), and E >= max_log_lobe reads as
+  // the lobe at or past exp(max_log_lobe).
+  const V lobe_raw = log_arg * simd::exp(t.log_norm - q * inv_hn2);
+  const auto e_below = lobe_raw < V(max_lobe);
+  const V lobe = simd::select(e_below, lobe_raw, V(max_lobe));
   if constexpr (N > 0) {
     // Zero where E is clamped at max_log_lobe.
     const V gate = simd::select(e_below, V(1), V(0));
@@ -331,21 +334,21 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
   // Culling test: a'_s <= 1, so the lobe's contribution is below exp(E) * G per unit intensity.
   s.specular_culled = false;
   if (cull_log_bound > -1e30f) {
-    const auto negligible = (s.log_lobe.value + simd::log(simd::max(s.geometry.value, V(1e-30f)))) < V(cull_log_bound);
+    const auto negligible = simd::log(simd::max(lobe * s.geometry.value, V(1e-30f))) < V(cull_log_bound);
     if (simd::all(negligible | !lit)) {
       s.specular_culled = true;
       s.lobe = V(0);
       return s;
     }
   }
-  s.lobe = simd::select(lit, simd::exp(s.log_lobe.value), V(0));
+  s.lobe = simd::select(lit, lobe, V(0));
   return s;
 }
 
 }  // namespace detail
 
-/// log(B + 0.01) of every target image, computed once per capture for the fused loss, with the
-/// pixels each image's loss uses.
+/// The target images as the fused loss reads them, B' = max(B, f) + 0.01 (f: the image's floor,
+/// below), computed once per capture, with the pixels each image's loss uses.
 ///
 /// Masks: a pixel with mask 0 is left out of the loss exactly: it adds 0 to the loss and 0 to every
 /// gradient entry, whatever its target holds. A mask value m in (0, 1] weighs the pixel's terms by
@@ -361,7 +364,9 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
 /// whose photograph and render both lie below f adds nothing, and a render below f gets no
 /// gradient. f = 0 is the plain loss.
 struct loss_targets {
-  std::vector<image> log_images;  ///< one 3-channel planar image per capture image
+  /// One 3-channel planar image per capture image: max(B, f) + 0.01, every value >= 0.01 (a masked
+  /// pixel holds 0.01; its value never enters the loss). The loss compares log(R + 0.01) with log B'.
+  std::vector<image> images;
   /// Empty: every pixel is used with weight 1. Otherwise one 1-channel image per capture image of
   /// per-pixel weights in [0, 1]: 0 = left out.
   std::vector<image> masks;
@@ -378,9 +383,9 @@ struct loss_targets {
 inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int width, int height, loss_targets& out) {
   if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 + width > from.width || y0 + height > from.height)
     throw std::invalid_argument("crop_loss_targets: window outside the targets");
-  if (out.width != width || out.height != height || out.log_images.size() != from.log_images.size() ||
+  if (out.width != width || out.height != height || out.images.size() != from.images.size() ||
       out.masks.size() != from.masks.size()) {
-    out.log_images.assign(from.log_images.size(), image(width, height, 3));
+    out.images.assign(from.images.size(), image(width, height, 3));
     out.masks.assign(from.masks.size(), image(width, height, 1));
     out.width = width;
     out.height = height;
@@ -391,8 +396,8 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
     for (int y = 0; y < height; ++y)
       std::copy_n(src.plane(c) + std::size_t(y0 + y) * from.width + x0, width, dst.plane(c) + std::size_t(y) * width);
   };
-  for (std::size_t k = 0; k < from.log_images.size(); ++k)
-    for (int c = 0; c < 3; ++c) copy_window(from.log_images[k], out.log_images[k], c);
+  for (std::size_t k = 0; k < from.images.size(); ++k)
+    for (int c = 0; c < 3; ++c) copy_window(from.images[k], out.images[k], c);
   for (std::size_t k = 0; k < from.masks.size(); ++k) copy_window(from.masks[k], out.masks[k], 0);
 }
 
@@ -402,8 +407,8 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
 /// else one level >= 0 per photograph, in its units: see loss_targets). Throws
 /// std::invalid_argument on a NaN or infinite pixel where the mask uses it, on masks or floors of
 /// the wrong number or size, on a negative or non-finite floor, and on an image whose every pixel
-/// is masked; negative values count as 0. Masked pixels get the target log(0.01) (their value
-/// never enters the loss).
+/// is masked; negative values count as 0. Masked pixels get the target 0.01 (their value never
+/// enters the loss).
 inline loss_targets make_loss_targets(const std::vector<image>& photos, const std::vector<image>& masks = {},
                                       const std::vector<float>& floors = {}) {
   loss_targets t;
@@ -450,7 +455,7 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
     for (int c = 0; c < 3; ++c)
       for (std::size_t k = 0; k < p.pixel_count(); ++k) {
         if (mask && mask[k] == 0.0f) {
-          l.plane(c)[k] = std::log(loss_epsilon);
+          l.plane(c)[k] = loss_epsilon;
           continue;
         }
         const float v = p.plane(c)[k];
@@ -458,9 +463,9 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
           throw std::invalid_argument("make_loss_targets: image " + std::to_string(i) + " has a non-finite value (" +
                                       std::to_string(v) + ") at pixel (" + std::to_string(k % std::size_t(p.width())) + ", " +
                                       std::to_string(k / std::size_t(p.width())) + "), channel " + std::to_string(c));
-        l.plane(c)[k] = std::log(std::max(v, floor) + loss_epsilon);
+        l.plane(c)[k] = std::max(v, floor) + loss_epsilon;
       }
-    t.log_images.push_back(std::move(l));
+    t.images.push_back(std::move(l));
   }
   return t;
 }
@@ -573,9 +578,9 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       return loss_and_gradient<F, W>(maps, cap, targets, gradient, placement, o, groups);
     }
   }
-  if (targets.log_images.size() != cap.images.size())
+  if (targets.images.size() != cap.images.size())
     throw std::invalid_argument("loss_and_gradient: " + std::to_string(cap.images.size()) + " configurations but " +
-                                std::to_string(targets.log_images.size()) + " target images");
+                                std::to_string(targets.images.size()) + " target images");
   if (targets.width != maps.width() || targets.height != maps.height())
     throw std::invalid_argument("loss_and_gradient: target images and maps differ in size");
   if ((!targets.masks.empty() && targets.masks.size() != cap.images.size()) ||
@@ -613,52 +618,78 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     V px, py;
     detail::texel_positions<V>(i, maps.width(), tp, px, py);
     // Lanes past the last texel (padding of the final block) get weight 0.
-    const V lane_weight = i + L <= texels ? V(scale)
-                                          : simd::select(simd::iota<V>(S(0)) < V(S(texels - i)), V(scale), V(0));
+    const bool partial = i + L > texels;
+    const auto in_range = partial ? simd::iota<V>(S(0)) < V(S(texels - i)) : V(0) == V(0);
+    const V lane_weight = simd::select(in_range, V(scale), V(0));
     detail::texel_state<F, V, N> t;
     t.load(maps, i, px, py);
     V g_diffuse[3] = {V(0), V(0), V(0)}, g_specular[3] = {V(0), V(0), V(0)};
     std::array<V, N> g_dual;
     g_dual.fill(V(0));
+    const V kd[3] = {t.diffuse[0] * V(inv_pi), t.diffuse[1] * V(inv_pi), t.diffuse[2] * V(inv_pi)};
     for (std::size_t k = 0; k < configs.size(); ++k) {
       const auto s = detail::shade<F, V, N>(t, configs[k], cull);
       const V geometry = s.geometry.value;
       // This image's weight per lane: m T / U_k, and 0 where its mask leaves the pixel out.
       V weight = targets.weights.empty() ? lane_weight : lane_weight * V(S(targets.weights[k]));
-      bool masked = false;
-      auto used = V(0) == V(0);  // every lane
+      // The lanes this image's loss uses: inside the maps and, with masks, not masked out.
+      bool masked = partial;
+      auto used = in_range;
       if (!targets.masks.empty()) {
         masked = true;
         const V m = simd::load<V>(targets.masks[k].plane(0) + i);
-        used = m != V(0);
+        used = used & (m != V(0));
         weight = simd::select(used, weight * m, V(0));
       }
       const bool floored = !targets.floors.empty() && targets.floors[k] > 0.0f;
       const V floor(S(floored ? targets.floors[k] : 0.0f));
       V w_spec(0), w_geom(0);  // sum_c dL/dR_c * specular_c / ... (see below)
+      // The three channels' loss terms take one log: with R' = R + 0.01 and B' the target,
+      //   sum_c |log R'_c - log B'_c| = log(prod_c max(R'_c, B'_c) / prod_c min(R'_c, B'_c)).
+      // A masked lane's factors are 1 whatever its target (its terms add +0, and its weight 0
+      // zeroes its gradient), so no value of a masked target can reach the results; so are the
+      // lanes past the last texel, which read the planes' padding.
+      V above_product(1), below_product(1);
+      V rendered[3], target[3];
       for (int c = 0; c < 3; ++c) {
         const V intensity(configs[k].intensity[c]);
-        const V kd = t.diffuse[c] * V(inv_pi);
         const V spec = t.specular[c] * s.lobe;                 // a'_s exp(E)
-        V radiance = (kd + spec) * geometry * intensity;       // R_c
+        const V albedo_sum = kd[c] + spec;
+        const V lit_intensity = geometry * intensity;
+        V radiance = albedo_sum * lit_intensity;               // R_c
         V below_floor_weight = weight;                         // 0 where the render lies under the floor
         if (floored) {
           below_floor_weight = simd::select(radiance < floor, V(0), weight);
           radiance = simd::max(radiance, floor);
         }
-        const V target = simd::load<V>(targets.log_images[k].plane(c) + i);
-        V diff = simd::log_positive(radiance + V(loss_epsilon)) - target;
-        // A masked lane's difference is 0 whatever its target: it adds +0 to the loss and to the
-        // gradient (weight 0, sign +), so no value of a masked target can reach the results.
-        if (masked) diff = simd::select(used, diff, V(0));
-        loss_acc += simd::abs(diff) * weight;
-        // dL/dR_c = sign(diff) / (R_c + eps) * weight, 0 below the floor (max(R, f) is flat there).
-        const V dl = simd::select(diff >= V(0), below_floor_weight, -below_floor_weight) * simd::reciprocal(radiance + V(loss_epsilon));
-        const V dl_gi = dl * geometry * intensity;
-        g_diffuse[c] += dl_gi * V(inv_pi);
+        rendered[c] = radiance + V(loss_epsilon);
+        target[c] = simd::load<V>(targets.images[k].plane(c) + i);
+        V high = simd::max(rendered[c], target[c]), low = simd::min(rendered[c], target[c]);
+        if (masked) {
+          high = simd::select(used, high, V(1));
+          low = simd::select(used, low, V(1));
+        }
+        above_product *= high;
+        below_product *= low;
+        // dL/dR_c = sign(R'_c - B'_c) / R'_c * weight, 0 below the floor (max(R, f) is flat there).
+        const V dl = simd::select(rendered[c] >= target[c], below_floor_weight, -below_floor_weight) *
+                     simd::reciprocal(rendered[c]);
+        const V dl_gi = dl * lit_intensity;
+        g_diffuse[c] += dl_gi;             // times 1/pi once the configurations are summed
         g_specular[c] += dl_gi * s.lobe;
         w_spec += dl_gi * spec;            // dR_c/dE = spec * G * I
-        w_geom += dl * (kd + spec) * intensity;  // dR_c/dG = (kd + spec) * I
+        w_geom += dl * albedo_sum * intensity;  // dR_c/dG = (kd + spec) * I
+      }
+      // Both products lie in [1e-6, 1e30) unless a render is absurdly bright (R' / B' past 1e10):
+      // then the three logs are taken one by one.
+      if (simd::all(above_product < V(S(1e30)))) {
+        loss_acc += simd::log_positive(above_product / below_product) * weight;
+      } else {
+        for (int c = 0; c < 3; ++c) {
+          V term = simd::abs(simd::log_positive(rendered[c]) - simd::log_positive(target[c]));
+          if (masked) term = simd::select(used, term, V(0));
+          loss_acc += term * weight;
+        }
       }
       if constexpr (N > 0) {
         if (!s.specular_culled)
@@ -669,7 +700,7 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     }
     if (gradient) {
       for (int c = 0; c < 3; ++c) {
-        simd::store<V>(gradient->plane(diffuse_r + c) + i, g_diffuse[c]);
+        simd::store<V>(gradient->plane(diffuse_r + c) + i, g_diffuse[c] * V(inv_pi));
         simd::store<V>(gradient->plane(specular_r + c) + i, g_specular[c]);
       }
       for (int pl : {lobe_x, lobe_y, fresnel_f0, normal_x, normal_y, rotation}) {

@@ -58,8 +58,8 @@ def image_loss(maps, configurations, targets, features="full", precision=None):
 
 class ImageLoss(torch.nn.Module):
     """The image loss against fixed photographs, as a module: ``ImageLoss(configurations, photos,
-    masks=None, floors=None, features="full")(maps)``. The photographs' log images are computed
-    once, here."""
+    masks=None, floors=None, features="full")(maps)``. The photographs' side of the loss is
+    computed once, here."""
 
     def __init__(self, configurations, photos, masks=None, floors=None, features="full"):
         super().__init__()
