@@ -139,6 +139,23 @@ struct texel_state {
   V d_inv_f0m1;                   ///< d(1 / F0 - 1) / dF0 = -1 / F0^2
   V d_rotation;                   ///< dE/dalpha = d_rotation * hxl * hyl / h_z^2
 
+  /// Multiplies a sum over configurations of `shading::log_lobe.grad` terms by the per-texel
+  /// factors `shade` leaves out of them: 1/sx, 1/sy, d(1/F0 - 1)/dF0 and d_rotation. A zero sum
+  /// stays +0 (the product plus +0), as a masked texel's gradient must be.
+  template <std::size_t M>
+  void apply_lobe_factors(std::array<V, M>& g) const {
+    using slots = parameter_slots<F>;
+    if constexpr (M > 0) {
+      auto scale = [&](int p, const V& factor) { g[std::size_t(p)] = simd::fma(g[std::size_t(p)], factor, V(0)); };
+      scale(slots::sx, inv_sx);
+      if constexpr (F.anisotropic) {
+        scale(slots::sy, inv_sy);
+        scale(slots::alpha, d_rotation);
+      }
+      if constexpr (F.fresnel) scale(slots::f0, d_inv_f0m1);
+    }
+  }
+
   /// Loads texel parameters at flat index i (lanes i..i+lanes-1).
   void load(const material_maps& maps, std::size_t i, V px_, V py_) {
     using namespace ward_limits;
@@ -191,7 +208,10 @@ template <class V, std::size_t N>
 struct shading {
   V valid;                    ///< 1 where the texel is lit and seen, else 0
   V lobe;                     ///< exp(E): specular lobe times Fresnel ratio (0 if culled/invalid)
-  ad::dual<V, N> log_lobe;    ///< the gradient of E (its value is not formed: `lobe` is exp(E))
+  /// The gradient of E (its value is not formed: `lobe` is exp(E)). In the slots of sx, sy, F0
+  /// and alpha it is dE/dp divided by the texel's factor (texel_state::apply_lobe_factors), which
+  /// the caller applies once to its sum over configurations.
+  ad::dual<V, N> log_lobe;
   /// G = max(0, n.l) / r^2 with its gradient (intensity not included); only the normal slots of
   /// the gradient are set (G depends on no other parameter), the others are left unset.
   ad::dual<V, N> geometry;
@@ -303,13 +323,13 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
     const V gate = simd::select(e_below, V(1), V(0));
     const V gate_hn2 = gate * inv_hn2;
     if constexpr (F.anisotropic) {
-      s.log_lobe.grad[slots::sx] = t.inv_sx * simd::fma(V(2) * gate_hn2, qx, -gate);
-      s.log_lobe.grad[slots::sy] = t.inv_sy * simd::fma(V(2) * gate_hn2, qy, -gate);
-      s.log_lobe.grad[slots::alpha] = t.d_rotation * gate_hn2 * hxl * hyl;
+      s.log_lobe.grad[slots::sx] = simd::fma(V(2) * gate_hn2, qx, -gate);
+      s.log_lobe.grad[slots::sy] = simd::fma(V(2) * gate_hn2, qy, -gate);
+      s.log_lobe.grad[slots::alpha] = gate_hn2 * hxl * hyl;
     } else {
-      s.log_lobe.grad[slots::sx] = t.inv_sx * simd::fma(V(2) * gate_hn2, q, V(-2) * gate);
+      s.log_lobe.grad[slots::sx] = simd::fma(V(2) * gate_hn2, q, V(-2) * gate);
     }
-    if constexpr (F.fresnel) s.log_lobe.grad[slots::f0] = gate * t.d_inv_f0m1 * m5 / ratio;
+    if constexpr (F.fresnel) s.log_lobe.grad[slots::f0] = gate * m5 / ratio;
     if constexpr (F.normal_map) {
       // dE/dh_z through log(1 / h_z^4) and -q / h_z^2 (zero where h_z is clamped), and dE/dq.
       V de_dhn = simd::select(hn_above, gate * inv_hn * simd::fma(V(2) * q, inv_hn2, V(-4)), V(0));
@@ -699,6 +719,7 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       }
     }
     if (gradient) {
+      t.apply_lobe_factors(g_dual);
       for (int c = 0; c < 3; ++c) {
         simd::store<V>(gradient->plane(diffuse_r + c) + i, g_diffuse[c] * V(inv_pi));
         simd::store<V>(gradient->plane(specular_r + c) + i, g_specular[c]);
