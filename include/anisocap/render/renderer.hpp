@@ -14,9 +14,9 @@
 /// gradients over the active non-linear parameters (sx, sy, F0, nx, ny, alpha: as many as the
 /// compile-time `brdf_features` enable). E's derivatives in sx, sy, F0 and alpha are written in
 /// closed form (see `detail::shade`); the normal's two components reach E and G by the chain rule
-/// through h_z, the tangent frame and n.l; albedos enter linearly. The results are `ad::dual`s
-/// over the active parameters. Gradients are formed as (dL/dR * R) * dE, which stays finite when
-/// R is huge or tiny.
+/// through h_z, the tangent frame and n.l; albedos enter linearly. The results are arrays over
+/// the active parameters (G's an `ad::dual`). Gradients are formed as (dL/dR * R) * dE, which
+/// stays finite when R is huge or tiny.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -139,7 +139,7 @@ struct texel_state {
   V d_inv_f0m1;                   ///< d(1 / F0 - 1) / dF0 = -1 / F0^2
   V d_rotation;                   ///< dE/dalpha = d_rotation * hxl * hyl / h_z^2
 
-  /// Multiplies a sum over configurations of `shading::log_lobe.grad` terms by the per-texel
+  /// Multiplies a sum over configurations of `shading::lobe_gradient` terms by the per-texel
   /// factors `shade` leaves out of them: 1/sx, 1/sy, d(1/F0 - 1)/dF0 and d_rotation. A zero sum
   /// stays +0 (the product plus +0), as a masked texel's gradient must be.
   template <std::size_t M>
@@ -208,10 +208,10 @@ template <class V, std::size_t N>
 struct shading {
   V valid;                    ///< 1 where the texel is lit and seen, else 0
   V lobe;                     ///< exp(E): specular lobe times Fresnel ratio (0 if culled/invalid)
-  /// The gradient of E (its value is not formed: `lobe` is exp(E)). In the slots of sx, sy, F0
-  /// and alpha it is dE/dp divided by the texel's factor (texel_state::apply_lobe_factors), which
-  /// the caller applies once to its sum over configurations.
-  ad::dual<V, N> log_lobe;
+  /// The gradient of E = log(lobe) (E itself is not formed). In the slots of sx, sy, F0 and alpha
+  /// it is dE/dp divided by the texel's factor (texel_state::apply_lobe_factors), which the caller
+  /// applies once to its sum over configurations.
+  std::array<V, N> lobe_gradient;
   /// G = max(0, n.l) / r^2 with its gradient (intensity not included); only the normal slots of
   /// the gradient are set (G depends on no other parameter), the others are left unset.
   ad::dual<V, N> geometry;
@@ -323,13 +323,13 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
     const V gate = simd::select(e_below, V(1), V(0));
     const V gate_hn2 = gate * inv_hn2;
     if constexpr (F.anisotropic) {
-      s.log_lobe.grad[slots::sx] = simd::fma(V(2) * gate_hn2, qx, -gate);
-      s.log_lobe.grad[slots::sy] = simd::fma(V(2) * gate_hn2, qy, -gate);
-      s.log_lobe.grad[slots::alpha] = gate_hn2 * hxl * hyl;
+      s.lobe_gradient[slots::sx] = simd::fma(V(2) * gate_hn2, qx, -gate);
+      s.lobe_gradient[slots::sy] = simd::fma(V(2) * gate_hn2, qy, -gate);
+      s.lobe_gradient[slots::alpha] = gate_hn2 * hxl * hyl;
     } else {
-      s.log_lobe.grad[slots::sx] = simd::fma(V(2) * gate_hn2, q, V(-2) * gate);
+      s.lobe_gradient[slots::sx] = simd::fma(V(2) * gate_hn2, q, V(-2) * gate);
     }
-    if constexpr (F.fresnel) s.log_lobe.grad[slots::f0] = gate * m5 / ratio;
+    if constexpr (F.fresnel) s.lobe_gradient[slots::f0] = gate * m5 / ratio;
     if constexpr (F.normal_map) {
       // dE/dh_z through log(1 / h_z^4) and -q / h_z^2 (zero where h_z is clamped), and dE/dq.
       V de_dhn = simd::select(hn_above, gate * inv_hn * simd::fma(V(2) * q, inv_hn2, V(-4)), V(0));
@@ -347,7 +347,7 @@ ANISOCAP_ALWAYS_INLINE shading<V, N> shade(const texel_state<F, V, N>& t, const 
       for (int p = 0; p < 2; ++p) {
         V g = de_dhn * dhn[p];
         if constexpr (F.anisotropic) g = simd::fma(de_dht, dht[p], simd::fma(de_dhb, dhb[p], g));
-        s.log_lobe.grad[p == 0 ? slots::nx_ : slots::ny_] = g;
+        s.lobe_gradient[p == 0 ? slots::nx_ : slots::ny_] = g;
       }
     }
   }
@@ -713,7 +713,7 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       }
       if constexpr (N > 0) {
         if (!s.specular_culled)
-          for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_spec, s.log_lobe.grad[p], g_dual[p]);
+          for (std::size_t p = 0; p < N; ++p) g_dual[p] = simd::fma(w_spec, s.lobe_gradient[p], g_dual[p]);
         if constexpr (F.normal_map)
           for (int p : {slots::nx_, slots::ny_}) g_dual[p] = simd::fma(w_geom, s.geometry.grad[p], g_dual[p]);
       }
