@@ -7,6 +7,7 @@
 // and the ratios that matter: a crop step against a whole step, the paper preset against compact.
 //
 // usage: anisocap_study_finetune_step [--size 256] [--repeats 40] [--warmup 8] [--crop 4] [--models DIR]
+//                                     [--precision fp32|bf16] [--presets compact,paper]
 #include <omp.h>
 
 #include <algorithm>
@@ -106,6 +107,7 @@ void print(const char* name, const step_times& s, int crop) {
 int main(int argc, char** argv) {
   int size = 256, repeats = 40, warmup = 8, crop = 4;
   std::filesystem::path models = ANISOCAP_SWEEP_MODELS;
+  std::string precision = "fp32", presets = "compact,paper";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (i + 1 >= argc) { std::fprintf(stderr, "finetune_step: %s needs a value\n", a.c_str()); return 2; }
@@ -114,26 +116,42 @@ int main(int argc, char** argv) {
     else if (a == "--warmup") warmup = std::stoi(argv[++i]);
     else if (a == "--crop") crop = std::stoi(argv[++i]);
     else if (a == "--models") models = argv[++i];
+    else if (a == "--precision") precision = argv[++i];
+    else if (a == "--presets") presets = argv[++i];
     else { std::fprintf(stderr, "finetune_step: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
   if (size < 32 || repeats < 1 || warmup < 0 || crop < 1) { std::fprintf(stderr, "finetune_step: bad option values\n"); return 2; }
-  std::printf("fine-tune step, %d x %d, 12 inputs, %d threads, medians of %d steps (ms)\n\n", size, size, omp_get_max_threads(), repeats);
-  std::printf("| preset | decode | to maps | loss + gradient | chain rule | backward | Adam | whole step | crop step | crop / whole |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
-  auto_encoder<autoencoder_compact> compact;
+  const bool run_compact = presets.find("compact") != std::string::npos, run_paper = presets.find("paper") != std::string::npos;
+  if (!run_compact && !run_paper) { std::fprintf(stderr, "finetune_step: --presets names neither compact nor paper\n"); return 2; }
   try {
-    nn::load_weights(models / "compact" / "autoencoder.safetensors", compact);
+    nn::set_convolution_precision(nn::parse_precision(precision, "--precision"));
   } catch (const std::exception& e) {
     std::fprintf(stderr, "finetune_step: %s\n", e.what());
-    return 1;
+    return 2;
   }
-  const step_times c = time_steps(compact, size, repeats, warmup, crop);
-  print("compact", c, crop);
-  auto paper = std::make_unique<auto_encoder<autoencoder_paper>>(1);
-  const step_times p = time_steps(*paper, size, repeats, warmup, crop);
-  print("paper", p, crop);
-  std::printf("\npaper / compact whole step: %.2fx\n", median(p.total) / median(c.total));
-  std::printf("5000 whole steps: compact %.0f s, paper %.0f s; 5000 crop steps: compact %.0f s, paper %.0f s\n",
-              5 * median(c.total), 5 * median(p.total), 5 * median(c.crop), 5 * median(p.crop));
+  std::printf("fine-tune step, %d x %d, 12 inputs, %s convolutions, %d threads, medians of %d steps (ms)\n\n", size, size,
+              precision.c_str(), omp_get_max_threads(), repeats);
+  std::printf("| preset | decode | to maps | loss + gradient | chain rule | backward | Adam | whole step | crop step | crop / whole |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
+  step_times c, p;
+  if (run_compact) {
+    auto_encoder<autoencoder_compact> compact;
+    try {
+      nn::load_weights(models / "compact" / "autoencoder.safetensors", compact);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "finetune_step: %s\n", e.what());
+      return 1;
+    }
+    c = time_steps(compact, size, repeats, warmup, crop);
+    print("compact", c, crop);
+  }
+  if (run_paper) {
+    auto paper = std::make_unique<auto_encoder<autoencoder_paper>>(1);
+    p = time_steps(*paper, size, repeats, warmup, crop);
+    print("paper", p, crop);
+  }
+  if (run_compact && run_paper) std::printf("\npaper / compact whole step: %.2fx\n", median(p.total) / median(c.total));
+  if (run_compact) std::printf("5000 steps: compact %.0f s whole, %.0f s crop\n", 5 * median(c.total), 5 * median(c.crop));
+  if (run_paper) std::printf("5000 steps: paper %.0f s whole, %.0f s crop\n", 5 * median(p.total), 5 * median(p.crop));
   return 0;
 }

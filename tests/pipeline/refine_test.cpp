@@ -35,6 +35,29 @@ TEST_CASE("the refine parameterisation round-trips valid maps") {
     for (std::size_t i = 0; i < maps.texel_count(); ++i) CHECK(back.plane(k)[i] == doctest::Approx(maps.plane(k)[i]).epsilon(1e-3));
 }
 
+TEST_CASE("the refine parameterisation skips frozen groups and writes the others as on every texel") {
+  // 40 x 30 = 1200 texels: 18 whole groups and a short last one (1200 - 18 * 64 = 48 texels).
+  const int w = 40, h = 30;
+  const material_maps u = unconstrained_from_maps(random_maps(w, h, 5));
+  material_maps all(w, h), all_jac(w, h);
+  detail::maps_from_unconstrained(u, all, all_jac);
+  std::vector<std::uint8_t> active(texel_groups::count(all));
+  REQUIRE(active.size() == 19);
+  for (std::size_t g = 0; g < active.size(); ++g) active[g] = std::uint8_t(g % 3 != 1);  // the last one active
+  material_maps some(w, h), some_jac(w, h);
+  const float sentinel[parameter_count] = {-7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7};
+  some.fill(sentinel);
+  some_jac.fill(sentinel);
+  detail::maps_from_unconstrained(u, some, some_jac, 0, std::size_t(-1), active.data());
+  for (std::size_t i = 0; i < all.texel_count(); ++i)
+    for (int k = 0; k < parameter_count; ++k) {
+      const bool written = active[i / texel_group_size] != 0;
+      CHECK(some.plane(k)[i] == (written ? all.plane(k)[i] : -7.0f));
+      if (k != normal_x && k != normal_y)  // the normals' Jacobian is not stored
+        CHECK(some_jac.plane(k)[i] == (written ? all_jac.plane(k)[i] : -7.0f));
+    }
+}
+
 TEST_CASE("refine lowers the image loss, keeps every parameter valid and moves towards the truth") {
   const int w = 24, h = 20;
   material_maps truth = random_maps(w, h, 11);

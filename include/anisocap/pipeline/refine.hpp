@@ -136,9 +136,11 @@ inline void gather_groups(const communicator& ranks, std::vector<double>& losses
 /// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
 /// are padded to a multiple of 16, so whole registers are always in bounds.
 /// With `first` and `last` (multiples of the SIMD width, or the texel count): texels [first, last)
-/// only (a rank's share of the refine).
+/// only (a rank's share of the refine). With `group_active` (one entry per texel group, as
+/// texel_groups): only the groups it marks; a frozen group's variables no longer change, so its
+/// maps are already those of its variables.
 inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian, std::size_t first = 0,
-                                    std::size_t last = std::size_t(-1)) {
+                                    std::size_t last = std::size_t(-1), const std::uint8_t* group_active = nullptr) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
   const std::size_t n = std::min(last, maps.texel_count());
@@ -146,6 +148,7 @@ inline void maps_from_unconstrained(const material_maps& u, material_maps& maps,
 #pragma omp parallel for schedule(static)
   for (std::ptrdiff_t b = std::ptrdiff_t(first / L); b < blocks; ++b) {
     const std::size_t i = std::size_t(b) * L;
+    if (group_active && !group_active[i / texel_group_size]) continue;
     for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0}) {
       const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
       simd::store<V>(maps.plane(k) + i, s);
@@ -279,7 +282,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   const std::size_t first_texel = first_group * texel_group_size, last_texel = std::min(n, last_group * texel_group_size);
   for (int step = 0; step < options.steps; ++step) {
     // (a reduced kernel F ignores the planes it lacks; over ranks, this rank's texels alone)
-    detail::maps_from_unconstrained(u, maps, jac, first_texel, last_texel);
+    detail::maps_from_unconstrained(u, maps, jac, first_texel, last_texel, freezing ? group_active.data() : nullptr);
     if (shared)
       for (std::size_t g = first_group; g < last_group; ++g) evaluated[g] = group_active[g];
     loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
