@@ -119,6 +119,31 @@ inline V load_first(const scalar_t<V>* p, int n) {
     return V::load_aligned(v);
   }
 }
+/// True when load_first and store_first on V are single masked instructions (AVX-512 float and
+/// double batches), not copies through the stack.
+template <class V>
+inline constexpr bool masked_first_v =
+#if defined(__AVX512F__)
+    lanes_v<V> == 64 / sizeof(scalar_t<V>) && (std::is_same_v<scalar_t<V>, float> || std::is_same_v<scalar_t<V>, double>);
+#else
+    false;
+#endif
+/// Stores the first n values of v at p (0 < n <= lanes); writes nothing past p + n (a masked store
+/// on AVX-512, value by value elsewhere).
+template <class V>
+inline void store_first(scalar_t<V>* p, const V& v, int n) {
+  using T = scalar_t<V>;
+  if constexpr (lanes_v<V> == 1) *p = v;
+#if defined(__AVX512F__)
+  else if constexpr (std::is_same_v<T, float> && lanes_v<V> == 16) _mm512_mask_storeu_ps(p, __mmask16((1u << n) - 1), v);
+  else if constexpr (std::is_same_v<T, double> && lanes_v<V> == 8) _mm512_mask_storeu_pd(p, __mmask8((1u << n) - 1), v);
+#endif
+  else {
+    alignas(alignment) T b[lanes_v<V>];
+    v.store_aligned(b);
+    for (int i = 0; i < n; ++i) p[i] = b[i];
+  }
+}
 /// Stores lanes_v<V> consecutive values (aligned for batches). U may differ from V's element type
 /// (a double batch into floats): the values are converted (rounded), no alignment needed then.
 template <class V, class U>

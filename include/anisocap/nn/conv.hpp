@@ -197,9 +197,11 @@ inline bool prefer_in_cache_transpose(std::size_t weights, std::size_t pixels) {
 }
 
 /// Runs the passes that `make_passes(target)` builds for an output tensor `target`. When Cb is
-/// not a whole number of register blocks (3, 9 or 12 channels), the kernel writes whole blocks
-/// into a padded scratch tensor that is then added (or copied) into out: partial-register loads
-/// and stores in the inner tiles would cost more than the pass.
+/// not a whole number of register blocks (3, 9 or 12 channels), the tiles' last register holds the
+/// channels that are left: on AVX-512 they load and store it masked, straight into out; elsewhere
+/// such loads and stores go through the stack and would cost more than the pass, so the kernel
+/// writes whole blocks into a padded scratch tensor that is then added (or copied) into out. Each
+/// output value is the same sum either way.
 template <int Ca, int Cb, int ACOL, class T, class MakePasses>
 void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bias, bool accumulate,
                       MakePasses&& make_passes) {
@@ -208,7 +210,7 @@ void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bi
   // The passes' column step (ACOL) compiled in only for one-register tiles (see forward_pass).
   constexpr int A = NV == 1 ? ACOL : 0;
   forward_pass<T> ps[4];
-  if constexpr (Cb % block == 0) {
+  if constexpr (Cb % block == 0 || simd::masked_first_v<batch<T>>) {
     const int n = make_passes(out, ps);
     if (n) run_forward<NV, A>(ps, n, Ca, Cb, w, bias, accumulate);
   } else {
@@ -217,13 +219,24 @@ void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bi
     auto padded_out = tensor<Cp, T>::wrap(scratch<T>(6, std::size_t(B) * H * W * Cp), B, H, W);
     const int n = make_passes(padded_out, ps);
     if (n) run_forward<NV, A>(ps, n, Ca, Cb, w, bias, false, true);
+    // Register by register, the last one masked (loads and stores of the Cb channels alone): the
+    // same additions as a loop over the channels.
+    constexpr int L = lanes<T>, NB = Cp / L, tail = Cb - (NB - 1) * L;
 #pragma omp parallel for schedule(static) if (out.size() > (1u << 16))
     for (int r = 0; r < B * H; ++r) {
       const int b = r / H, y = r % H;
       T* o = out.pixel(b, y, 0);
       const T* p = padded_out.pixel(b, y, 0);
-      for (int x = 0; x < W; ++x, o += Cb, p += Cp)
-        for (int c = 0; c < Cb; ++c) o[c] = accumulate ? o[c] + p[c] : p[c];
+      for (int x = 0; x < W; ++x, o += Cb, p += Cp) {
+        for (int v = 0; v < NB - 1; ++v) {
+          batch<T> value = batch<T>::load_aligned(p + v * L);
+          if (accumulate) value += batch<T>::load_unaligned(o + v * L);
+          value.store_unaligned(o + v * L);
+        }
+        batch<T> value = batch<T>::load_aligned(p + (NB - 1) * L);
+        if (accumulate) value += simd::load_first<batch<T>>(o + (NB - 1) * L, tail);
+        simd::store_first(o + (NB - 1) * L, value, tail);
+      }
     }
   }
 }

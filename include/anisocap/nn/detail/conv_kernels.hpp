@@ -68,12 +68,10 @@ inline T* scratch(int slot, std::size_t n) {
 
 using simd::batch;
 
-/// Stores the first n < lanes values.
+/// Stores the first n < lanes values (a masked store where the CPU has one).
 template <class T>
 inline void store_partial(T* p, const batch<T>& v, int n) {
-  alignas(simd::alignment) T b[lanes<T>];
-  v.store_aligned(b);
-  for (int i = 0; i < n; ++i) p[i] = b[i];
+  simd::store_first(p, v, n);
 }
 
 // ---- forward-type pass ------------------------------------------------------------------------
