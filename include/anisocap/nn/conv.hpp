@@ -219,24 +219,13 @@ void run_forward_into(tensor<Cb, T>& out, const weight_layout<T>& w, const T* bi
     auto padded_out = tensor<Cp, T>::wrap(scratch<T>(6, std::size_t(B) * H * W * Cp), B, H, W);
     const int n = make_passes(padded_out, ps);
     if (n) run_forward<NV, A>(ps, n, Ca, Cb, w, bias, false, true);
-    // Register by register, the last one masked (loads and stores of the Cb channels alone): the
-    // same additions as a loop over the channels.
-    constexpr int L = lanes<T>, NB = Cp / L, tail = Cb - (NB - 1) * L;
 #pragma omp parallel for schedule(static) if (out.size() > (1u << 16))
     for (int r = 0; r < B * H; ++r) {
       const int b = r / H, y = r % H;
       T* o = out.pixel(b, y, 0);
       const T* p = padded_out.pixel(b, y, 0);
-      for (int x = 0; x < W; ++x, o += Cb, p += Cp) {
-        for (int v = 0; v < NB - 1; ++v) {
-          batch<T> value = batch<T>::load_aligned(p + v * L);
-          if (accumulate) value += batch<T>::load_unaligned(o + v * L);
-          value.store_unaligned(o + v * L);
-        }
-        batch<T> value = batch<T>::load_aligned(p + (NB - 1) * L);
-        if (accumulate) value += simd::load_first<batch<T>>(o + (NB - 1) * L, tail);
-        simd::store_first(o + (NB - 1) * L, value, tail);
-      }
+      for (int x = 0; x < W; ++x, o += Cb, p += Cp)
+        for (int c = 0; c < Cb; ++c) o[c] = accumulate ? o[c] + p[c] : p[c];
     }
   }
 }
