@@ -1,7 +1,7 @@
-// Convolution benchmark: every convolution of the paper-width auto-encoder at 256 x 256 and a
-// representative set of the estimator's (docs/method.md section 7), forward / backward-input / backward-weight,
-// on 1 and 2 threads, as GFLOP/s and as a fraction of the FP32 FMA peak measured in the same run;
-// beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
+// Convolution benchmark: every convolution of the paper-width auto-encoder at 256 x 256, the
+// compact auto-encoder's decoder and a representative set of the estimator's (docs/method.md
+// section 7), forward / backward-input / backward-weight, on 1 and 2 threads, as GFLOP/s and as
+// a fraction of the FP32 FMA peak measured in the same run; beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
 // step of the auto-encoder's decoder on one 256 x 256 tile. Where the build has AVX-512 BF16, the
 // three passes and the decoder step again in bf16 (anisocap_bf16/...; the
 // peak fraction stays relative to the FP32 FMA peak, of which bf16 can reach 2).
@@ -356,6 +356,13 @@ int main(int argc, char** argv) {
   add_conv_transpose<256, 128>(32);
   add_conv_transpose<128, 64>(64);
   add_conv_transpose<64, 12>(128);
+  // The shipped compact auto-encoder's decoder (what the fine-tune runs), 8 x 8 x 128 up to
+  // 256 x 256 x 12; its 128->64 layer reads 32 x 32 (the paper-width one above reads 64 x 64).
+  add_conv_transpose<128, 128>(8);
+  add_conv_transpose<128, 128>(16);
+  add_conv_transpose<128, 64>(32);
+  add_conv_transpose<64, 32>(64);
+  add_conv_transpose<32, 12>(128);
   // Estimator: its first and last encoder layers (the middle ones are the auto-encoder's shapes)
   // and the 3x3 convolutions of its decoder.
   add_conv<3, 64, 4, 2, 1>("conv4x4s2", 256);
