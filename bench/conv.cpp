@@ -1,8 +1,9 @@
 // Convolution benchmark: every convolution of the paper-width auto-encoder at 256 x 256, the
 // compact auto-encoder's decoder and a representative set of the estimator's (docs/method.md
 // section 7), forward / backward-input / backward-weight, on 1 and 2 threads, as GFLOP/s and as
-// a fraction of the FP32 FMA peak measured in the same run; beside it an im2col + Eigen GEMM version of the same passes, and a full forward + backward
-// step of the auto-encoder's decoder on one 256 x 256 tile. Where the build has AVX-512 BF16, the
+// a fraction of the FP32 FMA peak measured in the same run; beside it an im2col + Eigen GEMM
+// version of the same passes, and a full forward + backward step of the auto-encoder's decoder
+// on one 256 x 256 tile. Where the build has AVX-512 BF16, the
 // three passes and the decoder step again in bf16 (anisocap_bf16/...; the
 // peak fraction stays relative to the FP32 FMA peak, of which bf16 can reach 2).
 //

@@ -68,12 +68,6 @@ inline T* scratch(int slot, std::size_t n) {
 
 using simd::batch;
 
-/// Stores the first n < lanes values (a masked store where the CPU has one).
-template <class T>
-inline void store_partial(T* p, const batch<T>& v, int n) {
-  simd::store_first(p, v, n);
-}
-
 // ---- forward-type pass ------------------------------------------------------------------------
 
 /// One pass of `run_forward`: a grid batch x rows x cols of output pixels, where pixel (b, r, c)
@@ -122,7 +116,7 @@ ANISOCAP_ALWAYS_INLINE void tile_finish(const batch<T> (&acc)[NX][NV], T* out, s
     #pragma GCC unroll 32
     for (int v = 0; v < NV; ++v) {
       T* dst = out + p * o_col + v * W;
-      if (v == NV - 1 && last_lanes != W) store_partial(dst, acc[p][v], last_lanes);
+      if (v == NV - 1 && last_lanes != W) simd::store_first(dst, acc[p][v], last_lanes);
       else acc[p][v].store_unaligned(dst);
     }
 }
@@ -919,7 +913,7 @@ void bias_gradient(const tensor<C, T>& g, T* grad_bias) {
     T* sum = partial + std::size_t(id) * C;
     for (int v = 0; v < NB; ++v)
       if (v < NB - 1 || tail == W) acc[v].store_unaligned(sum + v * W);
-      else store_partial(sum + v * W, acc[v], tail);
+      else simd::store_first(sum + v * W, acc[v], tail);
   }
   for (int t = 0; t < threads; ++t)
     for (int c = 0; c < C; ++c) grad_bias[c] += partial[std::size_t(t) * C + c];
