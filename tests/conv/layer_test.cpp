@@ -139,3 +139,67 @@ TEST_CASE("conv_transpose2d layer records its backward and honours frozen parame
     CHECK(all_zero(layer.weight));
   }
 }
+
+namespace {
+
+// A layer called with an activation (applied in place, its gradient written into a tensor of its
+// own) against the activation recorded after the layer: the same output and the same gradients
+// for the input, the weights and the bias, bit for bit.
+template <int Cin, class Layer, class Act, class Separate>
+void check_in_place_activation(Layer& layer, const tensor<Cin>& input, const Act& act, Separate separate, std::mt19937& rng) {
+  ad::tape t1, t2;
+  auto x1 = t1.leaf(input, true);
+  auto y1 = layer(t1, x1, act);
+  auto x2 = t2.leaf(input, true);
+  auto y2 = separate(t2, layer(t2, x2));
+  REQUIRE(y1.value.size() == y2.value.size());
+  int negative = 0;
+  for (std::size_t i = 0; i < y1.value.size(); ++i) {
+    CHECK(y1.value.data()[i] == y2.value.data()[i]);
+    negative += y1.value.data()[i] < 0.0f;
+  }
+  CHECK(negative > 0);  // both sides of the activation are exercised
+  fill_random(y1.grad, rng);
+  std::copy(y1.grad.data(), y1.grad.data() + y1.grad.size(), y2.grad.data());
+  std::vector<float> gw, gb;
+  layer.for_each_parameter([&](nn::parameter& p) { p.zero_grad(); });
+  t1.backward();
+  layer.for_each_parameter([&](nn::parameter& p) {
+    (gw.empty() ? gw : gb).assign(p.grad.begin(), p.grad.end());
+    p.zero_grad();
+  });
+  t2.backward();
+  std::size_t k = 0;
+  layer.for_each_parameter([&](nn::parameter& p) {
+    const std::vector<float>& expected = k++ == 0 ? gw : gb;
+    REQUIRE(expected.size() == p.size());
+    for (std::size_t i = 0; i < expected.size(); ++i) CHECK(p.grad[i] == expected[i]);
+  });
+  for (std::size_t i = 0; i < x1.grad.size(); ++i) CHECK(x1.grad.data()[i] == x2.grad.data()[i]);
+}
+
+}  // namespace
+
+TEST_CASE("a layer's activation applied in place gives the values and gradients of the separate activation") {
+  std::mt19937 rng(43);
+  const float slope = 0.2f;
+  auto leaky = [&](ad::tape& t, const auto& y) { return nn::leaky_relu(t, y, slope); };
+  auto tanh = [](ad::tape& t, const auto& y) { return nn::tanh(t, y); };
+  nn::conv2d<3, 20, 4, 2, 1> conv("enc0");
+  randomise(conv, rng);
+  tensor<3> input(2, 9, 11);
+  fill_random(input, rng);
+  SUBCASE("conv2d, leaky ReLU") { check_in_place_activation(conv, input, nn::leaky_relu_activation<float>{slope}, leaky, rng); }
+  SUBCASE("conv2d, tanh") { check_in_place_activation(conv, input, nn::tanh_activation<float>{}, tanh, rng); }
+  nn::conv_transpose2d<20, 12> up("dec0");
+  randomise(up, rng);
+  tensor<20> small(2, 5, 6);
+  fill_random(small, rng);
+  SUBCASE("conv_transpose2d, leaky ReLU") { check_in_place_activation(up, small, nn::leaky_relu_activation<float>{slope}, leaky, rng); }
+  SUBCASE("conv_transpose2d, tanh") { check_in_place_activation(up, small, nn::tanh_activation<float>{}, tanh, rng); }
+  SUBCASE("a negative slope is refused: the output's sign would not give the derivative") {
+    ad::tape t;
+    auto x = t.leaf(small, true);
+    CHECK_THROWS_WITH_AS(up(t, x, nn::leaky_relu_activation<float>{-0.1f}), doctest::Contains("slope >= 0"), std::invalid_argument);
+  }
+}

@@ -227,19 +227,18 @@ class auto_encoder {
   }
   template <std::size_t I, int C, bool Normalised = true>
   ad::variable<latent_channels, T> encode_from(ad::tape& t, const ad::variable<C, T>& h) {
-    auto y = std::get<I>(encoder_)(t, h);
     if constexpr (I + 1 == L) {
+      auto y = std::get<I>(encoder_)(t, h);
       if constexpr (Normalised) return latent_norm(t, y);
       else return y;
     } else {
-      return encode_from<I + 1, E[I], Normalised>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
+      return encode_from<I + 1, E[I], Normalised>(t, std::get<I>(encoder_)(t, h, nn::leaky_relu_activation<T>{T(network_detail::leaky_slope)}));
     }
   }
   template <std::size_t I, int C>
   ad::variable<parameter_count, T> decode_from(ad::tape& t, const ad::variable<C, T>& h) {
-    auto y = std::get<I>(decoder_)(t, h);
-    if constexpr (I + 1 == L) return nn::tanh(t, y);
-    else return decode_from<I + 1>(t, nn::leaky_relu(t, y, T(network_detail::leaky_slope)));
+    if constexpr (I + 1 == L) return std::get<I>(decoder_)(t, h, nn::tanh_activation<T>{});
+    else return decode_from<I + 1>(t, std::get<I>(decoder_)(t, h, nn::leaky_relu_activation<T>{T(network_detail::leaky_slope)}));
   }
 };
 

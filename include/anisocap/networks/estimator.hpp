@@ -161,11 +161,11 @@ class reducing_head {
   ad::variable<channels, T> operator()(ad::tape& t, const ad::variable<D, T>& x, const ad::variable<G, T>& g) {
     auto h = nn::add_channel_bias(t, c0(t, x), global(t, g));
     h = nn::leaky_relu(t, h, T(leaky_slope));
-    h = nn::leaky_relu(t, c1(t, h), T(leaky_slope));
+    h = c1(t, h, nn::leaky_relu_activation<T>{T(leaky_slope)});
     if constexpr (DoubledAngle)
       return normals_and_doubled_angle(t, c2(t, h));
     else
-      return nn::tanh(t, c2(t, h));
+      return c2(t, h, nn::tanh_activation<T>{});
   }
 
   /// Visits every trainable parameter.

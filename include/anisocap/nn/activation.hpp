@@ -4,6 +4,9 @@
 /// (Deschaintre's encoder), SELU, tanh (the output layers map to the [-1, 1] network space of
 /// docs/method.md section 1). Each is eager on whole tensors and records one backward closure.
 #include <cstddef>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
 
 #include "anisocap/ad/reverse/tape.hpp"
 #include "anisocap/nn/kernels.hpp"
@@ -35,11 +38,91 @@ ad::variable<C, T> elementwise_activation(ad::tape& t, const ad::variable<C, T>&
 
 }  // namespace detail
 
+// ---- activations a layer applies to its own output ----------------------------------------------
+// A layer called as `layer(t, x, act)` applies `act` in place to its output and, in backward, turns
+// the output's gradient into the pre-activation's in a tensor of its own, written rather than
+// accumulated: the tape holds one tensor and one zeroed gradient fewer than `act(t, layer(t, x))`,
+// with the same values and gradients. This works for activations whose derivative is a function of
+// their output; each type below says how.
+
+/// No activation: `layer(t, x)`.
+struct identity_activation {};
+
+/// Leaky ReLU as a layer's activation. Its derivative (1 or `slope`) follows from the output's
+/// sign, which is the input's for slope >= 0.
+template <class T>
+struct leaky_relu_activation {
+  T slope;  ///< the negative side's slope, >= 0
+  /// The activation of a register of values.
+  template <class B>
+  B operator()(B v) const { return xsimd::select(v > T(0), v, v * slope); }
+  /// The pre-activation's gradient from the output's gradient gy and the output y.
+  template <class B>
+  B gradient(B gy, B y) const { return xsimd::select(y > T(0), gy, gy * slope); }
+};
+
+/// The hyperbolic tangent as a layer's activation: its derivative is 1 - y^2.
+template <class T>
+struct tanh_activation {
+  /// The activation of a register of values.
+  template <class B>
+  B operator()(B v) const { return xsimd::tanh(v); }
+  /// The pre-activation's gradient from the output's gradient gy and the output y.
+  template <class B>
+  B gradient(B gy, B y) const { return gy * (T(1) - y * y); }
+};
+
+namespace detail {
+
+/// y = act(y), value by value (nothing for identity_activation).
+template <int C, class T, class Act>
+void activate_in_place(const Act& act, tensor<C, T>& y) {
+  if constexpr (!std::is_same_v<Act, identity_activation>) {
+    const std::size_t n = std::size_t(y.width()) * C;
+    for_each_row(y.batch(), y.height(), y.size(), [&](int b, int r) {
+      T* p = y.pixel(b, r, 0);
+      transform(n, p, act, p);
+    });
+  }
+}
+
+/// g = act'(pre-activation) * gy, written, from the output y (nothing for identity_activation,
+/// whose layer reads gy itself).
+template <int C, class T, class Act>
+void activation_gradient(const Act& act, const tensor<C, T>& y, const tensor<C, T>& gy, tensor<C, T>& g) {
+  if constexpr (!std::is_same_v<Act, identity_activation>) {
+    const std::size_t n = std::size_t(y.width()) * C;
+    for_each_row(y.batch(), y.height(), y.size(), [&](int b, int r) {
+      transform(n, g.pixel(b, r, 0), [&](auto gv, auto yv) { return act.gradient(gv, yv); }, gy.pixel(b, r, 0), y.pixel(b, r, 0));
+    });
+  }
+}
+
+/// Checks an activation a layer is asked to apply in place (a leaky ReLU's slope must be >= 0).
+template <class Act>
+void require_in_place_activation(const Act& act, const char* op) {
+  if constexpr (requires { act.slope; }) {
+    if (!(act.slope >= 0))
+      throw std::invalid_argument(std::string(op) + ": a leaky ReLU applied in place needs a slope >= 0 (got " +
+                                  std::to_string(double(act.slope)) + ")");
+  }
+}
+
+/// The gradient tensor a layer's backward feeds to its own passes: the output's gradient itself
+/// for identity_activation, else a new tensor in the tape that activation_gradient writes.
+template <class Act, int C, class T>
+tensor<C, T> pre_activation_gradient(ad::tape& t, const ad::variable<C, T>& y) {
+  if constexpr (std::is_same_v<Act, identity_activation>) return y.grad;
+  else return t.make_tensor<C, T>(y.value.batch(), y.value.height(), y.value.width());
+}
+
+}  // namespace detail
+
 /// Leaky ReLU: x for x > 0, slope * x otherwise (the derivative at 0 is taken as `slope`, as PyTorch does).
 template <int C, class T>
 ad::variable<C, T> leaky_relu(ad::tape& t, const ad::variable<C, T>& x, T slope) {
   return detail::elementwise_activation(
-      t, x, [slope](auto v) { return xsimd::select(v > T(0), v, v * slope); },
+      t, x, leaky_relu_activation<T>{slope},
       [slope](auto gy, auto xv, auto) { return xsimd::select(xv > T(0), gy, gy * slope); });
 }
 
@@ -64,8 +147,7 @@ ad::variable<C, T> selu(ad::tape& t, const ad::variable<C, T>& x) {
 template <int C, class T>
 ad::variable<C, T> tanh(ad::tape& t, const ad::variable<C, T>& x) {
   return detail::elementwise_activation(
-      t, x, [](auto v) { return xsimd::tanh(v); },
-      [](auto gy, auto, auto yv) { return gy * (T(1) - yv * yv); });
+      t, x, tanh_activation<T>{}, [](auto gy, auto, auto yv) { return tanh_activation<T>{}.gradient(gy, yv); });
 }
 
 }  // namespace anisocap::nn

@@ -19,6 +19,7 @@
 #include <utility>
 
 #include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/nn/activation.hpp"
 #include "anisocap/core/tensor.hpp"
 #include "anisocap/nn/detail/conv_kernels.hpp"
 #include "anisocap/nn/parameter.hpp"
@@ -372,17 +373,22 @@ class conv2d {
   /// True when the layer has a bias.
   bool has_bias() const noexcept { return has_bias_; }
 
-  /// y = conv(x) (+ bias), recorded on t.
-  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x) {
+  /// y = act(conv(x) (+ bias)), recorded on t; `act` (nn/activation.hpp) is applied in place:
+  /// the same values and gradients as act(t, layer(t, x)) with less memory.
+  template <class Act = identity_activation>
+  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x, const Act& act = {}) {
+    detail::require_in_place_activation(act, "conv2d");
     const bool weight_grad = weight.trainable();
     const bool bias_grad = has_bias_ && bias.trainable();
     const int Ho = conv2d_output_size<K, Stride, Pad>(x.value.height());
     const int Wo = conv2d_output_size<K, Stride, Pad>(x.value.width());
     ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), Ho, Wo, x.requires_grad || weight_grad || bias_grad);
     conv2d_forward<Cin, Cout, K, Stride, Pad>(x.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr, y.value);
+    detail::activate_in_place(act, y.value);
     if (y.requires_grad) {
-      t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, grad_out = y.grad, weight_grad,
-                bias_grad]() mutable {
+      t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
+                grad_out = detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad]() mutable {
+        detail::activation_gradient(act, output, grad_y, grad_out);
         if (input_grad) conv2d_backward_input<Cin, Cout, K, Stride, Pad>(grad_out, weight.value.data(), grad_in);
         conv2d_backward_weight<Cin, Cout, K, Stride, Pad>(input, grad_out, weight_grad ? weight.grad.data() : nullptr,
                                                           bias_grad ? bias.grad.data() : nullptr);

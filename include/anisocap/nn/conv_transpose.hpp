@@ -131,16 +131,21 @@ class conv_transpose2d {
   /// True when the layer has a bias.
   bool has_bias() const noexcept { return has_bias_; }
 
-  /// y = conv_transpose(x) (+ bias), recorded on t.
-  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x) {
+  /// y = act(conv_transpose(x) (+ bias)), recorded on t; `act` (nn/activation.hpp) is applied in
+  /// place: the same values and gradients as act(t, layer(t, x)) with less memory.
+  template <class Act = identity_activation>
+  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x, const Act& act = {}) {
+    detail::require_in_place_activation(act, "conv_transpose2d");
     const bool weight_grad = weight.trainable();
     const bool bias_grad = has_bias_ && bias.trainable();
     ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), 2 * x.value.height(), 2 * x.value.width(),
                                                        x.requires_grad || weight_grad || bias_grad);
     conv_transpose2d_forward<Cin, Cout>(x.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr, y.value);
+    nn::detail::activate_in_place(act, y.value);
     if (y.requires_grad) {
-      t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, grad_out = y.grad, weight_grad,
-                bias_grad]() mutable {
+      t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
+                grad_out = nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad]() mutable {
+        nn::detail::activation_gradient(act, output, grad_y, grad_out);
         conv_transpose2d_backward<Cin, Cout>(input, grad_out, weight.value.data(), input_grad ? &grad_in : nullptr,
                                              weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr);
       });
