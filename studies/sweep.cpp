@@ -15,12 +15,13 @@
 //                             [--finetune-lr 7.5e-4] [--finetune-points 0,200,500,1000,2000,5000]
 //                             [--images 12,8] [--networks-only] [--long-refine] [--no-stops]
 //                             [--finetune-crop K] [--finetune-warmup W] [--finetune-half-life H]
-//                             [--models DIR] [--out FILE.csv]
+//                             [--network-precision fp32|bf16] [--models DIR] [--out FILE.csv]
 // --long-refine replaces the refine variants tried on the first fine-tune point by longer refines
 // (1000, 2000 steps, 2000 with freezing); --plain-refine tries none and 500 refine steps only;
 // --no-stops leaves out the fine-tune early-stopping points. --finetune-crop, --finetune-warmup and
 // --finetune-half-life set the pipeline options of the same names (crop mini-batches, learning-rate
-// warm-up and decay) for the fine-tune trajectory.
+// warm-up and decay) for the fine-tune trajectory. --network-precision sets the networks'
+// convolutions (capture_options::network_precision; written in the network_precision column).
 #include <omp.h>
 
 #include <chrono>
@@ -83,7 +84,7 @@ struct row_writer {
   row_writer() {
     out << "material,seed,truth,images,path,finetune_steps,finetune_stop,finetune_steps_run,refine,refine_steps_run,"
            "evaluated_fraction,kernel,seconds,novel_view_loss,diffuse,specular,normal,lobes,rotation,fresnel,finite,finetune_lr,"
-           "finetune_crop,finetune_warmup,finetune_half_life\n";
+           "finetune_crop,finetune_warmup,finetune_half_life,network_precision\n";
   }
 };
 
@@ -92,6 +93,7 @@ struct row_writer {
 int main(int argc, char** argv) {
   int materials = 10, size = 256, max_finetune = 5000, finetune_crop = 0, finetune_warmup = 0, finetune_half_life = 0;
   float finetune_lr = 7.5e-4f;
+  nn::precision network_precision = nn::precision::fp32;
   bool networks_only = false, long_refine = false, no_stops = false, plain_refine = false;
   std::vector<int> finetune_points = {0, 200, 500, 1000, 2000, 5000}, image_counts = {12, 8};
   auto int_list = [](const std::string& text) {
@@ -122,6 +124,15 @@ int main(int argc, char** argv) {
     else if (a == "--no-stops") no_stops = true;
     else if (a == "--plain-refine") plain_refine = true;
     else if (a == "--out") out_file = next();
+    else if (a == "--network-precision") {
+      try {
+        network_precision = nn::parse_precision(next(), "--network-precision");
+        nn::require_available(network_precision, "--network-precision");
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "sweep: %s\n", e.what());
+        return 2;
+      }
+    }
     else { std::fprintf(stderr, "sweep: unknown option %s (see the file comment)\n", a.c_str()); return 2; }
   }
   if (materials < 1 || size < 32 || max_finetune < 0) { std::fprintf(stderr, "sweep: bad option values\n"); return 2; }
@@ -153,8 +164,8 @@ int main(int argc, char** argv) {
   if (long_refine) extra = {{"1000", 1000}, {"2000", 2000}, {"2000 freeze 1e-2", 2000, 0, 1e-2}};
   if (plain_refine) extra.clear();
   row_writer rows;
-  std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps at learning rate %g\n", materials, size, size,
-               omp_get_max_threads(), max_finetune, double(finetune_lr));
+  std::fprintf(stderr, "sweep: %d materials, %dx%d, %d threads, fine-tune up to %d steps at learning rate %g, %s networks\n", materials,
+               size, size, omp_get_max_threads(), max_finetune, double(finetune_lr), nn::to_string(network_precision));
   for (int m = 0; m < materials; ++m) {
     const std::uint64_t seed = 920000 + std::uint64_t(m);  // disjoint from training (< 2^62 hashes) and eval (900000+)
     material_maps truth = generate_material(seed, size, size);
@@ -177,7 +188,8 @@ int main(int argc, char** argv) {
                  << ft_run << ",\"" << refine_name << "\"," << refine_run << ',' << evaluated << ",\""
                  << kernel_analysis{f, 0, 0, 0}.describe() << "\"," << seconds << ',' << nv << ',' << e.diffuse << ',' << e.specular << ','
                  << e.normal << ',' << e.lobes << ',' << e.rotation << ',' << e.fresnel << ',' << (all_finite(maps) ? 1 : 0) << ','
-                 << finetune_lr << ',' << finetune_crop << ',' << finetune_warmup << ',' << finetune_half_life << '\n';
+                 << finetune_lr << ',' << finetune_crop << ',' << finetune_warmup << ',' << finetune_half_life << ','
+                 << nn::to_string(network_precision) << '\n';
       };
       auto run_refine = [&](const material_maps& start, const refine_variant& v, float lr, brdf_features& used, refine_result& rr) {
         material_maps maps = start;
@@ -208,6 +220,7 @@ int main(int argc, char** argv) {
       po.finetune.crop.cells = finetune_crop;
       po.finetune.warmup = finetune_warmup;
       po.finetune.half_life = finetune_half_life;
+      po.network_precision = network_precision;
       po.normalise_exposure = false;  // done above, identically for every path
       std::vector<double> losses;
       std::map<int, material_maps> snapshots;

@@ -24,14 +24,15 @@ PAPER_LR = 7.5e-4
 
 
 def key_of(r):
-    """(N, path, fine-tune steps, stop, refine variant, lr, (warm-up, half-life, crop))."""
+    """(N, path, fine-tune steps, stop, refine variant, lr, (warm-up, half-life, crop), network precision)."""
     lr = float(r.get("finetune_lr") or PAPER_LR)
     schedule = tuple(int(r.get(c) or 0) for c in ("finetune_warmup", "finetune_half_life", "finetune_crop"))
-    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr, schedule)
+    return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr, schedule,
+            r.get("network_precision") or "fp32")
 
 
 def label(k):
-    n, path, ft, stop, ref, lr, (warmup, half_life, crop) = k
+    n, path, ft, stop, ref, lr, (warmup, half_life, crop), precision = k
     if path == "refine-only":
         return f"N={n} no networks, refine {ref}"
     ft_text = f"fine-tune stop {stop:g}" if stop > 0 else f"fine-tune {ft}"
@@ -44,6 +45,8 @@ def label(k):
         extra.append(f"half-life {half_life}")
     if crop:
         extra.append(f"crop {crop}")
+    if precision != "fp32":
+        extra.append(precision)
     if extra:
         ft_text += " (" + ", ".join(extra) + ")"
     return f"N={n} {ft_text}, refine {ref}"
@@ -69,6 +72,9 @@ def main():
     ap.add_argument("--refine-step-ms", type=float, default=9.3, help="quiet-machine refine step, same source")
     ap.add_argument("--crop-step-ms", type=float, default=6.9,
                     help="quiet-machine fine-tune step on a crop of 4 latent cells (studies/finetune_step.cpp)")
+    ap.add_argument("--bf16-finetune-step-ms", type=float, default=None,
+                    help="the model's fine-tune step with bf16 networks (needed for bf16 rows unless --x measured)")
+    ap.add_argument("--all", action="store_true", help="also print every configuration, not only the front")
     ap.add_argument("--x", choices=["model", "measured"], default="model",
                     help="seconds on the plot's x axis and for the front: the step-count model (load-independent, "
                          "comparable across CSVs) or the measured median")
@@ -77,12 +83,22 @@ def main():
     if not rows:
         sys.exit(f"{args.csv}: no rows")
     materials = sorted({r["material"] for r in rows}, key=int)
+    precisions = sorted({r.get("network_precision") or "fp32" for r in rows})
+    if "bf16" in precisions and args.x == "model" and args.bf16_finetune_step_ms is None:
+        sys.exit("bf16 rows: give --bf16-finetune-step-ms for the step-count model, or plot --x measured")
+
+    def finetune_step_ms(crop, precision):
+        if crop:
+            return args.crop_step_ms
+        if precision == "bf16":  # without a figure the model prices nothing (the plot then uses the measured seconds)
+            return args.bf16_finetune_step_ms if args.bf16_finetune_step_ms is not None else float("nan")
+        return args.finetune_step_ms
     groups = OrderedDict()
     for r in rows:
         groups.setdefault(key_of(r), []).append(r)
     def row_model(r):
         """The step-count model's seconds for one row."""
-        step_ms = args.crop_step_ms if int(r.get("finetune_crop") or 0) else args.finetune_step_ms
+        step_ms = finetune_step_ms(int(r.get("finetune_crop") or 0), r.get("network_precision") or "fp32")
         return (float(r["finetune_steps_run"]) * step_ms +
                 float(r["refine_steps_run"]) * float(r["evaluated_fraction"]) * args.refine_step_ms) / 1000.0
 
@@ -98,7 +114,7 @@ def main():
         s["ft_run"] = statistics.fmean(float(r["finetune_steps_run"]) for r in g)
         s["refine_run"] = statistics.fmean(float(r["refine_steps_run"]) for r in g)
         # Step-count cost model: independent of the machine's load while the sweep ran.
-        step_ms = args.crop_step_ms if k[6][2] else args.finetune_step_ms
+        step_ms = finetune_step_ms(k[6][2], k[7])
         s["model_seconds"] = (s["ft_run"] * step_ms +
                               s["refine_run"] * s["evaluated"] * args.refine_step_ms) / 1000.0
         stats[k] = s
@@ -114,10 +130,18 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for k in front:
         s = stats[k]
-        print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {s['model_seconds']:.1f} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
+        model = "-" if s["model_seconds"] != s["model_seconds"] else f"{s['model_seconds']:.1f}"  # NaN: not priced
+        print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {model} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
               f"{s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
 
-    ref_key = (12, "networks", 5000, 0.0, "500", PAPER_LR, (0, 0, 0))
+    if args.all:
+        print("\nEvery configuration:\n")
+        print("| configuration | measured s (median) | novel-view loss |")
+        print("|---|---|---|")
+        for k in sorted(configs, key=lambda k: (k[:6], k[7])):
+            print(f"| {label(k)} | {stats[k]['seconds']:.1f} | {stats[k]['novel_view_loss']:.4f} |")
+
+    ref_key = (12, "networks", 5000, 0.0, "500", PAPER_LR, (0, 0, 0), "fp32")
     if ref_key in stats:
         ref = stats[ref_key]
         print(f"\nPaper-default step counts ({label(ref_key)}): {ref['seconds']:.1f} s, novel-view loss {ref['novel_view_loss']:.4f}.")
@@ -145,7 +169,7 @@ def main():
                   f"novel-view loss at or below the reference on {sum(p[1] for p in per)} of {len(per)} materials.")
 
     # Effect of each skip at the starting points that have every refine variant.
-    starts = sorted({k[:4] + k[5:] for k in configs if k[4] == "500 freeze 1e-2"})
+    starts = sorted({k[:4] + k[5:] for k in configs if k[4] == "500 freeze 1e-2"}, key=str)
     for start6 in starts:
         start = start6[:4]
         lr = start6[4:]
@@ -170,14 +194,18 @@ def main():
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         fig, axes = plt.subplots(2, 4, figsize=(20, 9.5))
-        colours = {12: "tab:blue", 8: "tab:orange"}
+        colours = {(12, "fp32"): "tab:blue", (8, "fp32"): "tab:orange", (12, "bf16"): "tab:green", (8, "bf16"): "tab:purple"}
         for ax, (p, name) in zip(axes.flat, PARAMS):
             xs = [stats[k][X] for k in configs]
             ys = [stats[k][p] for k in configs]
             for n in (12, 8):
-                sel = [i for i, k in enumerate(configs) if k[0] == n]
-                ax.scatter([xs[i] for i in sel], [ys[i] for i in sel], s=18, c=colours[n], alpha=0.7,
-                           marker="o", label=f"N = {n}")
+                for precision in precisions:
+                    sel = [i for i, k in enumerate(configs) if k[0] == n and k[7] == precision]
+                    if not sel:
+                        continue
+                    name_of = f"N = {n}" + (f", {precision}" if len(precisions) > 1 else "")
+                    ax.scatter([xs[i] for i in sel], [ys[i] for i in sel], s=18, c=colours[(n, precision)], alpha=0.7,
+                               marker="o" if precision == "fp32" else "^", label=name_of)
             pf = pareto(list(zip(xs, ys)))
             ax.plot([xs[i] for i in pf], [ys[i] for i in pf], "k-", lw=1.2, label="Pareto front")
             ax.scatter([xs[i] for i in pf], [ys[i] for i in pf], s=40, facecolors="none", edgecolors="k")
@@ -190,8 +218,9 @@ def main():
             ax.grid(True, which="both", alpha=0.3)
         axes.flat[0].legend(fontsize=8)
         axes.flat[-1].axis("off")
+        knobs = "fine-tune steps, early stopping, refine variant, N" + (", network precision" if len(precisions) > 1 else "")
         axes.flat[-1].text(0.0, 0.5, f"{len(materials)} procedural materials, 256 x 256, set alpha\n"
-                           "compact preset; one point per configuration\n(fine-tune steps, early stopping, refine variant, N)",
+                           f"compact preset; one point per configuration\n({knobs})",
                            fontsize=11, va="center")
         fig.suptitle("anisocap: run time against error (studies/sweep.cpp)")
         fig.tight_layout()
