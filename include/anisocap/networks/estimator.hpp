@@ -9,6 +9,7 @@
 #include <numbers>
 #include <vector>
 
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/networks/network_layers.hpp"
 
 namespace anisocap {
@@ -290,7 +291,8 @@ class estimation_network {
     ad::tape& t = scratch_.fresh();
     ad::tape::no_grad_guard guard(t);
     auto x = t.make_variable<inputs, T>(int(photos.size()), Hp, Wp, false);
-    for (std::size_t i = 0; i < photos.size(); ++i) padded_photo(photos[i], x.value, int(i));
+    // One photograph per thread: each writes its own batch entry.
+    for_each_index_in_parallel(photos.size(), [&](std::size_t i) { padded_photo(photos[i], x.value, int(i)); });
     auto y = forward(t, x, int(photos.size()));
     auto c = network_detail::crop(t, y, H, W);
     return network_space::network_to_maps(c.value, 0);

@@ -19,6 +19,7 @@
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/core/distributed.hpp"
 #include "anisocap/core/image.hpp"
+#include "anisocap/core/parallel.hpp"
 #include "anisocap/core/system.hpp"
 #include "anisocap/nn/progress.hpp"
 #include "anisocap/render/capture.hpp"
@@ -97,9 +98,8 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
     own.clear();
     if (mine < total) {
       const int y0 = ys[std::size_t(mine) / xs.size()], x0 = xs[std::size_t(mine) % xs.size()];
-      std::vector<image> crops;
-      crops.reserve(photos.size());
-      for (const auto& p : photos) crops.push_back(crop_mirrored(p, x0, y0, window, window));
+      std::vector<image> crops(photos.size());
+      for_each_index_in_parallel(photos.size(), [&](std::size_t i) { crops[i] = crop_mirrored(photos[i], x0, y0, window, window); });
       const material_maps e = estimate_window(crops);
       if (e.width() != window || e.height() != window)
         throw std::runtime_error("estimate_by_windows: the window estimate has the wrong size");
@@ -111,7 +111,10 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
     for (int index = base; index < std::min(base + ranks, total); ++index) {
       const int y0 = ys[std::size_t(index) / xs.size()], x0 = xs[std::size_t(index) % xs.size()];
       std::copy_n(round.data() + std::size_t(index - base) * floats, floats, m.data());
-      for (int y = 0; y < std::min(window, H - y0); ++y)
+      // Rows in parallel: each texel still takes the windows in order, so the sums are the same bits.
+      const int rows = std::min(window, H - y0);
+#pragma omp parallel for schedule(static) if (std::size_t(rows) * window >= (std::size_t(1) << 14))
+      for (int y = 0; y < rows; ++y)
         for (int x = 0; x < std::min(window, W - x0); ++x) {
           const double wgt = double(window_weight(x, window)) * window_weight(y, window);
           const std::size_t i = std::size_t(y0 + y) * W + (x0 + x);
@@ -128,7 +131,9 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
     }
   }
   material_maps out(W, H);
-  for (std::size_t i = 0; i < std::size_t(W) * H; ++i) {
+#pragma omp parallel for schedule(static) if (std::size_t(W) * H >= (std::size_t(1) << 14))
+  for (std::ptrdiff_t t = 0; t < std::ptrdiff_t(W) * H; ++t) {
+    const std::size_t i = std::size_t(t);
     for (int k = 0; k < parameter_count; ++k)
       if (k != rotation) out.plane(k)[i] = float(sum[std::size_t(k) * W * H + i] / weight[i]);
     float& nx = out.plane(normal_x)[i];
