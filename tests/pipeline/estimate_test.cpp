@@ -33,6 +33,13 @@ TEST_CASE("mirrored crops reflect without repeating the edge") {
   CHECK(c.at(0, 2, 0) == 1.0f);   // x = 3 mirrors to 1
   CHECK(c.at(0, 3, 1) == 10.0f);  // x = 4 -> 0, y = 1
   CHECK(c.at(0, 3, 2) == 0.0f);   // y = 2 mirrors to 0 in a 2-row image
+  image reused(4, 3, 1);  // written in place, as the sliding windows do with the images they keep
+  reused.at(0, 1, 1) = -7.0f;
+  crop_mirrored_into(img, 1, 0, reused);
+  for (int y = 0; y < 3; ++y)
+    for (int x = 0; x < 4; ++x) CHECK(reused.at(0, x, y) == c.at(0, x, y));
+  image wrong(4, 3, 3);
+  CHECK_THROWS_WITH_AS(crop_mirrored_into(img, 0, 0, wrong), doctest::Contains("channel counts differ"), std::invalid_argument);
 }
 
 TEST_CASE("window blending reproduces a position-independent estimate exactly, at any size") {

@@ -49,14 +49,21 @@ inline int mirror_index(int i, int n) {
   return i < n ? i : period - i;
 }
 
+/// Writes the window of `src` starting at (x0, y0), of out's size, into `out` (which must have
+/// src's channel count), mirrored where it leaves the image.
+inline void crop_mirrored_into(const image& src, int x0, int y0, image& out) {
+  if (out.channels() != src.channels()) throw std::invalid_argument("crop_mirrored_into: the images' channel counts differ");
+  for (int c = 0; c < src.channels(); ++c)
+    for (int y = 0; y < out.height(); ++y) {
+      const int sy = mirror_index(y0 + y, src.height());
+      for (int x = 0; x < out.width(); ++x) out.at(c, x, y) = src.at(c, mirror_index(x0 + x, src.width()), sy);
+    }
+}
+
 /// The window [x0, x0 + w) x [y0, y0 + h) of `src`, mirrored where it leaves the image.
 inline image crop_mirrored(const image& src, int x0, int y0, int w, int h) {
   image out(w, h, src.channels());
-  for (int c = 0; c < src.channels(); ++c)
-    for (int y = 0; y < h; ++y) {
-      const int sy = mirror_index(y0 + y, src.height());
-      for (int x = 0; x < w; ++x) out.at(c, x, y) = src.at(c, mirror_index(x0 + x, src.width()), sy);
-    }
+  crop_mirrored_into(src, x0, y0, out);
   return out;
 }
 
@@ -92,14 +99,15 @@ inline material_maps estimate_by_windows(const std::vector<image>& photos, int w
   material_maps m(window, window);
   const std::size_t floats = m.plane_stride() * parameter_count;
   std::vector<float> own, round;  // kept across rounds: their memory is reused, not asked for again
+  std::vector<image> crops;        // the same: each window's crops are written into these
+  for (const auto& p : photos) crops.emplace_back(window, window, p.channels());
   for (int base = 0; base < total; base += ranks) {
     // This round's windows: rank r estimates window base + r, then all are gathered.
     const int mine = base + comm.rank();
     own.clear();
     if (mine < total) {
       const int y0 = ys[std::size_t(mine) / xs.size()], x0 = xs[std::size_t(mine) % xs.size()];
-      std::vector<image> crops(photos.size());
-      for_each_index_in_parallel(photos.size(), [&](std::size_t i) { crops[i] = crop_mirrored(photos[i], x0, y0, window, window); });
+      for_each_index_in_parallel(photos.size(), [&](std::size_t i) { crop_mirrored_into(photos[i], x0, y0, crops[i]); });
       const material_maps e = estimate_window(crops);
       if (e.width() != window || e.height() != window)
         throw std::runtime_error("estimate_by_windows: the window estimate has the wrong size");
