@@ -19,8 +19,8 @@
 #include <utility>
 
 #include "anisocap/ad/reverse/tape.hpp"
-#include "anisocap/nn/activation.hpp"
 #include "anisocap/core/tensor.hpp"
+#include "anisocap/nn/activation.hpp"
 #include "anisocap/nn/detail/conv_kernels.hpp"
 #include "anisocap/nn/parameter.hpp"
 
