@@ -50,6 +50,28 @@ TEST_CASE("add, concat and per-channel bias broadcast") {
   check_layer([&](ad::tape& t, const ad::variable<17, double>& v) { return nn::concat(t, t.leaf(a), v); }, c, {});
   check_layer([&](ad::tape& t, const ad::variable<5, double>& v) { return nn::add_channel_bias(t, v, t.leaf(bias)); }, a, {});
   check_layer([&](ad::tape& t, const ad::variable<5, double>& v) { return nn::add_channel_bias(t, t.leaf(a), v); }, bias, {});
+  // With the activation applied in the same pass: finite differences, and the separate ops' bits.
+  const nn::leaky_relu_activation<double> leaky{0.2};
+  check_layer([&](ad::tape& t, const ad::variable<5, double>& v) { return nn::add_channel_bias(t, v, t.leaf(bias), leaky); }, a, {});
+  check_layer([&](ad::tape& t, const ad::variable<5, double>& v) { return nn::add_channel_bias(t, t.leaf(a), v, leaky); }, bias, {});
+  {
+    ad::tape t1, t2;
+    auto x1 = t1.leaf(a, true), b1 = t1.leaf(bias, true);
+    auto x2 = t2.leaf(a, true), b2 = t2.leaf(bias, true);
+    auto y1 = nn::add_channel_bias(t1, x1, b1, leaky);
+    auto y2 = nn::leaky_relu(t2, nn::add_channel_bias(t2, x2, b2), 0.2);
+    auto gy = random_tensor<5>(g, 3, 5, 7);
+    std::copy(gy.data(), gy.data() + gy.size(), y1.grad.data());
+    std::copy(gy.data(), gy.data() + gy.size(), y2.grad.data());
+    t1.backward();
+    t2.backward();
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      CHECK(y1.value.data()[i] == y2.value.data()[i]);
+      CHECK(x1.grad.data()[i] == x2.grad.data()[i]);
+    }
+    for (std::size_t i = 0; i < bias.size(); ++i) CHECK(b1.grad.data()[i] == b2.grad.data()[i]);
+    CHECK_THROWS_AS(nn::add_channel_bias(t1, x1, b1, nn::leaky_relu_activation<double>{-1.0}), std::invalid_argument);
+  }
 
   ad::tape t;
   auto y = nn::concat(t, t.leaf(a), t.leaf(c));

@@ -120,9 +120,7 @@ class decoder_track {
   template <class A>
   auto operator()(ad::tape& t, const A& a, const ad::variable<E[5], T>& g) {
     auto step = [&](auto& up, auto& norm, auto& glob, const auto& in) {
-      auto h = norm(t, up(t, in));
-      h = nn::add_channel_bias(t, h, glob(t, g));
-      return nn::leaky_relu(t, h, T(leaky_slope));
+      return nn::add_channel_bias(t, norm(t, up(t, in)), glob(t, g), nn::leaky_relu_activation<T>{T(leaky_slope)});
     };
     auto d0 = step(up0, n0, g0, std::get<5>(a));
     auto d1 = step(up1, n1, g1, nn::concat(t, d0, std::get<4>(a)));
@@ -160,8 +158,7 @@ class reducing_head {
 
   /// `channels` channels in [-1, 1].
   ad::variable<channels, T> operator()(ad::tape& t, const ad::variable<D, T>& x, const ad::variable<G, T>& g) {
-    auto h = nn::add_channel_bias(t, c0(t, x), global(t, g));
-    h = nn::leaky_relu(t, h, T(leaky_slope));
+    auto h = nn::add_channel_bias(t, c0(t, x), global(t, g), nn::leaky_relu_activation<T>{T(leaky_slope)});
     h = c1(t, h, nn::leaky_relu_activation<T>{T(leaky_slope)});
     if constexpr (DoubledAngle)
       return normals_and_doubled_angle(t, c2(t, h));
@@ -261,9 +258,9 @@ class estimation_network {
     auto layer = [&](auto& conv, auto& norm, auto& bias, auto& global, const auto& a, const auto& g) {
       auto h = conv(t, a);
       auto m = nn::spatial_mean(t, h);
-      h = nn::add_channel_bias(t, norm(t, h), bias(t, g));
+      h = nn::add_channel_bias(t, norm(t, h), bias(t, g), nn::leaky_relu_activation<T>{s});
       auto gn = nn::selu(t, global(t, nn::concat(t, g, m)));
-      return std::pair{nn::leaky_relu(t, h, s), gn};
+      return std::pair{h, gn};
     };
     auto [a1, g1] = layer(enc1, norm1, bias1, global1, a0, g0);
     auto [a2, g2] = layer(enc2, norm2, bias2, global2, a1, g1);

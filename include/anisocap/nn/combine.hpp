@@ -7,6 +7,7 @@
 #include <cstddef>
 
 #include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/nn/activation.hpp"
 #include "anisocap/nn/kernels.hpp"
 
 namespace anisocap::nn {
@@ -60,12 +61,15 @@ ad::variable<C1 + C2, T> concat(ad::tape& t, const ad::variable<C1, T>& a, const
   return y;
 }
 
-/// x + v broadcast over pixels: v holds one C-vector per batch entry (batch x 1 x 1 x C), added to
-/// every pixel of that entry. This is how the global-feature track feeds a layer (docs/method.md section 7).
-template <int C, class T>
-ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, const ad::variable<C, T>& v) {
+/// act(x + v), v broadcast over pixels: v holds one C-vector per batch entry (batch x 1 x 1 x C),
+/// added to every pixel of that entry. This is how the global-feature track feeds a layer
+/// (docs/method.md section 7). `act` (nn/activation.hpp, none by default) is applied in the same
+/// pass, as the layers apply theirs: the same values and gradients as act(t, add_channel_bias(t, x, v)).
+template <int C, class T, class Act = identity_activation>
+ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, const ad::variable<C, T>& v, const Act& act = {}) {
   if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)
     throw std::invalid_argument("nn::add_channel_bias: the bias must be batch x 1 x 1 x C with the input's batch");
+  detail::require_in_place_activation(act, "nn::add_channel_bias");
   auto y = t.make_variable<C, T>(x.value.batch(), x.value.height(), x.value.width(), x.requires_grad || v.requires_grad);
   constexpr std::size_t P = detail::pattern_length<C, T>;
   const int w = x.value.width();
@@ -77,21 +81,25 @@ ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, co
     const T* in = x.value.pixel(b, r, 0);
     T* out = y.value.pixel(b, r, 0);
     detail::for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
-      detail::transform(len, out + s, [](auto p, auto q) { return p + q; }, in + s, pattern + std::size_t(b) * P);
+      if constexpr (std::is_same_v<Act, identity_activation>)
+        detail::transform(len, out + s, [](auto p, auto q) { return p + q; }, in + s, pattern + std::size_t(b) * P);
+      else
+        detail::transform(len, out + s, [&](auto p, auto q) { return act(p + q); }, in + s, pattern + std::size_t(b) * P);
     });
   });
   if (y.requires_grad) {
     ad::tape* tp = &t;
-    t.record([x = x, v = v, y, w, n, tp]() mutable {
+    t.record([x = x, v = v, y, g = detail::pre_activation_gradient<Act>(t, y), act, w, n, tp]() mutable {
       const int B = y.value.batch(), H = y.value.height();
+      detail::activation_gradient(act, y.value, y.grad, g);  // g: the gradient of x + v
       if (x.requires_grad)
         detail::for_each_row(B, H, y.value.size(), [&](int b, int r) {
-          detail::add_to(x.grad.pixel(b, r, 0), y.grad.pixel(b, r, 0), n);
+          detail::add_to(x.grad.pixel(b, r, 0), g.pixel(b, r, 0), n);
         });
       if (v.requires_grad) {
         T* partial = tp->memory().allocate_array<T>(std::size_t(B) * H * C);
         detail::row_channel_sums<C>(B, H, w, partial, [&](int b, int r, std::size_t s, std::size_t len, T* acc) {
-          detail::add_to(acc, y.grad.pixel(b, r, 0) + s, len);
+          detail::add_to(acc, g.pixel(b, r, 0) + s, len);
         });
         alignas(simd::alignment) T sums[C];
         for (int b = 0; b < B; ++b) {
