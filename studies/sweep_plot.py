@@ -12,6 +12,7 @@ usage: studies/sweep_plot.py studies/results/sweep_256.csv [--png studies/result
 """
 import argparse
 import csv
+import math
 import statistics
 import sys
 from collections import OrderedDict
@@ -23,12 +24,17 @@ PARAMS = [("novel_view_loss", "novel-view image loss"), ("diffuse", "a_d MSE"), 
 PAPER_LR = 7.5e-4
 
 
+def precision_of(r):
+    """The row's network precision (CSVs written before the column existed are FP32)."""
+    return r.get("network_precision") or "fp32"
+
+
 def key_of(r):
     """(N, path, fine-tune steps, stop, refine variant, lr, (warm-up, half-life, crop), network precision)."""
     lr = float(r.get("finetune_lr") or PAPER_LR)
     schedule = tuple(int(r.get(c) or 0) for c in ("finetune_warmup", "finetune_half_life", "finetune_crop"))
     return (int(r["images"]), r["path"], int(r["finetune_steps"]), float(r["finetune_stop"]), r["refine"], lr, schedule,
-            r.get("network_precision") or "fp32")
+            precision_of(r))
 
 
 def label(k):
@@ -73,7 +79,8 @@ def main():
     ap.add_argument("--crop-step-ms", type=float, default=6.9,
                     help="quiet-machine fine-tune step on a crop of 4 latent cells (studies/finetune_step.cpp)")
     ap.add_argument("--bf16-finetune-step-ms", type=float, default=None,
-                    help="the model's fine-tune step with bf16 networks (needed for bf16 rows unless --x measured)")
+                    help="the model's whole-tile fine-tune step with bf16 networks (needed for bf16 rows unless --x measured; "
+                         "bf16 crop steps have no figure)")
     ap.add_argument("--all", action="store_true", help="also print every configuration, not only the front")
     ap.add_argument("--x", choices=["model", "measured"], default="model",
                     help="seconds on the plot's x axis and for the front: the step-count model (load-independent, "
@@ -83,22 +90,23 @@ def main():
     if not rows:
         sys.exit(f"{args.csv}: no rows")
     materials = sorted({r["material"] for r in rows}, key=int)
-    precisions = sorted({r.get("network_precision") or "fp32" for r in rows})
-    if "bf16" in precisions and args.x == "model" and args.bf16_finetune_step_ms is None:
-        sys.exit("bf16 rows: give --bf16-finetune-step-ms for the step-count model, or plot --x measured")
+    precisions = sorted({precision_of(r) for r in rows})
 
     def finetune_step_ms(crop, precision):
-        if crop:
-            return args.crop_step_ms
-        if precision == "bf16":  # without a figure the model prices nothing (the plot then uses the measured seconds)
-            return args.bf16_finetune_step_ms if args.bf16_finetune_step_ms is not None else float("nan")
-        return args.finetune_step_ms
+        """The model's ms per fine-tune step; NaN (not priced) where it has no figure: bf16 crop steps, and bf16
+        whole-tile steps without --bf16-finetune-step-ms."""
+        if precision == "bf16":
+            return float("nan") if crop or args.bf16_finetune_step_ms is None else args.bf16_finetune_step_ms
+        return args.crop_step_ms if crop else args.finetune_step_ms
+    if args.x == "model" and any(math.isnan(finetune_step_ms(int(r.get("finetune_crop") or 0), precision_of(r))) for r in rows):
+        sys.exit("bf16 rows: the step-count model prices them only as whole-tile steps with --bf16-finetune-step-ms; "
+                 "plot them with --x measured")
     groups = OrderedDict()
     for r in rows:
         groups.setdefault(key_of(r), []).append(r)
     def row_model(r):
         """The step-count model's seconds for one row."""
-        step_ms = finetune_step_ms(int(r.get("finetune_crop") or 0), r.get("network_precision") or "fp32")
+        step_ms = finetune_step_ms(int(r.get("finetune_crop") or 0), precision_of(r))
         return (float(r["finetune_steps_run"]) * step_ms +
                 float(r["refine_steps_run"]) * float(r["evaluated_fraction"]) * args.refine_step_ms) / 1000.0
 
@@ -130,7 +138,7 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for k in front:
         s = stats[k]
-        model = "-" if s["model_seconds"] != s["model_seconds"] else f"{s['model_seconds']:.1f}"  # NaN: not priced
+        model = "-" if math.isnan(s["model_seconds"]) else f"{s['model_seconds']:.1f}"  # NaN: not priced
         print(f"| {label(k)} | {s['ft_run']:.0f} | {s['refine_run']:.0f} | {model} | {s['seconds']:.1f} | {s['novel_view_loss']:.4f} | {s['diffuse']:.3g} | "
               f"{s['specular']:.3g} | {s['normal']:.3g} | {s['lobes']:.3g} | {s['rotation']:.3g} | {s['fresnel']:.3g} |")
 
