@@ -30,7 +30,7 @@ TEST_CASE("the refine parameterisation round-trips valid maps") {
   const material_maps maps = random_maps(13, 11, 3);
   const material_maps u = unconstrained_from_maps(maps);
   material_maps back(13, 11), jac(13, 11);
-  detail::maps_from_unconstrained(u, back, jac);
+  detail::maps_from_unconstrained(u, back, &jac);
   for (int k = 0; k < parameter_count; ++k)
     for (std::size_t i = 0; i < maps.texel_count(); ++i) CHECK(back.plane(k)[i] == doctest::Approx(maps.plane(k)[i]).epsilon(1e-3));
 }
@@ -40,7 +40,7 @@ TEST_CASE("the refine parameterisation skips frozen groups and writes the others
   const int w = 40, h = 30;
   const material_maps u = unconstrained_from_maps(random_maps(w, h, 5));
   material_maps all(w, h), all_jac(w, h);
-  detail::maps_from_unconstrained(u, all, all_jac);
+  detail::maps_from_unconstrained(u, all, &all_jac);
   std::vector<std::uint8_t> active(texel_groups::count(all));
   REQUIRE(active.size() == 19);
   for (std::size_t g = 0; g < active.size(); ++g) active[g] = std::uint8_t(g % 3 != 1);  // the last one active
@@ -48,7 +48,7 @@ TEST_CASE("the refine parameterisation skips frozen groups and writes the others
   const float sentinel[parameter_count] = {-7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7};
   some.fill(sentinel);
   some_jac.fill(sentinel);
-  detail::maps_from_unconstrained(u, some, some_jac, 0, std::size_t(-1), active.data());
+  detail::maps_from_unconstrained(u, some, &some_jac, 0, std::size_t(-1), active.data());
   for (std::size_t i = 0; i < all.texel_count(); ++i)
     for (int k = 0; k < parameter_count; ++k) {
       const bool written = active[i / texel_group_size] != 0;
@@ -56,6 +56,87 @@ TEST_CASE("the refine parameterisation skips frozen groups and writes the others
       if (k != normal_x && k != normal_y)  // the normals' Jacobian is not stored
         CHECK(some_jac.plane(k)[i] == (written ? all_jac.plane(k)[i] : -7.0f));
     }
+}
+
+TEST_CASE("the refine parameterisation's Jacobian matches central differences") {
+  const int w = 17, h = 5;
+  const material_maps u = unconstrained_from_maps(random_maps(w, h, 8));
+  material_maps maps(w, h), jac(w, h);
+  detail::maps_from_unconstrained(u, maps, &jac);
+  for (int k = 0; k < parameter_count; ++k) {
+    if (k == normal_x || k == normal_y) continue;
+    for (std::size_t i = 0; i < maps.texel_count(); ++i) {
+      const double step = 1e-3;
+      material_maps up = u, down = u, m_up(w, h), m_down(w, h);
+      up.plane(k)[i] += float(step);
+      down.plane(k)[i] -= float(step);
+      const double du = double(up.plane(k)[i]) - double(down.plane(k)[i]);
+      detail::maps_from_unconstrained(up, m_up);
+      detail::maps_from_unconstrained(down, m_down);
+      const double fd = (double(m_up.plane(k)[i]) - double(m_down.plane(k)[i])) / du;
+      CHECK(jac.plane(k)[i] == doctest::Approx(fd).epsilon(2e-2).scale(1e-3));
+    }
+  }
+}
+
+namespace {
+
+/// The refine's update as two passes, the reference for adam_step_and_maps: the Jacobian stored by
+/// maps_from_unconstrained, then Adam on every active plane, then the maps of the updated groups.
+void reference_adam_step(material_maps& u, material_maps& m1, material_maps& m2, const material_maps& grad, material_maps& maps,
+                         const std::vector<int>& active, const nn::adam_coefficients<float>& c, const std::uint8_t* group_active) {
+  using V = simd::batch<float>;
+  constexpr std::size_t L = simd::lanes_v<V>;
+  material_maps jac(u.width(), u.height()), unused(u.width(), u.height());
+  detail::maps_from_unconstrained(u, unused, &jac);
+  for (std::size_t i = 0; i < u.texel_count(); i += L) {
+    if (group_active && !group_active[i / texel_group_size]) continue;
+    for (int k : active)
+      nn::adam_update(u.plane(k) + i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i), m1.plane(k) + i, m2.plane(k) + i, c);
+    const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
+    const V kk = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy), k3 = kk * kk * kk;
+    const V gx = simd::load<V>(grad.plane(normal_x) + i), gy = simd::load<V>(grad.plane(normal_y) + i);
+    nn::adam_update(u.plane(normal_x) + i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3, m1.plane(normal_x) + i, m2.plane(normal_x) + i, c);
+    nn::adam_update(u.plane(normal_y) + i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux), m1.plane(normal_y) + i, m2.plane(normal_y) + i, c);
+  }
+  detail::maps_from_unconstrained(u, maps, nullptr, 0, std::size_t(-1), group_active);
+}
+
+}  // namespace
+
+TEST_CASE("the refine's Adam step writes the maps of the groups it moves, as separate passes would") {
+  // 40 x 30 = 1200 texels: 18 whole groups and a short last one.
+  const int w = 40, h = 30;
+  const material_maps start = unconstrained_from_maps(random_maps(w, h, 9));
+  const material_maps grad = random_maps(w, h, 10);  // any values: a gradient of either sign
+  material_maps signed_grad = grad;
+  for (int k = 0; k < parameter_count; ++k)
+    for (std::size_t i = 0; i < grad.texel_count(); ++i) signed_grad.plane(k)[i] = (i % 3 == 0 ? -1.0f : 1.0f) * grad.plane(k)[i];
+  std::vector<std::uint8_t> active_groups(texel_groups::count(grad));
+  for (std::size_t g = 0; g < active_groups.size(); ++g) active_groups[g] = std::uint8_t(g % 4 != 2);
+  const std::vector<int> planes = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, lobe_x, lobe_y, rotation, fresnel_f0};
+  for (const std::uint8_t* groups : {static_cast<const std::uint8_t*>(nullptr), static_cast<const std::uint8_t*>(active_groups.data())}) {
+    material_maps u = start, m1(w, h), m2(w, h), maps(w, h);
+    material_maps ref_u = start, ref_m1(w, h), ref_m2(w, h), ref_maps(w, h);
+    detail::maps_from_unconstrained(u, maps);
+    detail::maps_from_unconstrained(ref_u, ref_maps);
+    for (int step = 1; step <= 3; ++step) {
+      const nn::adam_coefficients<float> c(0.9, 0.999, 1e-8, 0.01, step);
+      detail::adam_step_and_maps<all_features>(u, m1, m2, signed_grad, maps, planes, c, groups, 0, active_groups.size());
+      reference_adam_step(ref_u, ref_m1, ref_m2, signed_grad, ref_maps, planes, c, groups);
+    }
+    std::size_t moved = 0;
+    for (int k = 0; k < parameter_count; ++k)
+      for (std::size_t i = 0; i < u.texel_count(); ++i) {
+        REQUIRE(u.plane(k)[i] == ref_u.plane(k)[i]);
+        REQUIRE(m1.plane(k)[i] == ref_m1.plane(k)[i]);
+        REQUIRE(m2.plane(k)[i] == ref_m2.plane(k)[i]);
+        REQUIRE(maps.plane(k)[i] == ref_maps.plane(k)[i]);
+        moved += u.plane(k)[i] != start.plane(k)[i];
+        if (groups && !groups[i / texel_group_size]) REQUIRE(u.plane(k)[i] == start.plane(k)[i]);
+      }
+    CHECK(moved > u.texel_count() * 6);  // the step moved the variables (all twelve planes on most texels)
+  }
 }
 
 TEST_CASE("refine lowers the image loss, keeps every parameter valid and moves towards the truth") {

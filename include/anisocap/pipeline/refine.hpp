@@ -132,14 +132,48 @@ inline void gather_groups(const communicator& ranks, std::vector<double>& losses
   std::copy(all.begin(), all.end(), losses.begin());  // in place: texel_groups points at it
 }
 
-/// Maps from unconstrained variables, and the per-variable derivative d map / d u where the map is
-/// elementwise (the normal's 2x2 Jacobian is recomputed in the Adam step). SIMD over texels: planes
-/// are padded to a multiple of 16, so whole registers are always in bounds.
-/// With `first` and `last` (multiples of the SIMD width, or the texel count): texels [first, last)
-/// only (a rank's share of the refine). With `group_active` (one entry per texel group, as
-/// texel_groups): only the groups it marks; a frozen group's variables no longer change, so its
-/// maps are already those of its variables.
-inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps& jacobian, std::size_t first = 0,
+/// The logistic function 1 / (1 + e^-x) of the refine parameterisation.
+template <class V>
+V logistic(const V& x) {
+  return V(1) / (V(1) + simd::exp(-x));
+}
+
+/// The maps of the SIMD block of texels starting at i from the unconstrained variables, every plane.
+/// Planes are padded to a multiple of 16, so whole registers are always in bounds.
+inline void block_maps_from_unconstrained(const material_maps& u, material_maps& maps, std::size_t i) {
+  using V = simd::batch<float>;
+  for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0})
+    simd::store<V>(maps.plane(k) + i, logistic(simd::load<V>(u.plane(k) + i)));
+  for (int k : {lobe_x, lobe_y})
+    simd::store<V>(maps.plane(k) + i, simd::exp(V(log_min_lobe) * (V(1) - logistic(simd::load<V>(u.plane(k) + i)))));
+  const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
+  const V k = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy);
+  simd::store<V>(maps.plane(normal_x) + i, ux * k);
+  simd::store<V>(maps.plane(normal_y) + i, uy * k);
+  const V a = simd::load<V>(u.plane(rotation) + i);
+  const V pi(std::numbers::pi_v<float>);
+  simd::store<V>(maps.plane(rotation) + i, a - pi * xsimd::nearbyint(a / pi));
+}
+
+/// d map / d u of plane k (any plane but the normal's, whose 2x2 Jacobian the Adam step
+/// recomputes) for the SIMD block at i, from u and the maps block_maps_from_unconstrained wrote
+/// from it: a logistic plane's s (1 - s) from its map s, a lobe width's from its map and its u.
+inline simd::batch<float> block_elementwise_jacobian(int k, const material_maps& u, const material_maps& maps, std::size_t i) {
+  using V = simd::batch<float>;
+  if (k == rotation) return V(1);
+  const V m = simd::load<V>(maps.plane(k) + i);
+  if (k != lobe_x && k != lobe_y) return m * (V(1) - m);
+  const V s = logistic(simd::load<V>(u.plane(k) + i));
+  return m * V(-log_min_lobe) * s * (V(1) - s);
+}
+
+/// Maps from unconstrained variables (block_maps_from_unconstrained), and when `jacobian` is not
+/// null the elementwise d map / d u (block_elementwise_jacobian; the normal's planes left as they
+/// are). With `first` and `last` (multiples of the SIMD width, or the texel count): texels
+/// [first, last) only (a rank's share of the refine). With `group_active` (one entry per texel
+/// group, as texel_groups): only the groups it marks; a frozen group's variables no longer change,
+/// so its maps are already those of its variables.
+inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps* jacobian = nullptr, std::size_t first = 0,
                                     std::size_t last = std::size_t(-1), const std::uint8_t* group_active = nullptr) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
@@ -149,25 +183,10 @@ inline void maps_from_unconstrained(const material_maps& u, material_maps& maps,
   for (std::ptrdiff_t b = std::ptrdiff_t(first / L); b < blocks; ++b) {
     const std::size_t i = std::size_t(b) * L;
     if (group_active && !group_active[i / texel_group_size]) continue;
-    for (int k : {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, fresnel_f0}) {
-      const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
-      simd::store<V>(maps.plane(k) + i, s);
-      simd::store<V>(jacobian.plane(k) + i, s * (V(1) - s));
-    }
-    for (int k : {lobe_x, lobe_y}) {
-      const V s = V(1) / (V(1) + simd::exp(-simd::load<V>(u.plane(k) + i)));
-      const V sigma = simd::exp(V(log_min_lobe) * (V(1) - s));
-      simd::store<V>(maps.plane(k) + i, sigma);
-      simd::store<V>(jacobian.plane(k) + i, sigma * V(-log_min_lobe) * s * (V(1) - s));
-    }
-    const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
-    const V k = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy);
-    simd::store<V>(maps.plane(normal_x) + i, ux * k);
-    simd::store<V>(maps.plane(normal_y) + i, uy * k);
-    const V a = simd::load<V>(u.plane(rotation) + i);
-    const V pi(std::numbers::pi_v<float>);
-    simd::store<V>(maps.plane(rotation) + i, a - pi * xsimd::nearbyint(a / pi));
-    simd::store<V>(jacobian.plane(rotation) + i, V(1));
+    block_maps_from_unconstrained(u, maps, i);
+    if (jacobian)
+      for (int k = 0; k < parameter_count; ++k)
+        if (k != normal_x && k != normal_y) simd::store<V>(jacobian->plane(k) + i, block_elementwise_jacobian(k, u, maps, i));
   }
 }
 
@@ -190,13 +209,15 @@ inline std::size_t freeze_converged_groups(std::vector<std::uint8_t>& active, co
 }
 
 /// One Adam step (nn/adam.hpp's kernel) on the unconstrained variables u, SIMD over texels, from the
-/// maps' gradient through the parameterisation: elementwise Jacobians for the `active` planes, the
-/// normal's 2x2 Jacobian recomputed here. Only texel groups in [first_group, last_group) that
-/// `group_active` (when not null) marks active move.
+/// maps' gradient through the parameterisation: elementwise Jacobians for the `active` planes
+/// (block_elementwise_jacobian, from u and `maps`, which must be the maps of u), the normal's 2x2
+/// Jacobian recomputed here; then each updated block's maps from its new u, in the same pass (one
+/// stream over the planes fewer than a separate pass, and no Jacobian planes). Only texel groups
+/// in [first_group, last_group) that `group_active` (when not null) marks active move.
 template <brdf_features F>
-void adam_step_unconstrained(material_maps& u, material_maps& m1, material_maps& m2, const material_maps& grad, const material_maps& jac,
-                             const std::vector<int>& active, const nn::adam_coefficients<float>& coefficients,
-                             const std::uint8_t* group_active, std::size_t first_group, std::size_t last_group) {
+void adam_step_and_maps(material_maps& u, material_maps& m1, material_maps& m2, const material_maps& grad, material_maps& maps,
+                        const std::vector<int>& active, const nn::adam_coefficients<float>& coefficients,
+                        const std::uint8_t* group_active, std::size_t first_group, std::size_t last_group) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
   auto adam = [&](int k, std::size_t i, const V& g) { nn::adam_update(u.plane(k) + i, g, m1.plane(k) + i, m2.plane(k) + i, coefficients); };
@@ -206,7 +227,10 @@ void adam_step_unconstrained(material_maps& u, material_maps& m1, material_maps&
     const std::size_t i = std::size_t(bi) * L;
     const std::size_t g = i / texel_group_size;
     if ((group_active && !group_active[g]) || g < first_group || g >= last_group) continue;  // frozen, or another rank's
-    for (int k : active) adam(k, i, simd::load<V>(grad.plane(k) + i) * simd::load<V>(jac.plane(k) + i));
+    // Every gradient is taken at the old u before any plane of the block moves.
+    V gu[parameter_count];
+    for (int k : active) gu[k] = simd::load<V>(grad.plane(k) + i) * block_elementwise_jacobian(k, u, maps, i);
+    for (int k : active) adam(k, i, gu[k]);
     if constexpr (F.normal_map) {
       const V ux = simd::load<V>(u.plane(normal_x) + i), uy = simd::load<V>(u.plane(normal_y) + i);
       const V kk = V(1) / simd::sqrt(V(1) + ux * ux + uy * uy), k3 = kk * kk * kk;
@@ -214,6 +238,7 @@ void adam_step_unconstrained(material_maps& u, material_maps& m1, material_maps&
       adam(normal_x, i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3);
       adam(normal_y, i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux));
     }
+    block_maps_from_unconstrained(u, maps, i);
   }
 }
 
@@ -260,7 +285,7 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   const auto start = std::chrono::steady_clock::now();
   const int w = maps.width(), h = maps.height();
   material_maps u = unconstrained_from_maps(maps);
-  material_maps grad(w, h), jac(w, h), m1(w, h), m2(w, h);
+  material_maps grad(w, h), m1(w, h), m2(w, h);
   refine_result result;
   const std::size_t n = maps.texel_count();
   std::vector<int> active = {diffuse_r, diffuse_g, diffuse_b, specular_r, specular_g, specular_b, lobe_x};
@@ -280,9 +305,10 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
   const texel_groups groups{shared ? evaluated.data() : freezing ? group_active.data() : nullptr, group_loss.data()};
   std::size_t evaluated_groups = 0, active_count = group_count;
   const std::size_t first_texel = first_group * texel_group_size, last_texel = std::min(n, last_group * texel_group_size);
+  // The maps of u (a reduced kernel F ignores the planes it lacks; over ranks, this rank's texels
+  // alone); from then on each Adam step writes the maps of the texels it moves.
+  detail::maps_from_unconstrained(u, maps, nullptr, first_texel, last_texel);
   for (int step = 0; step < options.steps; ++step) {
-    // (a reduced kernel F ignores the planes it lacks; over ranks, this rank's texels alone)
-    detail::maps_from_unconstrained(u, maps, jac, first_texel, last_texel, freezing ? group_active.data() : nullptr);
     if (shared)
       for (std::size_t g = first_group; g < last_group; ++g) evaluated[g] = group_active[g];
     loss_and_gradient<F>(maps, cap, targets, &grad, options.placement, options.render, &groups);
@@ -296,14 +322,14 @@ refine_result refine(material_maps& maps, const capture& cap, const loss_targets
     if (freezing && step % options.freeze_every == 0)
       active_count -= detail::freeze_converged_groups(group_active, group_loss, group_loss_checked, step, options.freeze_tolerance);
     const nn::adam_coefficients<float> coefficients(options.beta1, options.beta2, options.epsilon, options.learning_rate, step + 1);
-    detail::adam_step_unconstrained<F>(u, m1, m2, grad, jac, active, coefficients, freezing ? group_active.data() : nullptr, first_group, last_group);
+    detail::adam_step_and_maps<F>(u, m1, m2, grad, maps, active, coefficients, freezing ? group_active.data() : nullptr, first_group, last_group);
     result.steps = step + 1;
     if (options.progress && options.progress_every > 0 && (step + 1) % options.progress_every == 0)
       options.progress(optimisation_progress::at(step + 1, options.steps, loss, seconds_since(start)));
     if (stopper.stop_after(step, loss) && step + 1 >= options.min_steps) break;
   }
   if (shared) detail::gather_texels(*options.ranks, u, first_texel, last_texel);  // every rank's texels to every rank
-  detail::maps_from_unconstrained(u, maps, jac);
+  detail::maps_from_unconstrained(u, maps);
   restrict_to_features(maps, F);
   if (result.steps > 0) result.evaluated_fraction = double(evaluated_groups) / (double(group_count) * result.steps);
   result.final_loss = loss_and_gradient<F>(maps, cap, targets, nullptr, options.placement, options.render);
