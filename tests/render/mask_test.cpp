@@ -282,3 +282,39 @@ TEST_CASE("fractional masks: the gradient matches central differences") {
   s.masks = fractional_masks(7, 5, 4, 74);
   check_loss_gradient(s.maps, s.cap, make_loss_targets(s.photos, s.masks));
 }
+
+TEST_CASE("masks: an all-ones mask is not read, with the same loss and gradient bits as when it is") {
+  const scene s;
+  // Image 1 keeps a left-out pixel and image 3 a fractional one; images 0 and 2 are all ones.
+  std::vector<image> masks(4, image(s.w, s.h, 1));
+  for (image& m : masks) std::fill(m.plane(0), m.plane(0) + m.pixel_count(), 1.0f);
+  masks[1].at(0, 3, 2) = 0.0f;
+  masks[3].at(0, 5, 7) = 0.5f;
+  const loss_targets flagged = make_loss_targets(s.photos, masks);
+  REQUIRE(flagged.mask_all_ones == std::vector<std::uint8_t>{1, 0, 1, 0});
+  loss_targets read_all = flagged;
+  read_all.mask_all_ones.clear();
+  // A mask that the flag wrongly called all ones would be skipped: the flag decides.
+  loss_targets wrong = flagged;
+  wrong.mask_all_ones.assign(4, 1);
+  const two_threads threads;
+  {
+    material_maps g_flagged(s.w, s.h), g_read(s.w, s.h), g_wrong(s.w, s.h);
+    const double l_flagged = loss_and_gradient(s.maps, s.cap, flagged, &g_flagged);
+    const double l_read = loss_and_gradient(s.maps, s.cap, read_all, &g_read);
+    const double l_wrong = loss_and_gradient(s.maps, s.cap, wrong, &g_wrong);
+    CHECK(l_flagged == l_read);
+    CHECK(l_wrong != l_read);
+    for (int k = 0; k < parameter_count; ++k)
+      for (std::size_t i = 0; i < g_read.texel_count(); ++i) REQUIRE(g_flagged.plane(k)[i] == g_read.plane(k)[i]);
+    // Without any masks the loss is the same too: every mask of the all-ones set is skipped.
+    const std::vector<image> ones(4, masks[0]);
+    const loss_targets all_ones = make_loss_targets(s.photos, ones);
+    REQUIRE(all_ones.mask_all_ones == std::vector<std::uint8_t>(4, 1));
+    CHECK(loss_and_gradient(s.maps, s.cap, all_ones, nullptr) == loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos), nullptr));
+  }
+  // A crop keeps the flags.
+  loss_targets crop;
+  crop_loss_targets(flagged, 2, 1, 9, 6, crop);
+  CHECK(crop.mask_all_ones == flagged.mask_all_ones);
+}

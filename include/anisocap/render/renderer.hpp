@@ -390,6 +390,10 @@ struct loss_targets {
   /// Empty: every pixel is used with weight 1. Otherwise one 1-channel image per capture image of
   /// per-pixel weights in [0, 1]: 0 = left out.
   std::vector<image> masks;
+  /// Per capture image (with masks): non-zero where its mask is 1 on every pixel, so that the loss
+  /// skips reading it (the results are the same bits). Empty, or 0 for an image: its mask is read.
+  /// make_loss_targets sets it; a photograph without clipped or masked pixels has such a mask.
+  std::vector<std::uint8_t> mask_all_ones;
   /// Per capture image, T / U_i (1 without masks); empty means 1 for every image.
   std::vector<double> weights;
   /// Per capture image, its floor in the photographs' units (see above); empty means 0 for every image.
@@ -412,6 +416,7 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
   }
   out.weights = from.weights;
   out.floors = from.floors;
+  out.mask_all_ones = from.mask_all_ones;  // a window of an all-ones mask is all ones
   auto copy_window = [&](const image& src, image& dst, int c) {
     for (int y = 0; y < height; ++y)
       std::copy_n(src.plane(c) + std::size_t(y0 + y) * from.width + x0, width, dst.plane(c) + std::size_t(y) * width);
@@ -457,6 +462,7 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
       mask = m.plane(0);
       image stored(t.width, t.height, 1);
       double used = 0;
+      bool all_ones = true;
       for (std::size_t k = 0; k < m.pixel_count(); ++k) {
         if (!(mask[k] >= 0.0f) || !std::isfinite(mask[k]))
           throw std::invalid_argument("make_loss_targets: mask " + std::to_string(i) + " has a negative or non-finite value (" +
@@ -464,10 +470,12 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
                                       std::to_string(k / std::size_t(m.width())) + ")");
         stored.plane(0)[k] = std::min(mask[k], 1.0f);
         used += stored.plane(0)[k];
+        all_ones = all_ones && stored.plane(0)[k] == 1.0f;
       }
       if (used == 0) throw std::invalid_argument("make_loss_targets: every pixel of image " + std::to_string(i) + " is masked");
       weight = double(m.pixel_count()) / used;
       t.masks.push_back(std::move(stored));
+      t.mask_all_ones.push_back(std::uint8_t(all_ones));
     }
     t.weights.push_back(weight);
     const float floor = t.floors.empty() ? 0.0f : t.floors[i];
@@ -655,7 +663,7 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       // The lanes this image's loss uses: inside the maps and, with masks, not masked out.
       bool masked = partial;
       auto used = in_range;
-      if (!targets.masks.empty()) {
+      if (!targets.masks.empty() && !(k < targets.mask_all_ones.size() && targets.mask_all_ones[k])) {
         masked = true;
         const V m = simd::load<V>(targets.masks[k].plane(0) + i);
         used = used & (m != V(0));
