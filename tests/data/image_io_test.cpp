@@ -1,9 +1,11 @@
 // Tests for data/image_io.hpp: EXR and PNG round trips, exact sRGB linearisation, 16-bit PNG input
 // (through a tiny PNG writer below, since stb cannot write 16-bit), validation and atomic writes.
 #include <doctest/doctest.h>
+#include <omp.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <cstdint>
@@ -336,6 +338,32 @@ TEST_CASE("for_each_index_in_parallel: every job runs once, and the lowest index
   anisocap::for_each_index_in_parallel(0, [&](std::size_t) { FAIL("no job for n = 0"); });
 }
 
+TEST_CASE("job_batch: every job runs once, the costliest first, and the first added that threw is rethrown") {
+  anisocap::job_batch batch;
+  std::vector<int> order;
+  const double costs[] = {1, 5, 3, 5, 0.5};
+  for (int j = 0; j < 5; ++j) batch.add([&order, j] { order.push_back(j); }, costs[j]);
+  CHECK(batch.size() == 5);
+  {
+    const int saved = omp_get_max_threads();
+    omp_set_num_threads(1);  // one thread runs the jobs in the batch's order
+    batch.run();
+    omp_set_num_threads(saved);
+  }
+  CHECK(order == std::vector<int>{1, 3, 2, 0, 4});  // by cost, ties in the order added
+  CHECK(batch.size() == 0);
+  batch.run();  // empty: nothing runs
+  CHECK(order.size() == 5);
+  std::vector<std::atomic<int>> runs(40);
+  for (std::size_t j = 0; j < runs.size(); ++j)
+    batch.add([&runs, j] {
+      runs[j] += 1;
+      if (j == 5 || j == 8 || j == 14) throw std::runtime_error("job " + std::to_string(j));
+    }, double(j % 5));  // job 5 (cost 0) is added first of the three and runs after 8 and 14 (cost 3, 4)
+  CHECK_THROWS_WITH_AS(batch.run(), "job 5", std::runtime_error);
+  for (const auto& r : runs) CHECK(r.load() == 1);
+}
+
 TEST_CASE("EXR: tiled files are reassembled from their tiles") {
   test_folder dir;
   const int w = 13, h = 10, tile = 8, tiles_x = 2, tiles_y = 2;
@@ -422,5 +450,39 @@ TEST_CASE("PNG preview codes equal rounding of the exactly encoded value") {
           if (tie_distance > 1e-9) REQUIRE(codes.get()[i * 3 + std::size_t(c)] == expected);
         }
     }
+  }
+}
+
+TEST_CASE("PNG 8-bit codes: the table-driven quantiser gives every value the rounded encoded code") {
+  std::mt19937_64 gen(12);
+  std::uniform_real_distribution<double> exponent(-30.0, 2.0);
+  for (const auto encoding : {anisocap::png_encoding::srgb, anisocap::png_encoding::linear}) {
+    const bool srgb = encoding == anisocap::png_encoding::srgb;
+    const anisocap::detail::eight_bit_quantizer quantize(encoding);
+    auto encode = [&](double v) { return srgb ? anisocap::linear_to_srgb(v) : v; };
+    std::vector<double> bounds;
+    for (int k = 0; k < 255; ++k) bounds.push_back(srgb ? anisocap::srgb_to_linear((k + 0.5) / 255.0) : (k + 0.5) / 255.0);
+    // The definition: the number of code boundaries at or below the value, NaN and negatives as 0.
+    auto reference = [&](double v) {
+      if (!(v > 0)) v = 0;
+      return int(std::upper_bound(bounds.begin(), bounds.end(), v) - bounds.begin());
+    };
+    std::vector<double> values = {0.0, -0.0, -1.0, 1.0, 2.0, std::nextafter(1.0, 0.0), 0x1p-16, std::nextafter(0x1p-16, 0.0),
+                                  std::nextafter(0x1p-16, 1.0), 1e-310, std::numeric_limits<double>::infinity(),
+                                  -std::numeric_limits<double>::infinity(), std::numeric_limits<double>::quiet_NaN()};
+    for (double b : bounds) values.insert(values.end(), {b, std::nextafter(b, 0.0), std::nextafter(b, 2.0)});
+    for (int i = 0; i < 200000; ++i) values.push_back(std::exp2(exponent(gen)));
+    int rounded_checked = 0;
+    for (double v : values) {
+      const int code = quantize(v);
+      REQUIRE(code == reference(v));
+      // Away from a boundary it is the rounded encoded value.
+      const double e = std::clamp(encode(std::max(v, 0.0)), 0.0, 1.0) * 255.0;
+      if (std::isfinite(e) && std::abs(e - std::floor(e) - 0.5) > 1e-6) {
+        REQUIRE(code == int(std::lround(e)));
+        ++rounded_checked;
+      }
+    }
+    CHECK(rounded_checked > 190000);
   }
 }

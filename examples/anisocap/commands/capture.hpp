@@ -302,25 +302,33 @@ inline staged_capture stage_capture_files(const capture_settings& s, const captu
   const material_maps& maps = result.maps;  // canonical (capture_material)
   create_output_folder(s.out);
   staged_capture staged;
-  staged.stale_maps = stage_maps(maps, s.out, files);
+  // Every file is one job of one batch, run once all are known: the contact sheet (the largest
+  // PNG) starts first and the other thread encodes the rest meanwhile.
+  job_batch encodes;
+  staged.stale_maps = stage_maps(maps, s.out, files, encodes);
   if (s.tileable) {
     const material_maps tile = make_tileable(maps, s.tile);
     staged.tile_change = compare_tile(maps, tile);
-    const std::vector<fs::path> stale_tile = stage_maps(tile, s.out / "tileable", files);
+    const std::vector<fs::path> stale_tile = stage_maps(tile, s.out / "tileable", files, encodes);
     staged.stale_maps.insert(staged.stale_maps.end(), stale_tile.begin(), stale_tile.end());
   }
-  if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files);
+  if (result.uncertainty) write_uncertainty(*result.uncertainty, s.out / "uncertainty", files, encodes);
   if (s.view) {
     viewer_options view{s.out.filename().string()};
     const std::optional<material_maps> ratio = result.uncertainty ? std::optional(result.uncertainty->ratio()) : std::nullopt;
     if (ratio) view.uncertainty = &*ratio;
     files.stage(s.out / "material.html", viewer_html(maps, view));
   }
-  const std::vector<image> rerenders = render(maps, in.cap);
-  stage_images(rerenders, in.cap, s.out / "renders", files, in.files);
-  write_png(make_capture_sheet(in.photos, rerenders, maps, in.truth ? &*in.truth : nullptr), s.out / "contact_sheet.png", files);
+  const auto rerenders = std::make_shared<const std::vector<image>>(render(maps, in.cap));
+  stage_images(rerenders, in.cap, s.out / "renders", files, encodes, in.files);
+  const fs::path sheet = s.out / "contact_sheet.png";
+  const double sheet_cost = 3.0 * double(maps.texel_count()) * double(3 * in.photos.size() + 6);  // photos, renders, maps
+  encodes.add([&in, rerenders, &maps, sheet, &files] {
+    write_png(make_capture_sheet(in.photos, *rerenders, maps, in.truth ? &*in.truth : nullptr), sheet, files);
+  }, sheet_cost);
   staged.novel = novel_view_set(1, maps.width(), maps.height());
-  stage_images(render(maps, staged.novel), staged.novel, s.out / "novel", files);
+  stage_images(std::make_shared<const std::vector<image>>(render(maps, staged.novel)), staged.novel, s.out / "novel", files, encodes);
+  encodes.run();
   return staged;
 }
 

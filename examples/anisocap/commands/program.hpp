@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <exception>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -209,28 +210,35 @@ inline void create_output_folder(const fs::path& folder) {
     throw io_error(folder, "cannot create the output folder" + (ec ? ": " + ec.message() : std::string()));
 }
 
-/// Stages `images` (one per capture image) for `out` into `files`: one linear EXR per image under
-/// its capture file name (a .png name gets an 8-bit sRGB PNG instead), plus a PNG preview beside
-/// every EXR. Names stay inside `out` (output_inside) and none may be one of `inputs`.
-inline void stage_images(const std::vector<image>& images, const capture& cap, const fs::path& out, file_transaction& files,
-                         const std::vector<fs::path>& inputs = {}) {
+/// Adds to `encodes` the jobs that stage `images` (one per capture image) for `out` into `files`:
+/// one linear EXR per image under its capture file name (a .png name gets an 8-bit sRGB PNG
+/// instead), plus a PNG preview beside every EXR. Names stay inside `out` (output_inside) and none
+/// may be one of `inputs`. The jobs hold `images`; `files` must live until `encodes` has run.
+inline void stage_images(std::shared_ptr<const std::vector<image>> images, const capture& cap, const fs::path& out, file_transaction& files,
+                         job_batch& encodes, const std::vector<fs::path>& inputs = {}) {
   refuse_overwriting_inputs(image_outputs(cap, out), inputs);
   create_output_folder(out);
-  std::vector<fs::path> targets;
-  for (std::size_t i = 0; i < images.size(); ++i) {
-    targets.push_back(output_inside(out, cap.images[i].file));
-    if (targets.back().has_parent_path()) create_output_folder(targets.back().parent_path());
-  }
-  for_each_index_in_parallel(images.size(), [&](std::size_t i) {  // each image's files encoded on a thread of its own
-    const fs::path& target = targets[i];
+  file_transaction* staged = &files;
+  for (std::size_t i = 0; i < images->size(); ++i) {
+    fs::path target = output_inside(out, cap.images[i].file);
+    if (target.has_parent_path()) create_output_folder(target.parent_path());
+    const double cost = double((*images)[i].pixel_count()) * (*images)[i].channels();
     const auto ext = target.extension().string();
-    if (ext == ".exr" || ext == ".EXR") {
-      write_exr(images[i], target, files);
-      write_png(images[i], fs::path(target).replace_extension(".png"), files);
+    if (ext == ".exr" || ext == ".EXR") {  // each file encoded on a thread of its own
+      encodes.add([images, i, target, staged] { write_exr((*images)[i], target, *staged); }, cost);
+      encodes.add([images, i, target, staged] { write_png((*images)[i], fs::path(target).replace_extension(".png"), *staged); }, cost);
     } else {
-      write_png(images[i], target, files);
+      encodes.add([images, i, target, staged] { write_png((*images)[i], target, *staged); }, cost);
     }
-  });
+  }
+}
+
+/// stage_images with the files encoded and staged before it returns, on every thread.
+inline void stage_images(const std::vector<image>& images, const capture& cap, const fs::path& out, file_transaction& files,
+                         const std::vector<fs::path>& inputs = {}) {
+  job_batch encodes;
+  stage_images(std::make_shared<const std::vector<image>>(images), cap, out, files, encodes, inputs);
+  encodes.run();
 }
 
 /// Writes `images` into `out` as stage_images lays them out; all files appear together or not at all.

@@ -13,15 +13,18 @@
 #include <stb/stb_image_write.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
-#include <cerrno>
+#include <bit>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <random>
 #include <span>
@@ -401,8 +404,51 @@ inline image read_hdr(const std::filesystem::path& path) {
   return out;
 }
 
+namespace detail {
+
+/// The 8-bit code of a linear value under a png_encoding: the value clamped to [0, 1] (NaN -> 0),
+/// encoded and rounded, computed without a pow per value. Code k covers encoded values
+/// [(k - 0.5)/255, (k + 0.5)/255); in linear terms its upper bound is bound[k] (the curve is
+/// monotonic), so the code of v is the number of bounds at or below v. A table indexed by v's
+/// exponent and leading mantissa bits gives that count at the start of v's bucket, and at most a
+/// few steps up the bounds finish it: the same code as rounding the exactly encoded value.
+class eight_bit_quantizer {
+ public:
+  explicit eight_bit_quantizer(png_encoding encoding) {
+    for (int k = 0; k < 255; ++k) {
+      const double encoded = (k + 0.5) / 255.0;
+      bound_[k] = encoding == png_encoding::srgb ? srgb_to_linear(encoded) : encoded;
+    }
+    bound_[255] = std::numeric_limits<double>::infinity();  // stops the steps at code 255
+    // Every bound lies in [lowest, 1): below lowest the code is 0, at 1 and above it is 255.
+    for (int b = 0; b < buckets; ++b) {
+      const double edge = std::bit_cast<double>(lowest_bits + (std::uint64_t(b) << shift));
+      start_[std::size_t(b)] = static_cast<unsigned char>(std::upper_bound(bound_, bound_ + 255, edge) - bound_);
+    }
+  }
+  /// The code of v (already scaled by the exposure).
+  unsigned char operator()(double v) const {
+    if (!(v >= lowest)) return 0;  // also NaN
+    if (v >= 1.0) return 255;
+    unsigned code = start_[std::size_t((std::bit_cast<std::uint64_t>(v) - lowest_bits) >> shift)];
+    while (bound_[code] <= v) ++code;
+    return static_cast<unsigned char>(code);
+  }
+
+ private:
+  static constexpr double lowest = 0x1p-16;  // below every bound: sRGB's first is 1.5e-4, linear's 2.0e-3
+  static constexpr int octaves = 16, bucket_bits = 6;  // [2^-16, 1) in 16 octaves of 64 buckets
+  static constexpr int buckets = octaves << bucket_bits, shift = 52 - bucket_bits;
+  static constexpr std::uint64_t lowest_bits = std::uint64_t(1023 - octaves) << 52;
+  double bound_[256];
+  std::array<unsigned char, buckets> start_;
+};
+
+}  // namespace detail
+
 /// Encodes a 1- or 3-channel image as an 8-bit PNG in memory: each value is multiplied by
-/// 2^exposure_stops, clamped to [0,1] (NaN -> 0), encoded per `encoding`, rounded.
+/// 2^exposure_stops, clamped to [0,1] (NaN -> 0), encoded per `encoding`, rounded
+/// (detail::eight_bit_quantizer).
 inline std::vector<unsigned char> encode_png(const image& img, const std::filesystem::path& path, float exposure_stops = 0.0f,
                                              png_encoding encoding = png_encoding::srgb) {
   if (img.empty()) throw io_error(path, "cannot write an empty image");
@@ -410,25 +456,11 @@ inline std::vector<unsigned char> encode_png(const image& img, const std::filesy
   if (channels != 1 && channels != 3)
     throw io_error(path, "PNG preview takes 1 or 3 channels, the image has " + std::to_string(channels));
   const double scale = std::exp2(double(exposure_stops));
-  // Code k covers encoded values [(k - 0.5)/255, (k + 0.5)/255); in linear terms its upper bound is
-  // bound[k] (the curve is monotonic), so the number of bounds at or below a value is the same code
-  // as rounding the exactly encoded value, without a pow per pixel. It is found in 8 halvings
-  // without a branch (std::upper_bound's answer; its branches mispredict on image data).
-  double bound[255];
-  for (int k = 0; k < 255; ++k) {
-    const double encoded = (k + 0.5) / 255.0;
-    bound[k] = encoding == png_encoding::srgb ? srgb_to_linear(encoded) : encoded;
-  }
+  const detail::eight_bit_quantizer quantize(encoding);
   std::vector<unsigned char> pixels(img.pixel_count() * std::size_t(channels));
   for (int c = 0; c < channels; ++c) {
     const float* src = img.plane(c);
-    for (std::size_t i = 0; i < img.pixel_count(); ++i) {
-      double v = double(src[i]) * scale;
-      v = v > 0.0 ? v : 0.0;  // also maps NaN to 0; above 1 lands on code 255
-      int code = 0;
-      for (int step = 128; step > 0; step /= 2) code += bound[code + step - 1] <= v ? step : 0;
-      pixels[i * std::size_t(channels) + std::size_t(c)] = static_cast<unsigned char>(code);
-    }
+    for (std::size_t i = 0; i < img.pixel_count(); ++i) pixels[i * std::size_t(channels) + std::size_t(c)] = quantize(double(src[i]) * scale);
   }
   std::vector<unsigned char> bytes;
   auto append = [](void* context, void* data, int size) {

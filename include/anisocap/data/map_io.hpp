@@ -28,6 +28,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -268,27 +269,31 @@ inline material_maps read_maps(const std::filesystem::path& dir) {
 }
 
 /// The staging half of write_maps: validates `maps` (as read_maps does, with the same clamping and
-/// wrapping), creates `dir` and stages the set's EXRs (and PNG previews when `previews`) into
-/// `transaction`. Returns the files of an earlier set in `dir` that the new set makes stale (a
-/// height.exr the new set lacks, previews when `previews` is false): remove them with
-/// remove_stale_files once the transaction is committed.
+/// wrapping), creates `dir` and adds to `encodes` the jobs that stage the set's EXRs (and PNG
+/// previews when `previews`) into `transaction`; they hold their own copy of the maps, and
+/// `transaction` must live until `encodes` has run. Returns the files of an earlier set in `dir`
+/// that the new set makes stale (a height.exr the new set lacks, previews when `previews` is
+/// false): remove them with remove_stale_files once the transaction is committed.
 inline std::vector<std::filesystem::path> stage_maps(const material_maps& maps, const std::filesystem::path& dir,
-                                                     file_transaction& transaction, bool previews = true) {
+                                                     file_transaction& transaction, job_batch& encodes, bool previews = true) {
   if (maps.texel_count() == 0) throw io_error(dir, "cannot write an empty map set");
   material_maps canonical = maps;
   detail::check_and_canonicalise(canonical, dir);
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (!std::filesystem::is_directory(dir, ec)) throw io_error(dir, "cannot create the map set folder");
-  const std::vector<image> images = detail::map_images(canonical);
-  for_each_index_in_parallel(images.size(), [&](std::size_t f) {  // each map's files encoded on a thread of its own
-    write_exr(images[f], dir / map_file_names[f], transaction);
-    if (previews) {
-      png_encoding encoding;
-      const image preview = detail::map_preview(images[f], f, encoding);
-      write_png(preview, detail::preview_name(dir, map_file_names[f]), transaction, 0.0f, encoding);
-    }
-  });
+  const auto images = std::make_shared<const std::vector<image>>(detail::map_images(canonical));
+  file_transaction* files = &transaction;
+  for (std::size_t f = 0; f < images->size(); ++f) {  // each file encoded on a thread of its own
+    const double cost = double((*images)[f].pixel_count()) * (*images)[f].channels();
+    encodes.add([images, f, dir, files] { write_exr((*images)[f], dir / map_file_names[f], *files); }, cost);
+    if (previews)
+      encodes.add([images, f, dir, files] {
+        png_encoding encoding;
+        const image preview = detail::map_preview((*images)[f], f, encoding);
+        write_png(preview, detail::preview_name(dir, map_file_names[f]), *files, 0.0f, encoding);
+      }, cost);
+  }
   std::vector<std::filesystem::path> stale;
   if (!canonical.has_height()) {
     stale.push_back(dir / map_file_names[6]);
@@ -296,6 +301,15 @@ inline std::vector<std::filesystem::path> stage_maps(const material_maps& maps, 
   }
   if (!previews)
     for (std::size_t f = 0; f < 6; ++f) stale.push_back(detail::preview_name(dir, map_file_names[f]));
+  return stale;
+}
+
+/// stage_maps with the files encoded and staged before it returns, on every thread.
+inline std::vector<std::filesystem::path> stage_maps(const material_maps& maps, const std::filesystem::path& dir,
+                                                     file_transaction& transaction, bool previews = true) {
+  job_batch encodes;
+  std::vector<std::filesystem::path> stale = stage_maps(maps, dir, transaction, encodes, previews);
+  encodes.run();
   return stale;
 }
 

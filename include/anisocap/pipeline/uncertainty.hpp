@@ -24,10 +24,12 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <memory>
 #include <numbers>
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "anisocap/brdf/material_maps.hpp"
 #include "anisocap/brdf/ward.hpp"
@@ -382,12 +384,25 @@ inline std::vector<image> uncertainty_images(const uncertainty_result& u) {
   return images;
 }
 
+/// Creates `folder` and adds to `encodes` the jobs that stage uncertainty_images(u) into it as
+/// EXRs, within `transaction` (which must live until `encodes` has run; the jobs hold their own
+/// copy of the images).
+inline void write_uncertainty(const uncertainty_result& u, const std::filesystem::path& folder, file_transaction& transaction,
+                              job_batch& encodes) {
+  std::filesystem::create_directories(folder);
+  const auto images = std::make_shared<const std::vector<image>>(uncertainty_images(u));
+  file_transaction* files = &transaction;
+  for (std::size_t i = 0; i < images->size(); ++i)
+    encodes.add([images, i, folder, files] { write_exr((*images)[i], folder / map_file_names[i], *files); },
+                double((*images)[i].pixel_count()) * (*images)[i].channels());
+}
+
 /// Writes uncertainty_images(u) into `folder` (created), within `transaction` (data/image_io.hpp):
 /// nothing replaces an existing file until the transaction commits.
 inline void write_uncertainty(const uncertainty_result& u, const std::filesystem::path& folder, file_transaction& transaction) {
-  std::filesystem::create_directories(folder);
-  const std::vector<image> images = uncertainty_images(u);
-  for_each_index_in_parallel(images.size(), [&](std::size_t i) { write_exr(images[i], folder / map_file_names[i], transaction); });
+  job_batch encodes;
+  write_uncertainty(u, folder, transaction, encodes);
+  encodes.run();
 }
 
 }  // namespace anisocap
