@@ -222,11 +222,23 @@ void adam_step_and_maps(material_maps& u, material_maps& m1, material_maps& m2, 
   constexpr std::size_t L = simd::lanes_v<V>;
   auto adam = [&](int k, std::size_t i, const V& g) { nn::adam_update(u.plane(k) + i, g, m1.plane(k) + i, m2.plane(k) + i, coefficients); };
   const std::ptrdiff_t blocks = std::ptrdiff_t((u.texel_count() + L - 1) / L);
+  constexpr std::size_t prefetch_ahead = L < 16 ? 16 : L;  // the next block, at least a cache line on
 #pragma omp parallel for schedule(static)
   for (std::ptrdiff_t bi = 0; bi < blocks; ++bi) {
     const std::size_t i = std::size_t(bi) * L;
     const std::size_t g = i / texel_group_size;
     if ((group_active && !group_active[g]) || g < first_group || g >= last_group) continue;  // frozen, or another rank's
+    // Up to five arrays of twelve planes are more streams than the hardware prefetchers follow:
+    // the next block's lines are asked for while this one is computed.
+    if (i + prefetch_ahead < u.texel_count()) {
+      for (int k = 0; k < parameter_count; ++k)
+        for (const material_maps* a : {&u, &maps}) simd::prefetch(a->plane(k) + i + prefetch_ahead);
+      for (int k : active) {
+        simd::prefetch(m1.plane(k) + i + prefetch_ahead);
+        simd::prefetch(m2.plane(k) + i + prefetch_ahead);
+        simd::prefetch(grad.plane(k) + i + prefetch_ahead);
+      }
+    }
     // Every gradient is taken at the old u before any plane of the block moves.
     V gu[parameter_count];
     for (int k : active) gu[k] = simd::load<V>(grad.plane(k) + i) * block_elementwise_jacobian(k, u, maps, i);
