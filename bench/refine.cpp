@@ -1,7 +1,10 @@
 // Per-texel optimisation cost: one refine step against the fused loss + gradient it is built on,
 // on a 256 x 256 procedural material with 12 inputs (set alpha), and a refine with texel freezing.
 // fused_loss_masks: the same loss with a mask per photograph, as a capture passes them: all ones
-// (no pixel clipped: the loss skips them) or one pixel left out of each (the loss reads them).
+// (no pixel clipped: the loss skips them), one pixel left out of each (the loss reads the masks in
+// one texel group), or a clipped highlight left out of each, a disc of radius 24 texels at a
+// different place in each photograph (the loss reads them in the groups the disc touches); with
+// flags:0 the targets' all-ones flags are cleared, so that every mask is read everywhere.
 #include <benchmark/benchmark.h>
 #include <omp.h>
 
@@ -43,11 +46,19 @@ void fused_loss_masks(benchmark::State& state) {
   material_maps guess = initial_guess(s.cap, render(s.truth, s.cap));
   material_maps grad(size, size);
   std::vector<image> masks(images, image(size, size, 1));
-  for (image& m : masks) {
+  for (std::size_t k = 0; k < masks.size(); ++k) {
+    image& m = masks[k];
     std::fill(m.plane(0), m.plane(0) + m.pixel_count(), 1.0f);
-    if (state.range(1)) m.at(0, 5, 5) = 0.0f;
+    if (state.range(1) == 1) m.at(0, 5, 5) = 0.0f;
+    if (state.range(1) == 2) {
+      const int cx = 32 + int(k) * 16, cy = 224 - int(k) * 16, r = 24;
+      for (int y = 0; y < size; ++y)
+        for (int x = 0; x < size; ++x)
+          if ((x - cx) * (x - cx) + (y - cy) * (y - cy) <= r * r) m.at(0, x, y) = 0.0f;
+    }
   }
-  const loss_targets targets = make_loss_targets(render(s.truth, s.cap), masks);
+  loss_targets targets = make_loss_targets(render(s.truth, s.cap), masks);
+  if (!state.range(2)) targets.mask_all_ones.clear();  // every mask read everywhere
   for (auto _ : state) benchmark::DoNotOptimize(loss_and_gradient(guess, s.cap, targets, &grad));
   state.counters["evals_per_second"] = benchmark::Counter(double(size) * size * images * double(state.iterations()), benchmark::Counter::kIsRate);
 }
@@ -94,7 +105,7 @@ void refine_frozen(benchmark::State& state) {
 }  // namespace
 
 BENCHMARK(fused_loss)->Arg(1)->Arg(2)->UseRealTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(fused_loss_masks)->ArgNames({"threads", "pixel_left_out"})->ArgsProduct({{1, 2}, {0, 1}})->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(fused_loss_masks)->ArgNames({"threads", "left_out", "flags"})->ArgsProduct({{1, 2}, {0, 1, 2}, {1, 0}})->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(refine_step)->Arg(1)->Arg(2)->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(refine_frozen)->Arg(1)->Arg(2)->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK_MAIN();

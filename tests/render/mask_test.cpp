@@ -283,20 +283,22 @@ TEST_CASE("fractional masks: the gradient matches central differences") {
   check_loss_gradient(s.maps, s.cap, make_loss_targets(s.photos, s.masks));
 }
 
-TEST_CASE("masks: an all-ones mask is not read, with the same loss and gradient bits as when it is") {
-  const scene s;
-  // Image 1 keeps a left-out pixel and image 3 a fractional one; images 0 and 2 are all ones.
+TEST_CASE("masks: a mask is not read where it is all ones, with the same loss and gradient bits as when it is") {
+  const scene s;  // 21 x 13 = 273 texels: texel groups of 64, 64, 64, 64 and 17
+  const std::size_t groups = 5;
+  // Image 1 leaves out texel (3, 2) = 45 of group 0 and image 3 halves texel (5, 7) = 152 of
+  // group 2; images 0 and 2 are all ones.
   std::vector<image> masks(4, image(s.w, s.h, 1));
   for (image& m : masks) std::fill(m.plane(0), m.plane(0) + m.pixel_count(), 1.0f);
   masks[1].at(0, 3, 2) = 0.0f;
   masks[3].at(0, 5, 7) = 0.5f;
   const loss_targets flagged = make_loss_targets(s.photos, masks);
-  REQUIRE(flagged.mask_all_ones == std::vector<std::uint8_t>{1, 0, 1, 0});
+  REQUIRE(flagged.mask_all_ones == std::vector<std::uint8_t>{1, 1, 1, 1, 1,  0, 1, 1, 1, 1,  1, 1, 1, 1, 1,  1, 1, 0, 1, 1});
   loss_targets read_all = flagged;
   read_all.mask_all_ones.clear();
-  // A mask that the flag wrongly called all ones would be skipped: the flag decides.
+  // A group that the flags wrongly called all ones would be skipped: the flags decide.
   loss_targets wrong = flagged;
-  wrong.mask_all_ones.assign(4, 1);
+  wrong.mask_all_ones.assign(4 * groups, 1);
   const two_threads threads;
   {
     material_maps g_flagged(s.w, s.h), g_read(s.w, s.h), g_wrong(s.w, s.h);
@@ -310,11 +312,20 @@ TEST_CASE("masks: an all-ones mask is not read, with the same loss and gradient 
     // Without any masks the loss is the same too: every mask of the all-ones set is skipped.
     const std::vector<image> ones(4, masks[0]);
     const loss_targets all_ones = make_loss_targets(s.photos, ones);
-    REQUIRE(all_ones.mask_all_ones == std::vector<std::uint8_t>(4, 1));
+    REQUIRE(all_ones.mask_all_ones == std::vector<std::uint8_t>(4 * groups, 1));
     CHECK(loss_and_gradient(s.maps, s.cap, all_ones, nullptr) == loss_and_gradient(s.maps, s.cap, make_loss_targets(s.photos), nullptr));
   }
-  // A crop keeps the flags.
+  // Flags of another size are refused rather than read out of place.
+  loss_targets stale = flagged;
+  stale.mask_all_ones.assign(4, 1);
+  CHECK_THROWS_AS(loss_and_gradient(s.maps, s.cap, stale, nullptr), std::invalid_argument);
+  // A crop takes its flags from its own window: (2, 1) + 9 x 6 holds texel (3, 2) and not (5, 7).
   loss_targets crop;
   crop_loss_targets(flagged, 2, 1, 9, 6, crop);
-  CHECK(crop.mask_all_ones == flagged.mask_all_ones);
+  CHECK(crop.mask_all_ones == std::vector<std::uint8_t>{1, 0, 1, 1});
+  loss_targets crop_read = crop;
+  crop_read.mask_all_ones.clear();
+  const material_maps crop_maps = random_maps(9, 6, 45);
+  const tile_placement place{s.w, s.h, 2, 1};
+  CHECK(loss_and_gradient(crop_maps, s.cap, crop, nullptr, place) == loss_and_gradient(crop_maps, s.cap, crop_read, nullptr, place));
 }

@@ -390,9 +390,11 @@ struct loss_targets {
   /// Empty: every pixel is used with weight 1. Otherwise one 1-channel image per capture image of
   /// per-pixel weights in [0, 1]: 0 = left out.
   std::vector<image> masks;
-  /// Per capture image (with masks): non-zero where its mask is 1 on every pixel, so that the loss
-  /// skips reading it (the results are the same bits). Empty, or 0 for an image: its mask is read.
-  /// make_loss_targets sets it; a photograph without clipped or masked pixels has such a mask.
+  /// With masks, per capture image k and texel group g (entry k * groups + g, groups =
+  /// texel_groups' count for the targets' size): non-zero where image k's mask is 1 on every texel
+  /// of group g, so that the loss skips reading it there (the results are the same bits). Empty, or
+  /// 0 for an entry: that part of the mask is read. make_loss_targets and crop_loss_targets set it;
+  /// a photograph's mask is all ones away from its clipped or masked pixels.
   std::vector<std::uint8_t> mask_all_ones;
   /// Per capture image, T / U_i (1 without masks); empty means 1 for every image.
   std::vector<double> weights;
@@ -400,6 +402,23 @@ struct loss_targets {
   std::vector<float> floors;
   int width = 0, height = 0;
 };
+
+namespace detail {
+
+/// loss_targets::mask_all_ones of a set of masks of `texels` texels each (values already in [0, 1]).
+inline std::vector<std::uint8_t> all_ones_mask_groups(const std::vector<image>& masks, std::size_t texels) {
+  const std::size_t groups = (texels + texel_group_size - 1) / texel_group_size;
+  std::vector<std::uint8_t> flags(masks.size() * groups, 0);
+  for (std::size_t k = 0; k < masks.size(); ++k)
+    for (std::size_t g = 0; g < groups; ++g) {
+      const float* m = masks[k].plane(0);
+      flags[k * groups + g] = std::all_of(m + g * texel_group_size, m + std::min(texels, (g + 1) * texel_group_size),
+                                          [](float v) { return v == 1.0f; });
+    }
+  return flags;
+}
+
+}  // namespace detail
 
 /// The targets of the window [x0, x0 + width) x [y0, y0 + height) of `from`, written into `out`
 /// (whose images are reused when they already have that size): the targets of a tile, for a loss
@@ -416,7 +435,6 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
   }
   out.weights = from.weights;
   out.floors = from.floors;
-  out.mask_all_ones = from.mask_all_ones;  // a window of an all-ones mask is all ones
   auto copy_window = [&](const image& src, image& dst, int c) {
     for (int y = 0; y < height; ++y)
       std::copy_n(src.plane(c) + std::size_t(y0 + y) * from.width + x0, width, dst.plane(c) + std::size_t(y) * width);
@@ -424,6 +442,8 @@ inline void crop_loss_targets(const loss_targets& from, int x0, int y0, int widt
   for (std::size_t k = 0; k < from.images.size(); ++k)
     for (int c = 0; c < 3; ++c) copy_window(from.images[k], out.images[k], c);
   for (std::size_t k = 0; k < from.masks.size(); ++k) copy_window(from.masks[k], out.masks[k], 0);
+  // The window's texel groups are not the source's: its flags are taken from its own masks.
+  out.mask_all_ones = detail::all_ones_mask_groups(out.masks, std::size_t(width) * std::size_t(height));
 }
 
 /// Precomputes the loss targets from the input photographs (all of the maps' size, 3 channels) and
@@ -462,7 +482,6 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
       mask = m.plane(0);
       image stored(t.width, t.height, 1);
       double used = 0;
-      bool all_ones = true;
       for (std::size_t k = 0; k < m.pixel_count(); ++k) {
         if (!(mask[k] >= 0.0f) || !std::isfinite(mask[k]))
           throw std::invalid_argument("make_loss_targets: mask " + std::to_string(i) + " has a negative or non-finite value (" +
@@ -470,12 +489,10 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
                                       std::to_string(k / std::size_t(m.width())) + ")");
         stored.plane(0)[k] = std::min(mask[k], 1.0f);
         used += stored.plane(0)[k];
-        all_ones = all_ones && stored.plane(0)[k] == 1.0f;
       }
       if (used == 0) throw std::invalid_argument("make_loss_targets: every pixel of image " + std::to_string(i) + " is masked");
       weight = double(m.pixel_count()) / used;
       t.masks.push_back(std::move(stored));
-      t.mask_all_ones.push_back(std::uint8_t(all_ones));
     }
     t.weights.push_back(weight);
     const float floor = t.floors.empty() ? 0.0f : t.floors[i];
@@ -495,6 +512,7 @@ inline loss_targets make_loss_targets(const std::vector<image>& photos, const st
       }
     t.images.push_back(std::move(l));
   }
+  if (!t.masks.empty()) t.mask_all_ones = detail::all_ones_mask_groups(t.masks, std::size_t(t.width) * std::size_t(t.height));
   return t;
 }
 
@@ -615,6 +633,9 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       (!targets.weights.empty() && targets.weights.size() != cap.images.size()) ||
       (!targets.floors.empty() && targets.floors.size() != cap.images.size()))
     throw std::invalid_argument("loss_and_gradient: the targets' masks, weights or floors do not match the configurations");
+  if (!targets.mask_all_ones.empty() && targets.mask_all_ones.size() != targets.masks.size() * texel_groups::count(maps))
+    throw std::invalid_argument("loss_and_gradient: the targets' mask_all_ones has " + std::to_string(targets.mask_all_ones.size()) +
+                                " entries, not one per image and texel group (" + std::to_string(targets.masks.size() * texel_groups::count(maps)) + ")");
   if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
     throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
   if (groups && groups->active && !groups->loss)
@@ -631,6 +652,9 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
   const std::uint8_t* active = groups ? groups->active : nullptr;
   double* group_loss = groups ? groups->loss : nullptr;
   double loss = 0;
+  // Prefetch distance: the next block, at least one cache line (16 floats) on.
+  constexpr std::size_t prefetch_ahead = L < 16 ? 16 : L;
+  const std::uint8_t* all_ones = targets.mask_all_ones.empty() ? nullptr : targets.mask_all_ones.data();
 #pragma omp parallel
   {
   const simd::flush_denormals_scope denormals(options.flush_denormals);
@@ -655,7 +679,15 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
     std::array<V, N> g_dual;
     g_dual.fill(V(0));
     const V kd[3] = {t.diffuse[0] * V(inv_pi), t.diffuse[1] * V(inv_pi), t.diffuse[2] * V(inv_pi)};
+    // The targets are one plane per image and channel, more streams than the hardware prefetchers
+    // follow: each image's lines of the next block are asked for while this block shades it.
+    const bool prefetch = i + prefetch_ahead < texels;
     for (std::size_t k = 0; k < configs.size(); ++k) {
+      const bool read_mask = !targets.masks.empty() && !(all_ones && all_ones[k * group_count + std::size_t(g)]);
+      if (prefetch) {
+        for (int c = 0; c < 3; ++c) simd::prefetch(targets.images[k].plane(c) + i + prefetch_ahead);
+        if (read_mask) simd::prefetch(targets.masks[k].plane(0) + i + prefetch_ahead);
+      }
       const auto s = detail::shade<F, V, N>(t, configs[k], cull);
       const V geometry = s.geometry.value;
       // This image's weight per lane: m T / U_k, and 0 where its mask leaves the pixel out.
@@ -663,7 +695,7 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       // The lanes this image's loss uses: inside the maps and, with masks, not masked out.
       bool masked = partial;
       auto used = in_range;
-      if (!targets.masks.empty() && !(k < targets.mask_all_ones.size() && targets.mask_all_ones[k])) {
+      if (read_mask) {
         masked = true;
         const V m = simd::load<V>(targets.masks[k].plane(0) + i);
         used = used & (m != V(0));
