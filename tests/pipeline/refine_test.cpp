@@ -35,29 +35,6 @@ TEST_CASE("the refine parameterisation round-trips valid maps") {
     for (std::size_t i = 0; i < maps.texel_count(); ++i) CHECK(back.plane(k)[i] == doctest::Approx(maps.plane(k)[i]).epsilon(1e-3));
 }
 
-TEST_CASE("the refine parameterisation skips frozen groups and writes the others as on every texel") {
-  // 40 x 30 = 1200 texels: 18 whole groups and a short last one (1200 - 18 * 64 = 48 texels).
-  const int w = 40, h = 30;
-  const material_maps u = unconstrained_from_maps(random_maps(w, h, 5));
-  material_maps all(w, h), all_jac(w, h);
-  detail::maps_from_unconstrained(u, all, &all_jac);
-  std::vector<std::uint8_t> active(texel_groups::count(all));
-  REQUIRE(active.size() == 19);
-  for (std::size_t g = 0; g < active.size(); ++g) active[g] = std::uint8_t(g % 3 != 1);  // the last one active
-  material_maps some(w, h), some_jac(w, h);
-  const float sentinel[parameter_count] = {-7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7, -7};
-  some.fill(sentinel);
-  some_jac.fill(sentinel);
-  detail::maps_from_unconstrained(u, some, &some_jac, 0, std::size_t(-1), active.data());
-  for (std::size_t i = 0; i < all.texel_count(); ++i)
-    for (int k = 0; k < parameter_count; ++k) {
-      const bool written = active[i / texel_group_size] != 0;
-      CHECK(some.plane(k)[i] == (written ? all.plane(k)[i] : -7.0f));
-      if (k != normal_x && k != normal_y)  // the normals' Jacobian is not stored
-        CHECK(some_jac.plane(k)[i] == (written ? all_jac.plane(k)[i] : -7.0f));
-    }
-}
-
 TEST_CASE("the refine parameterisation's Jacobian matches central differences") {
   const int w = 17, h = 5;
   const material_maps u = unconstrained_from_maps(random_maps(w, h, 8));
@@ -82,7 +59,8 @@ TEST_CASE("the refine parameterisation's Jacobian matches central differences") 
 namespace {
 
 /// The refine's update as two passes, the reference for adam_step_and_maps: the Jacobian stored by
-/// maps_from_unconstrained, then Adam on every active plane, then the maps of the updated groups.
+/// maps_from_unconstrained, then Adam on every active plane, then the maps of the updated groups
+/// (frozen groups keep theirs: their variables no longer change).
 void reference_adam_step(material_maps& u, material_maps& m1, material_maps& m2, const material_maps& grad, material_maps& maps,
                          const std::vector<int>& active, const nn::adam_coefficients<float>& c, const std::uint8_t* group_active) {
   using V = simd::batch<float>;
@@ -99,7 +77,8 @@ void reference_adam_step(material_maps& u, material_maps& m1, material_maps& m2,
     nn::adam_update(u.plane(normal_x) + i, gx * k3 * (V(1) + uy * uy) - gy * ux * uy * k3, m1.plane(normal_x) + i, m2.plane(normal_x) + i, c);
     nn::adam_update(u.plane(normal_y) + i, -gx * ux * uy * k3 + gy * k3 * (V(1) + ux * ux), m1.plane(normal_y) + i, m2.plane(normal_y) + i, c);
   }
-  detail::maps_from_unconstrained(u, maps, nullptr, 0, std::size_t(-1), group_active);
+  for (std::size_t i = 0; i < u.texel_count(); i += L)
+    if (!group_active || group_active[i / texel_group_size]) detail::block_maps_from_unconstrained(u, maps, i);
 }
 
 }  // namespace

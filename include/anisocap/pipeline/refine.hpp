@@ -170,11 +170,9 @@ inline simd::batch<float> block_elementwise_jacobian(int k, const material_maps&
 /// Maps from unconstrained variables (block_maps_from_unconstrained), and when `jacobian` is not
 /// null the elementwise d map / d u (block_elementwise_jacobian; the normal's planes left as they
 /// are). With `first` and `last` (multiples of the SIMD width, or the texel count): texels
-/// [first, last) only (a rank's share of the refine). With `group_active` (one entry per texel
-/// group, as texel_groups): only the groups it marks; a frozen group's variables no longer change,
-/// so its maps are already those of its variables.
+/// [first, last) only (a rank's share of the refine).
 inline void maps_from_unconstrained(const material_maps& u, material_maps& maps, material_maps* jacobian = nullptr, std::size_t first = 0,
-                                    std::size_t last = std::size_t(-1), const std::uint8_t* group_active = nullptr) {
+                                    std::size_t last = std::size_t(-1)) {
   using V = simd::batch<float>;
   constexpr std::size_t L = simd::lanes_v<V>;
   const std::size_t n = std::min(last, maps.texel_count());
@@ -182,7 +180,6 @@ inline void maps_from_unconstrained(const material_maps& u, material_maps& maps,
 #pragma omp parallel for schedule(static)
   for (std::ptrdiff_t b = std::ptrdiff_t(first / L); b < blocks; ++b) {
     const std::size_t i = std::size_t(b) * L;
-    if (group_active && !group_active[i / texel_group_size]) continue;
     block_maps_from_unconstrained(u, maps, i);
     if (jacobian)
       for (int k = 0; k < parameter_count; ++k)
