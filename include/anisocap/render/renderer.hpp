@@ -76,8 +76,10 @@ struct texel_groups {
   /// One entry per group: each evaluated group's loss is written here. Must not be null when
   /// `active` is set.
   double* loss = nullptr;
-  /// Number of groups for a map set: ceil(texels / texel_group_size).
-  static std::size_t count(const material_maps& maps) { return (maps.texel_count() + texel_group_size - 1) / texel_group_size; }
+  /// Number of groups of `texels` texels: ceil(texels / texel_group_size).
+  static std::size_t count(std::size_t texels) { return (texels + texel_group_size - 1) / texel_group_size; }
+  /// Number of groups for a map set.
+  static std::size_t count(const material_maps& maps) { return count(maps.texel_count()); }
 };
 
 namespace detail {
@@ -407,14 +409,14 @@ namespace detail {
 
 /// loss_targets::mask_all_ones of a set of masks of `texels` texels each (values already in [0, 1]).
 inline std::vector<std::uint8_t> all_ones_mask_groups(const std::vector<image>& masks, std::size_t texels) {
-  const std::size_t groups = (texels + texel_group_size - 1) / texel_group_size;
+  const std::size_t groups = texel_groups::count(texels);
   std::vector<std::uint8_t> flags(masks.size() * groups, 0);
-  for (std::size_t k = 0; k < masks.size(); ++k)
-    for (std::size_t g = 0; g < groups; ++g) {
-      const float* m = masks[k].plane(0);
+  for (std::size_t k = 0; k < masks.size(); ++k) {
+    const float* m = masks[k].plane(0);
+    for (std::size_t g = 0; g < groups; ++g)
       flags[k * groups + g] = std::all_of(m + g * texel_group_size, m + std::min(texels, (g + 1) * texel_group_size),
                                           [](float v) { return v == 1.0f; });
-    }
+  }
   return flags;
 }
 
@@ -633,9 +635,10 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
       (!targets.weights.empty() && targets.weights.size() != cap.images.size()) ||
       (!targets.floors.empty() && targets.floors.size() != cap.images.size()))
     throw std::invalid_argument("loss_and_gradient: the targets' masks, weights or floors do not match the configurations");
-  if (!targets.mask_all_ones.empty() && targets.mask_all_ones.size() != targets.masks.size() * texel_groups::count(maps))
+  const std::size_t group_count = texel_groups::count(maps);
+  if (!targets.mask_all_ones.empty() && targets.mask_all_ones.size() != targets.masks.size() * group_count)
     throw std::invalid_argument("loss_and_gradient: the targets' mask_all_ones has " + std::to_string(targets.mask_all_ones.size()) +
-                                " entries, not one per image and texel group (" + std::to_string(targets.masks.size() * texel_groups::count(maps)) + ")");
+                                " entries, not one per image and texel group (" + std::to_string(targets.masks.size() * group_count) + ")");
   if (gradient && (gradient->width() != maps.width() || gradient->height() != maps.height()))
     throw std::invalid_argument("loss_and_gradient: gradient maps differ in size");
   if (groups && groups->active && !groups->loss)
@@ -643,7 +646,6 @@ double loss_and_gradient(const material_maps& maps, const capture& cap, const lo
   const tile_placement tp = detail::resolve(placement, maps);
   const auto configs = detail::to_constants(cap);
   const std::size_t texels = maps.texel_count();
-  const std::size_t group_count = (texels + texel_group_size - 1) / texel_group_size;
   const float cull = detail::cull_log_bound(options);
   using S = simd::scalar_t<V>;
   const S inv_pi = S(1) / std::numbers::pi_v<S>;
