@@ -2,6 +2,8 @@
 // frozen parameters get no gradient, inputs that need none get none, no-grad mode records nothing.
 #include <doctest/doctest.h>
 
+#include <algorithm>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -201,5 +203,63 @@ TEST_CASE("a layer's activation applied in place gives the values and gradients 
     ad::tape t;
     auto x = t.leaf(small, true);
     CHECK_THROWS_WITH_AS(up(t, x, nn::leaky_relu_activation<float>{-0.1f}), doctest::Contains("slope >= 0"), std::invalid_argument);
+  }
+}
+
+TEST_CASE("conv_transpose2d of a concatenation: the values of the formed concatenation, formed only where a gradient flows") {
+  std::mt19937 rng(44);
+  // 12 + 20 channels: the second input starts inside a register; odd sizes for the padded edges.
+  nn::conv_transpose2d<32, 16> up("dec1");
+  randomise(up, rng);
+  tensor<12> a(3, 5, 7);
+  tensor<20> b(3, 5, 7);
+  fill_random(a, rng);
+  fill_random(b, rng);
+  const nn::leaky_relu_activation<float> leaky{0.2f};
+  auto same_bits = [](const tensor<16>& x, const tensor<16>& y) {
+    return x.size() == y.size() && std::memcmp(x.data(), y.data(), x.size() * sizeof(float)) == 0;
+  };
+  ad::tape reference;
+  const auto expected = up(reference, nn::concat(reference, reference.leaf(a), reference.leaf(b)), leaky);
+
+  SUBCASE("inference: no concatenation on the tape") {
+    for (const auto precision : {nn::precision::fp32, nn::precision::bf16}) {
+      if (precision == nn::precision::bf16 && !nn::bf16_available()) continue;
+      const nn::precision_scope scope(precision);
+      ad::tape t1, t2;
+      const ad::tape::no_grad_guard g1(t1), g2(t2);
+      const auto formed = up(t1, nn::concat(t1, t1.leaf(a), t1.leaf(b)), leaky);
+      const auto fused = up.of_concat(t2, t2.leaf(a), t2.leaf(b), leaky);
+      CHECK(same_bits(fused.value, formed.value));
+      CHECK(!fused.requires_grad);
+      // Only the output (and its layer's scratch) went on the tape: less than the concatenation would take.
+      CHECK(t2.memory().high_water_bytes() < t1.memory().high_water_bytes());
+    }
+  }
+  SUBCASE("recording: the recorded layers, the same gradients") {
+    ad::tape t1, t2;
+    const auto xb1 = t1.leaf(b, true), xb2 = t2.leaf(b, true);
+    auto formed = up(t1, nn::concat(t1, t1.leaf(a), xb1), leaky);
+    auto fused = up.of_concat(t2, t2.leaf(a), xb2, leaky);
+    REQUIRE(fused.requires_grad);
+    CHECK(same_bits(fused.value, expected.value));
+    tensor<16> w(3, 10, 14);
+    fill_random(w, rng);
+    formed.grad.copy_from(w);
+    fused.grad.copy_from(w);
+    t1.backward();
+    const std::vector<float> weight_grad(up.weight.grad.begin(), up.weight.grad.end());
+    up.weight.zero_grad();
+    up.bias.zero_grad();
+    t2.backward();
+    CHECK(std::memcmp(xb1.grad.data(), xb2.grad.data(), b.size() * sizeof(float)) == 0);
+    CHECK(std::equal(weight_grad.begin(), weight_grad.end(), up.weight.grad.begin()));
+    CHECK(!all_zero(up.weight));
+  }
+  SUBCASE("inputs of different shapes are refused") {
+    ad::tape t;
+    const ad::tape::no_grad_guard g(t);
+    tensor<20> other(3, 5, 6);
+    CHECK_THROWS_AS(up.of_concat(t, t.leaf(a), t.leaf(other)), std::invalid_argument);
   }
 }

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <numbers>
+#include <utility>
 #include <vector>
 
 #include "anisocap/core/parallel.hpp"
@@ -119,15 +120,17 @@ class decoder_track {
   /// Full-size track features from the encoder activations a[0..5] and the global vector g.
   template <class A>
   auto operator()(ad::tape& t, const A& a, const ad::variable<E[5], T>& g) {
-    auto step = [&](auto& up, auto& norm, auto& glob, const auto& in) {
-      return nn::add_channel_bias(t, norm(t, up(t, in)), glob(t, g), nn::leaky_relu_activation<T>{T(leaky_slope)});
+    // Each layer's output feeds only its norm, which may then work in place; the skip connections
+    // are concatenated inside the transposed convolutions (of_concat).
+    auto finish = [&](auto& norm, auto& glob, auto&& h) {
+      return norm.with_channel_bias(t, std::move(h), glob(t, g), nn::leaky_relu_activation<T>{T(leaky_slope)});
     };
-    auto d0 = step(up0, n0, g0, std::get<5>(a));
-    auto d1 = step(up1, n1, g1, nn::concat(t, d0, std::get<4>(a)));
-    auto d2 = step(up2, n2, g2, nn::concat(t, d1, std::get<3>(a)));
-    auto d3 = step(up3, n3, g3, nn::concat(t, d2, std::get<2>(a)));
-    auto d4 = step(up4, n4, g4, nn::concat(t, d3, std::get<1>(a)));
-    return step(up5, n5, g5, nn::concat(t, d4, std::get<0>(a)));
+    auto d0 = finish(n0, g0, up0(t, std::get<5>(a)));
+    auto d1 = finish(n1, g1, up1.of_concat(t, d0, std::get<4>(a)));
+    auto d2 = finish(n2, g2, up2.of_concat(t, d1, std::get<3>(a)));
+    auto d3 = finish(n3, g3, up3.of_concat(t, d2, std::get<2>(a)));
+    auto d4 = finish(n4, g4, up4.of_concat(t, d3, std::get<1>(a)));
+    return finish(n5, g5, up5.of_concat(t, d4, std::get<0>(a)));
   }
 
   /// Visits every trainable parameter.
@@ -258,7 +261,7 @@ class estimation_network {
     auto layer = [&](auto& conv, auto& norm, auto& bias, auto& global, const auto& a, const auto& g) {
       auto h = conv(t, a);
       auto m = nn::spatial_mean(t, h);
-      h = nn::add_channel_bias(t, norm(t, h), bias(t, g), nn::leaky_relu_activation<T>{s});
+      h = norm.with_channel_bias(t, std::move(h), bias(t, g), nn::leaky_relu_activation<T>{s});
       auto gn = nn::selu(t, global(t, nn::concat(t, g, m)));
       return std::pair{h, gn};
     };

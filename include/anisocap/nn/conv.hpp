@@ -83,6 +83,15 @@ padded_source<T> padded(const tensor<C, T>& x, int top, int left, int Hp, int Wp
   return {buffer, std::ptrdiff_t(Hp) * Wp * ldc, std::ptrdiff_t(Wp) * ldc};
 }
 
+/// padded() of the channel concatenation [a, b], which is never formed (pad_copy_concat).
+template <int C1, int C2, class T>
+padded_source<T> padded_concat(const tensor<C1, T>& a, const tensor<C2, T>& b, int top, int left, int Hp, int Wp, int slot) {
+  require_shape(b, a.batch(), a.height(), a.width(), "padded_concat", "the second input");
+  T* buffer = scratch<T>(slot, std::size_t(a.batch()) * Hp * Wp * (C1 + C2));
+  pad_copy_concat(a, b, top, left, Hp, Wp, buffer);
+  return {buffer, std::ptrdiff_t(Hp) * Wp * (C1 + C2), std::ptrdiff_t(Wp) * (C1 + C2)};
+}
+
 /// Output channels per register block of a pass with Cb output channels.
 template <class T, int Cb>
 inline constexpr int block_of = vectors_per_tile<T>(Cb) * lanes<T>;

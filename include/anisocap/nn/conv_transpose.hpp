@@ -7,6 +7,7 @@
 /// Weight layout [4][4][Cin][Cout] (kh, kw, in, out), bias [Cout]. Each output parity is a 2x2
 /// convolution over the input, so the forward pass runs through the same register-blocked kernel
 /// as a convolution, at the same speed; its input gradient is a 4x4 stride-2 convolution.
+#include "anisocap/nn/combine.hpp"
 #include "anisocap/nn/conv.hpp"
 
 namespace anisocap::nn {
@@ -23,6 +24,21 @@ void conv_transpose2d_forward(const tensor<Cin, T>& in, const T* weight, const s
   const auto [w, b] = dc::forward_weights<16, Cin, Cout>(weight, bias);
   const auto a = dc::padded(in, 1, 1, in.height() + 2, in.width() + 2, Cin, 0);
   dc::transposed_core<Cin, Cout>(a, w, b, out, false);
+}
+
+/// conv_transpose2d_forward of the channel concatenation [a, b] (Cin = C1 + C2), which is never
+/// formed: a and b are copied straight into the padded buffer the kernel reads. The same values
+/// as forming it; a and b must have the same shape.
+template <int C1, int C2, int Cout, class T>
+void conv_transpose2d_forward_concat(const tensor<C1, T>& a, const tensor<C2, T>& b, const T* weight,
+                                     const std::type_identity_t<T>* bias, tensor<Cout, T>& out) {
+  namespace dc = detail::conv;
+  dc::require_shape(out, a.batch(), 2 * a.height(), 2 * a.width(), "conv_transpose2d_forward", "output");
+  dc::require_shape(b, a.batch(), a.height(), a.width(), "conv_transpose2d_forward", "the second input");
+  if (out.empty()) return;
+  const auto [w, bb] = dc::forward_weights<16, C1 + C2, Cout>(weight, bias);
+  const auto p = dc::padded_concat(a, b, 1, 1, a.height() + 2, a.width() + 2, 0);
+  dc::transposed_core<C1 + C2, Cout>(p, w, bb, out, false);
 }
 
 namespace detail::conv {
@@ -150,6 +166,25 @@ class conv_transpose2d {
                                              weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr);
       });
     }
+    return y;
+  }
+
+  /// y = act(conv_transpose(concat(a, b))) (a's C1 channels first): the values of
+  /// (*this)(t, nn::concat(t, a, b), act), bit for bit. Where no gradient flows (neither input
+  /// needs one, and the tape is not recording or the weights need none) the concatenation is never
+  /// formed: the inputs go straight into the padded buffer the kernel reads, which saves a
+  /// tensor and a pass (a U-Net decoder's skip connections at inference); otherwise the two
+  /// layers run and are recorded.
+  template <int C1, class Act = identity_activation>
+    requires(C1 > 0 && C1 < Cin)
+  ad::variable<Cout, T> of_concat(ad::tape& t, const ad::variable<C1, T>& a, const ad::variable<Cin - C1, T>& b, const Act& act = {}) {
+    if (a.requires_grad || b.requires_grad || (t.recording() && (weight.trainable() || (has_bias_ && bias.trainable()))))
+      return (*this)(t, nn::concat(t, a, b), act);
+    detail::require_in_place_activation(act, "conv_transpose2d");
+    ad::variable<Cout, T> y = t.make_variable<Cout, T>(a.value.batch(), 2 * a.value.height(), 2 * a.value.width(), false);
+    conv_transpose2d_forward_concat<C1, Cin - C1, Cout>(a.value, b.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr,
+                                                         y.value);
+    nn::detail::activate_in_place(act, y.value);
     return y;
   }
 

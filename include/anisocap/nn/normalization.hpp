@@ -10,8 +10,12 @@
 #include <cstddef>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
+#include <utility>
 
 #include "anisocap/ad/reverse/tape.hpp"
+#include "anisocap/nn/activation.hpp"
+#include "anisocap/nn/combine.hpp"
 #include "anisocap/nn/init.hpp"
 #include "anisocap/nn/kernels.hpp"
 #include "anisocap/nn/parameter.hpp"
@@ -174,6 +178,55 @@ class instance_norm {
     detail::channel_statistics(t, x.value, true, mean, rstd);
     for (std::size_t j = 0; j < n; ++j) rstd[j] = T(1) / std::sqrt(rstd[j] + epsilon);
     return detail::normalize(t, x, weight, bias, true, true, mean, rstd);
+  }
+
+  /// act(norm(x) + v), v broadcast over pixels: the values of add_channel_bias(t, (*this)(t, x), v,
+  /// act) (nn/combine.hpp), bit for bit. x is consumed (nothing, the caller or a recorded backward,
+  /// may read its tensor afterwards): where no gradient flows (x needs none, and the tape is not
+  /// recording or neither v nor the weights need one) its tensor is normalised, biased and
+  /// activated in place in one pass and returned, so an inference keeps one tensor where the two
+  /// layers keep three and touches a third of the memory; otherwise the two layers run and are
+  /// recorded as usual.
+  template <class Act = identity_activation>
+  ad::variable<C, T> with_channel_bias(ad::tape& t, ad::variable<C, T>&& x, const ad::variable<C, T>& v, const Act& act = {}) {
+    if (x.requires_grad || (t.recording() && (v.requires_grad || weight.trainable() || bias.trainable())))
+      return add_channel_bias(t, (*this)(t, x), v, act);
+    if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)
+      throw std::invalid_argument("nn::add_channel_bias: the bias must be batch x 1 x 1 x C with the input's batch");
+    detail::require_in_place_activation(act, "nn::add_channel_bias");
+    if (x.value.height() * x.value.width() == 0) throw std::invalid_argument("nn::instance_norm: empty image");
+    constexpr std::size_t P = detail::pattern_length<C, T>;
+    const int B = x.value.batch();
+    const std::size_t gc = std::size_t(B) * C, n = std::size_t(x.value.width()) * C;
+    T* mean = t.memory().allocate_array<T>(4 * gc);
+    T* rstd = mean + gc;
+    T* scale = rstd + gc;
+    T* shift = scale + gc;
+    detail::channel_statistics(t, x.value, true, mean, rstd);
+    // The scale and shift of detail::normalize, then its fma and add_channel_bias's sum per value.
+    for (std::size_t k = 0; k < gc; ++k) {
+      rstd[k] = T(1) / std::sqrt(rstd[k] + epsilon);
+      scale[k] = weight.value[k % C] * rstd[k];
+      shift[k] = bias.value[k % C] - mean[k] * scale[k];
+    }
+    const T* scale_pattern = detail::expand_groups<C>(t, scale, B);
+    const T* shift_pattern = detail::expand_groups<C>(t, shift, B);
+    T* bias_pattern = t.memory().allocate_array<T>(std::size_t(B) * P);
+    for (int b = 0; b < B; ++b) detail::expand_pattern<C>(v.value.pixel(b, 0, 0), bias_pattern + std::size_t(b) * P);
+    detail::for_each_row(B, x.value.height(), x.value.size(), [&](int b, int r) {
+      T* row = x.value.pixel(b, r, 0);
+      const std::size_t g = std::size_t(b) * P;
+      detail::for_each_chunk<C, T>(n, [&](std::size_t s, std::size_t len) {
+        detail::transform(
+            len, row + s,
+            [&](auto u, auto sc, auto sh, auto q) {
+              if constexpr (std::is_same_v<Act, identity_activation>) return xsimd::fma(u, sc, sh) + q;
+              else return act(xsimd::fma(u, sc, sh) + q);
+            },
+            row + s, scale_pattern + g, shift_pattern + g, bias_pattern + g);
+      });
+    });
+    return std::move(x);
   }
 
   /// Visits the trainable weights (weight, then bias).

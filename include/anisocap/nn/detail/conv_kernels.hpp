@@ -846,6 +846,34 @@ void pad_copy(const tensor<C, T>& x, int top, int left, int Hp, int Wp, int ldc,
   }
 }
 
+/// pad_copy of the channel concatenation [a, b] (ldc = C1 + C2, a's channels first) without
+/// forming it: the same buffer, one copy instead of two. a and b have the same shape.
+template <int C1, int C2, class T>
+void pad_copy_concat(const tensor<C1, T>& a, const tensor<C2, T>& b, int top, int left, int Hp, int Wp, T* dst) {
+  constexpr int C = C1 + C2;
+  const int B = a.batch();
+  const std::ptrdiff_t row = std::ptrdiff_t(Wp) * C;
+#pragma omp parallel for schedule(static) if (std::size_t(B) * Hp * Wp * C > (1u << 16))
+  for (int by = 0; by < B * Hp; ++by) {
+    const int bi = by / Hp, yp = by % Hp, y = yp - top;
+    T* d = dst + std::ptrdiff_t(by) * row;
+    if (y < 0 || y >= a.height()) {
+      std::memset(static_cast<void*>(d), 0, sizeof(T) * row);
+      continue;
+    }
+    const int x0 = std::max(0, left), x1 = std::min(Wp, a.width() + left);  // padded columns with data
+    if (x0 > 0) std::memset(static_cast<void*>(d), 0, sizeof(T) * std::ptrdiff_t(x0) * C);
+    const T* sa = a.pixel(bi, y, x0 - left);
+    const T* sb = b.pixel(bi, y, x0 - left);
+    for (int xx = x0; xx < x1; ++xx, sa += C1, sb += C2) {
+      T* dp = d + std::ptrdiff_t(xx) * C;
+      std::memcpy(static_cast<void*>(dp), sa, sizeof(T) * C1);
+      std::memcpy(static_cast<void*>(dp + C1), sb, sizeof(T) * C2);
+    }
+    if (x1 < Wp) std::memset(static_cast<void*>(d + std::ptrdiff_t(x1) * C), 0, sizeof(T) * std::ptrdiff_t(Wp - x1) * C);
+  }
+}
+
 /// Packs weights [taps][Ci][Co] for run_forward as [cb][tap][r][block]: blocks of `block` output
 /// columns, each one contiguous stream (no 4 KiB strides that thrash the TLB on wide layers), and
 /// 64-byte aligned. Plain: rows r = ci, columns co. `transpose`: rows r = co, columns ci (the
