@@ -2,8 +2,13 @@
 // of network_to_maps against finite differences, and the photographs' eq. 7 map.
 #include <doctest/doctest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <numbers>
+#include <random>
+#include <utility>
 
 #include "anisocap/core/random.hpp"
 #include "anisocap/data/procedural.hpp"
@@ -154,6 +159,60 @@ TEST_CASE("network space: the orientation channels give the direction of the str
   CHECK(out.pixel(0, 8, 8)[5] == doctest::Approx(-1.0));
 }
 
+
+namespace {
+/// The orientation channels as their definition reads: every sum with its edge clamps.
+std::array<float, 3> orientation_reference(const tensor<6>& t, int b, int x, int y) {
+  const int H = t.height(), W = t.width();
+  auto v = [&](int xx, int yy) {
+    const float* p = t.pixel(b, std::clamp(yy, 0, H - 1), std::clamp(xx, 0, W - 1));
+    return (double(p[0]) + p[1] + p[2]) / 3;
+  };
+  auto structure = [&](int xx, int yy) {
+    const double gx = (v(xx + 1, yy) - v(xx - 1, yy)) / 2, gy = (v(xx, yy + 1) - v(xx, yy - 1)) / 2;
+    return std::array<double, 3>{gx * gx, gx * gy, gy * gy};
+  };
+  std::array<double, 3> j{};
+  for (int k = 0; k < 3; ++k) {
+    double sum = 0;
+    for (int dy = -3; dy <= 3; ++dy) {
+      double row = 0;
+      for (int dx = -3; dx <= 3; ++dx)
+        row += structure(std::clamp(x + dx, 0, W - 1), std::clamp(y + dy, 0, H - 1))[std::size_t(k)];
+      sum += row;
+    }
+    j[std::size_t(k)] = sum;
+  }
+  const double trace = j[0] + j[2], floor = 1e-4, log_floor = std::log(1e-4);
+  return {float((j[0] - j[2]) / (trace + 1e-6)), float(2 * j[1] / (trace + 1e-6)),
+          float(2 * (std::log(trace + floor) - log_floor) / -log_floor - 1)};
+}
+}  // namespace
+
+TEST_CASE("network space: the orientation channels are their clamped-window definition, bit for bit, at every size") {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (const auto& size : {std::pair{1, 1}, std::pair{2, 3}, std::pair{5, 4}, std::pair{7, 7}, std::pair{8, 1}, std::pair{13, 9},
+                           std::pair{37, 20}}) {
+    const int W = size.first, H = size.second;
+    CAPTURE(W);
+    CAPTURE(H);
+    image im(W, H, 3);
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) im.at(c, x, y) = u(rng) * u(rng);
+    tensor<6> out(1, H, W);
+    ns::photo_to_network(im, out, 0);
+    int differ = 0;
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        const auto expected = orientation_reference(out, 0, x, y);
+        for (int c = 0; c < 3; ++c)
+          if (std::memcmp(&out.pixel(0, y, x)[3 + c], &expected[std::size_t(c)], sizeof(float)) != 0) ++differ;
+      }
+    CHECK(differ == 0);
+  }
+}
 
 TEST_CASE("network space: shift_to takes decoded values to a map set, shifted applies it, wrapping the rotation and clamping the rest") {
   const int W = 5, H = 4;

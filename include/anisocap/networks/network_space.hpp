@@ -273,6 +273,10 @@ inline double input_value(double radiance) {
 /// window's contrast, -1 where it is flat. Streaks such as a brushed metal's make them the
 /// brushing direction, which convolutions learnt from the photographs alone did not pick up
 /// (studies/README.md, "Can the estimator learn the rotation?").
+///
+/// The interior of each pass runs without the edge clamps, so that it vectorises; every sum adds
+/// its terms in the same order as at the edges (from 0, window offsets -3 to 3), so the channels
+/// do not depend on how a pixel was reached.
 template <int C, class T>
 void orientation_channels(tensor<C, T>& out, int b) {
   static_assert(C == 6, "orientation_channels: the tensor needs 3 photo channels and 3 orientation channels");
@@ -284,30 +288,53 @@ void orientation_channels(tensor<C, T>& out, int b) {
       const T* p = out.pixel(b, y, x);
       v[std::size_t(y) * W + x] = (double(p[0]) + p[1] + p[2]) / 3;
     }
-  for (auto& k : j) k.assign(n, 0.0);
-  for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x) {
-      auto at = [&](int xx, int yy) { return v[std::size_t(std::clamp(yy, 0, H - 1)) * W + std::clamp(xx, 0, W - 1)]; };
-      const double gx = (at(x + 1, y) - at(x - 1, y)) / 2, gy = (at(x, y + 1) - at(x, y - 1)) / 2;
-      const std::size_t i = std::size_t(y) * W + x;
-      j[0][i] = gx * gx, j[1][i] = gx * gy, j[2][i] = gy * gy;
+  for (auto& k : j) k.resize(n);
+  for (int y = 0; y < H; ++y) {
+    const double* row = v.data() + std::size_t(y) * W;
+    const double* up = v.data() + std::size_t(std::max(y - 1, 0)) * W;
+    const double* down = v.data() + std::size_t(std::min(y + 1, H - 1)) * W;
+    double* jxx = j[0].data() + std::size_t(y) * W;
+    double* jxy = j[1].data() + std::size_t(y) * W;
+    double* jyy = j[2].data() + std::size_t(y) * W;
+    auto gradient = [&](int x, double left, double right) {
+      const double gx = (right - left) / 2, gy = (down[x] - up[x]) / 2;
+      jxx[x] = gx * gx, jxy[x] = gx * gy, jyy[x] = gy * gy;
+    };
+    if (W == 1) {
+      gradient(0, row[0], row[0]);
+      continue;
     }
+    gradient(0, row[0], row[1]);
+    for (int x = 1; x < W - 1; ++x) gradient(x, row[x - 1], row[x + 1]);
+    gradient(W - 1, row[W - 2], row[W - 1]);
+  }
   // Box sums over 7 x 7 windows, rows then columns, edges clamped.
   constexpr int r = 3;
-  std::vector<double> row(n);
+  std::vector<double> rows(n);
   for (auto& k : j) {
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) {
+    for (int y = 0; y < H; ++y) {
+      const double* in = k.data() + std::size_t(y) * W;
+      double* o = rows.data() + std::size_t(y) * W;
+      auto clamped = [&](int x) {
         double sum = 0;
-        for (int d = -r; d <= r; ++d) sum += k[std::size_t(y) * W + std::clamp(x + d, 0, W - 1)];
-        row[std::size_t(y) * W + x] = sum;
+        for (int d = -r; d <= r; ++d) sum += in[std::clamp(x + d, 0, W - 1)];
+        o[x] = sum;
+      };
+      const int x0 = std::min(r, W), x1 = std::max(x0, W - r);
+      for (int x = 0; x < x0; ++x) clamped(x);
+      for (int x = x0; x < x1; ++x) o[x] = 0;
+      for (int d = -r; d <= r; ++d)
+        for (int x = x0; x < x1; ++x) o[x] += in[x + d];
+      for (int x = x1; x < W; ++x) clamped(x);
+    }
+    for (int y = 0; y < H; ++y) {
+      double* o = k.data() + std::size_t(y) * W;
+      std::fill(o, o + W, 0.0);
+      for (int d = -r; d <= r; ++d) {
+        const double* in = rows.data() + std::size_t(std::clamp(y + d, 0, H - 1)) * W;
+        for (int x = 0; x < W; ++x) o[x] += in[x];
       }
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) {
-        double sum = 0;
-        for (int d = -r; d <= r; ++d) sum += row[std::size_t(std::clamp(y + d, 0, H - 1)) * W + x];
-        k[std::size_t(y) * W + x] = sum;
-      }
+    }
   }
   static const double floor = 1e-4, log_floor = std::log(1e-4);
   for (int y = 0; y < H; ++y)
