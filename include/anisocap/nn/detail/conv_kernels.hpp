@@ -816,62 +816,57 @@ void run_weight_of(const weight_pass<T>& ps, T* gw) {
 
 // ---- data movement ----------------------------------------------------------------------------
 
-/// Copies x into a zero-padded dense buffer [B][Hp][Wp][ldc]: x(b, y, x) lands at
-/// (b, y + top, x + left); rows/columns of x beyond the buffer are dropped; channels C..ldc are 0.
-template <int C, class T>
-void pad_copy(const tensor<C, T>& x, int top, int left, int Hp, int Wp, int ldc, T* dst) {
-  const int B = x.batch();
+/// The rows of a zero-padded dense buffer [B][Hp][Wp][ldc] around a source of B x height x width
+/// pixels that lands at (b, y + top, x + left): rows and columns outside the source are zeroed,
+/// and fill(b, y, x0, x1, d) writes the source pixels of row y that land in padded columns
+/// x0..x1 (x1 exclusive), column x0 at d. Rows run in parallel.
+template <class T, class Fill>
+void pad_rows(int B, int height, int width, int top, int left, int Hp, int Wp, int ldc, T* dst, Fill&& fill) {
   const std::ptrdiff_t row = std::ptrdiff_t(Wp) * ldc;
 #pragma omp parallel for schedule(static) if (std::size_t(B) * Hp * Wp * ldc > (1u << 16))
   for (int by = 0; by < B * Hp; ++by) {
     const int b = by / Hp, yp = by % Hp, y = yp - top;
     T* d = dst + std::ptrdiff_t(by) * row;
-    if (y < 0 || y >= x.height()) {
+    if (y < 0 || y >= height) {
       std::memset(static_cast<void*>(d), 0, sizeof(T) * row);
       continue;
     }
-    const int x0 = std::max(0, left), x1 = std::min(Wp, x.width() + left);  // padded columns with data
+    const int x0 = std::max(0, left), x1 = std::min(Wp, width + left);  // padded columns with data
     if (x0 > 0) std::memset(static_cast<void*>(d), 0, sizeof(T) * std::ptrdiff_t(x0) * ldc);
-    const T* s = x.pixel(b, y, x0 - left);
-    if (ldc == C) {
-      std::memcpy(static_cast<void*>(d + std::ptrdiff_t(x0) * C), s, sizeof(T) * std::ptrdiff_t(x1 - x0) * C);
-    } else {
-      for (int xx = x0; xx < x1; ++xx) {
-        T* dp = d + std::ptrdiff_t(xx) * ldc;
-        std::memcpy(static_cast<void*>(dp), s + std::ptrdiff_t(xx - x0) * C, sizeof(T) * C);
-        std::memset(static_cast<void*>(dp + C), 0, sizeof(T) * (ldc - C));
-      }
-    }
+    fill(b, y, x0, x1, d + std::ptrdiff_t(x0) * ldc);
     if (x1 < Wp) std::memset(static_cast<void*>(d + std::ptrdiff_t(x1) * ldc), 0, sizeof(T) * std::ptrdiff_t(Wp - x1) * ldc);
   }
+}
+
+/// Copies x into a zero-padded dense buffer [B][Hp][Wp][ldc]: x(b, y, x) lands at
+/// (b, y + top, x + left); rows/columns of x beyond the buffer are dropped; channels C..ldc are 0.
+template <int C, class T>
+void pad_copy(const tensor<C, T>& x, int top, int left, int Hp, int Wp, int ldc, T* dst) {
+  pad_rows(x.batch(), x.height(), x.width(), top, left, Hp, Wp, ldc, dst, [&](int b, int y, int x0, int x1, T* d) {
+    const T* s = x.pixel(b, y, x0 - left);
+    if (ldc == C) {
+      std::memcpy(static_cast<void*>(d), s, sizeof(T) * std::ptrdiff_t(x1 - x0) * C);
+      return;
+    }
+    for (int xx = x0; xx < x1; ++xx, d += ldc, s += C) {
+      std::memcpy(static_cast<void*>(d), s, sizeof(T) * C);
+      std::memset(static_cast<void*>(d + C), 0, sizeof(T) * (ldc - C));
+    }
+  });
 }
 
 /// pad_copy of the channel concatenation [a, b] (ldc = C1 + C2, a's channels first) without
 /// forming it: the same buffer, one copy instead of two. a and b have the same shape.
 template <int C1, int C2, class T>
 void pad_copy_concat(const tensor<C1, T>& a, const tensor<C2, T>& b, int top, int left, int Hp, int Wp, T* dst) {
-  constexpr int C = C1 + C2;
-  const int B = a.batch();
-  const std::ptrdiff_t row = std::ptrdiff_t(Wp) * C;
-#pragma omp parallel for schedule(static) if (std::size_t(B) * Hp * Wp * C > (1u << 16))
-  for (int by = 0; by < B * Hp; ++by) {
-    const int bi = by / Hp, yp = by % Hp, y = yp - top;
-    T* d = dst + std::ptrdiff_t(by) * row;
-    if (y < 0 || y >= a.height()) {
-      std::memset(static_cast<void*>(d), 0, sizeof(T) * row);
-      continue;
-    }
-    const int x0 = std::max(0, left), x1 = std::min(Wp, a.width() + left);  // padded columns with data
-    if (x0 > 0) std::memset(static_cast<void*>(d), 0, sizeof(T) * std::ptrdiff_t(x0) * C);
+  pad_rows(a.batch(), a.height(), a.width(), top, left, Hp, Wp, C1 + C2, dst, [&](int bi, int y, int x0, int x1, T* d) {
     const T* sa = a.pixel(bi, y, x0 - left);
     const T* sb = b.pixel(bi, y, x0 - left);
-    for (int xx = x0; xx < x1; ++xx, sa += C1, sb += C2) {
-      T* dp = d + std::ptrdiff_t(xx) * C;
-      std::memcpy(static_cast<void*>(dp), sa, sizeof(T) * C1);
-      std::memcpy(static_cast<void*>(dp + C1), sb, sizeof(T) * C2);
+    for (int xx = x0; xx < x1; ++xx, sa += C1, sb += C2, d += C1 + C2) {
+      std::memcpy(static_cast<void*>(d), sa, sizeof(T) * C1);
+      std::memcpy(static_cast<void*>(d + C1), sb, sizeof(T) * C2);
     }
-    if (x1 < Wp) std::memset(static_cast<void*>(d + std::ptrdiff_t(x1) * C), 0, sizeof(T) * std::ptrdiff_t(Wp - x1) * C);
-  }
+  });
 }
 
 /// Packs weights [taps][Ci][Co] for run_forward as [cb][tap][r][block]: blocks of `block` output
