@@ -5,6 +5,8 @@
 /// feature vector to every pixel of the next layer (Deschaintre 2018's global-feature track).
 #include <algorithm>
 #include <cstddef>
+#include <stdexcept>
+#include <string>
 
 #include "anisocap/ad/reverse/tape.hpp"
 #include "anisocap/nn/activation.hpp"
@@ -61,22 +63,35 @@ ad::variable<C1 + C2, T> concat(ad::tape& t, const ad::variable<C1, T>& a, const
   return y;
 }
 
+namespace detail {
+
+/// A channel bias v for x (batch x 1 x 1 x C, one C-vector per entry of x) checked, and each
+/// entry's bias expanded to a channel pattern (batch x pattern_length values, in the tape's arena),
+/// so that rows are added as flat arrays. Throws std::invalid_argument naming `op` for another shape.
+template <int C, class T>
+const T* channel_bias_patterns(ad::tape& t, const tensor<C, T>& x, const tensor<C, T>& v, const char* op) {
+  if (v.batch() != x.batch() || v.height() != 1 || v.width() != 1)
+    throw std::invalid_argument(std::string(op) + ": the bias must be batch x 1 x 1 x C with the input's batch");
+  constexpr std::size_t P = pattern_length<C, T>;
+  T* pattern = t.memory().allocate_array<T>(std::size_t(x.batch()) * P);
+  for (int b = 0; b < x.batch(); ++b) expand_pattern<C>(v.pixel(b, 0, 0), pattern + std::size_t(b) * P);
+  return pattern;
+}
+
+}  // namespace detail
+
 /// act(x + v), v broadcast over pixels: v holds one C-vector per batch entry (batch x 1 x 1 x C),
 /// added to every pixel of that entry. This is how the global-feature track feeds a layer
 /// (docs/method.md section 7). `act` (nn/activation.hpp, none by default) is applied in the same
 /// pass, as the layers apply theirs: the same values and gradients as act(t, add_channel_bias(t, x, v)).
 template <int C, class T, class Act = identity_activation>
 ad::variable<C, T> add_channel_bias(ad::tape& t, const ad::variable<C, T>& x, const ad::variable<C, T>& v, const Act& act = {}) {
-  if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)
-    throw std::invalid_argument("nn::add_channel_bias: the bias must be batch x 1 x 1 x C with the input's batch");
+  const T* pattern = detail::channel_bias_patterns(t, x.value, v.value, "nn::add_channel_bias");
   detail::require_in_place_activation(act, "nn::add_channel_bias");
   auto y = t.make_variable<C, T>(x.value.batch(), x.value.height(), x.value.width(), x.requires_grad || v.requires_grad);
   constexpr std::size_t P = detail::pattern_length<C, T>;
   const int w = x.value.width();
   const std::size_t n = std::size_t(w) * C;
-  // Each entry's bias expanded to a channel pattern, so rows are added as flat arrays.
-  T* pattern = t.memory().allocate_array<T>(std::size_t(x.value.batch()) * P);
-  for (int b = 0; b < x.value.batch(); ++b) detail::expand_pattern<C>(v.value.pixel(b, 0, 0), pattern + std::size_t(b) * P);
   detail::for_each_row(x.value.batch(), x.value.height(), x.value.size(), [&](int b, int r) {
     const T* in = x.value.pixel(b, r, 0);
     T* out = y.value.pixel(b, r, 0);

@@ -60,6 +60,24 @@ void channel_statistics(ad::tape& t, const tensor<C, T>& x, bool per_entry, T* m
   }
 }
 
+/// The per-group scale and shift of a normalisation, y = x * scale + shift with scale = gamma rstd
+/// and shift = beta - mean scale (mean and rstd: groups x C values), as channel patterns (groups
+/// x pattern_length values each, in the tape's arena).
+template <int C, class T>
+std::pair<const T*, const T*> scale_and_shift_patterns(ad::tape& t, const basic_parameter<T>& gamma, const basic_parameter<T>& beta,
+                                                       int groups, const T* mean, const T* rstd) {
+  const std::size_t gc = std::size_t(groups) * C;
+  T* scale = t.memory().allocate_array<T>(2 * gc);
+  T* shift = scale + gc;
+  for (int g = 0; g < groups; ++g)
+    for (int c = 0; c < C; ++c) {
+      const std::size_t k = std::size_t(g) * C + c;
+      scale[k] = gamma.value[c] * rstd[k];
+      shift[k] = beta.value[c] - mean[k] * scale[k];
+    }
+  return {expand_groups<C>(t, scale, groups), expand_groups<C>(t, shift, groups)};
+}
+
 /// y = (x - mean) * rstd * gamma + beta with per-group mean and rstd (groups x C values, group =
 /// batch entry when `per_entry`). `batch_statistics` says whether mean and rstd came from x itself
 /// (training: the backward pass differentiates through them) or are constants (running statistics).
@@ -73,17 +91,9 @@ ad::variable<C, T> normalize(ad::tape& t, const ad::variable<C, T>& x, basic_par
   const int groups = per_entry ? B : 1;
   const std::size_t gc = std::size_t(groups) * C, n = std::size_t(W) * C;
   auto y = t.make_variable<C, T>(B, H, W, x.requires_grad || gamma.trainable() || beta.trainable());
-  // Per-group scale and shift: y = x * scale + shift.
-  T* scale = t.memory().allocate_array<T>(2 * gc);
-  T* shift = scale + gc;
-  for (int g = 0; g < groups; ++g)
-    for (int c = 0; c < C; ++c) {
-      const std::size_t k = std::size_t(g) * C + c;
-      scale[k] = gamma.value[c] * rstd[k];
-      shift[k] = beta.value[c] - mean[k] * scale[k];
-    }
-  const T* scale_pattern = expand_groups<C>(t, scale, groups);
-  const T* shift_pattern = expand_groups<C>(t, shift, groups);
+  const auto patterns = scale_and_shift_patterns<C>(t, gamma, beta, groups, mean, rstd);
+  const T* scale_pattern = patterns.first;
+  const T* shift_pattern = patterns.second;
   for_each_row(B, H, x.value.size(), [&](int b, int r) {
     const std::size_t g = std::size_t(per_entry ? b : 0) * P;
     const T* in = x.value.pixel(b, r, 0);
@@ -171,12 +181,7 @@ class instance_norm {
 
   /// Normalises x (batch x H x W x C) per batch entry and channel.
   ad::variable<C, T> operator()(ad::tape& t, const ad::variable<C, T>& x) {
-    if (x.value.height() * x.value.width() == 0) throw std::invalid_argument("nn::instance_norm: empty image");
-    const std::size_t n = std::size_t(x.value.batch()) * C;
-    T* mean = t.memory().allocate_array<T>(n);
-    T* rstd = t.memory().allocate_array<T>(n);
-    detail::channel_statistics(t, x.value, true, mean, rstd);
-    for (std::size_t j = 0; j < n; ++j) rstd[j] = T(1) / std::sqrt(rstd[j] + epsilon);
+    const auto [mean, rstd] = statistics(t, x.value);
     return detail::normalize(t, x, weight, bias, true, true, mean, rstd);
   }
 
@@ -191,28 +196,16 @@ class instance_norm {
   ad::variable<C, T> with_channel_bias(ad::tape& t, ad::variable<C, T>&& x, const ad::variable<C, T>& v, const Act& act = {}) {
     if (x.requires_grad || (t.recording() && (v.requires_grad || weight.trainable() || bias.trainable())))
       return add_channel_bias(t, (*this)(t, x), v, act);
-    if (v.value.batch() != x.value.batch() || v.value.height() != 1 || v.value.width() != 1)
-      throw std::invalid_argument("nn::add_channel_bias: the bias must be batch x 1 x 1 x C with the input's batch");
+    const T* bias_pattern = detail::channel_bias_patterns(t, x.value, v.value, "nn::add_channel_bias");
     detail::require_in_place_activation(act, "nn::add_channel_bias");
-    if (x.value.height() * x.value.width() == 0) throw std::invalid_argument("nn::instance_norm: empty image");
     constexpr std::size_t P = detail::pattern_length<C, T>;
     const int B = x.value.batch();
-    const std::size_t gc = std::size_t(B) * C, n = std::size_t(x.value.width()) * C;
-    T* mean = t.memory().allocate_array<T>(4 * gc);
-    T* rstd = mean + gc;
-    T* scale = rstd + gc;
-    T* shift = scale + gc;
-    detail::channel_statistics(t, x.value, true, mean, rstd);
-    // The scale and shift of detail::normalize, then its fma and add_channel_bias's sum per value.
-    for (std::size_t k = 0; k < gc; ++k) {
-      rstd[k] = T(1) / std::sqrt(rstd[k] + epsilon);
-      scale[k] = weight.value[k % C] * rstd[k];
-      shift[k] = bias.value[k % C] - mean[k] * scale[k];
-    }
-    const T* scale_pattern = detail::expand_groups<C>(t, scale, B);
-    const T* shift_pattern = detail::expand_groups<C>(t, shift, B);
-    T* bias_pattern = t.memory().allocate_array<T>(std::size_t(B) * P);
-    for (int b = 0; b < B; ++b) detail::expand_pattern<C>(v.value.pixel(b, 0, 0), bias_pattern + std::size_t(b) * P);
+    const std::size_t n = std::size_t(x.value.width()) * C;
+    // detail::normalize's fma, then add_channel_bias's sum, per value.
+    const auto [mean, rstd] = statistics(t, x.value);
+    const auto patterns = detail::scale_and_shift_patterns<C>(t, weight, bias, B, mean, rstd);
+    const T* scale_pattern = patterns.first;
+    const T* shift_pattern = patterns.second;
     detail::for_each_row(B, x.value.height(), x.value.size(), [&](int b, int r) {
       T* row = x.value.pixel(b, r, 0);
       const std::size_t g = std::size_t(b) * P;
@@ -234,6 +227,19 @@ class instance_norm {
   void for_each_parameter(F&& f) {
     f(weight);
     f(bias);
+  }
+
+ private:
+  /// Each entry's channel means and 1 / sqrt(variance + epsilon) (batch x C values each, in the
+  /// tape's arena).
+  std::pair<const T*, const T*> statistics(ad::tape& t, const tensor<C, T>& x) const {
+    if (x.height() * x.width() == 0) throw std::invalid_argument("nn::instance_norm: empty image");
+    const std::size_t n = std::size_t(x.batch()) * C;
+    T* mean = t.memory().allocate_array<T>(n);
+    T* rstd = t.memory().allocate_array<T>(n);
+    detail::channel_statistics(t, x, true, mean, rstd);
+    for (std::size_t j = 0; j < n; ++j) rstd[j] = T(1) / std::sqrt(rstd[j] + epsilon);
+    return {mean, rstd};
   }
 };
 
