@@ -3,11 +3,13 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <cstring>
 #include <random>
 #include <vector>
 
 #include "anisocap/nn/conv_transpose.hpp"
+#include "anisocap/nn/precision.hpp"
 #include "reference.hpp"
 
 using namespace anisocap;
@@ -204,6 +206,104 @@ TEST_CASE("a layer's activation applied in place gives the values and gradients 
     auto x = t.leaf(small, true);
     CHECK_THROWS_WITH_AS(up(t, x, nn::leaky_relu_activation<float>{-0.1f}), doctest::Contains("slope >= 0"), std::invalid_argument);
   }
+}
+
+TEST_CASE("a layer zeroes its output's gradient itself, on memory the tape used before") {
+  // The layers make their output with gradient_init::by_caller and zero its gradient in the pass
+  // that applies the activation: a reused arena's old values must not leak into it.
+  std::mt19937 rng(47);
+  nn::conv2d<3, 20, 4, 2, 1> conv("enc0");
+  nn::conv_transpose2d<20, 12> up("dec0");
+  randomise(conv, rng);
+  randomise(up, rng);
+  tensor<3> input(1, 130, 66);  // outputs of 65 x 33 and 130 x 66 pixels: large enough for the threads
+  fill_random(input, rng);
+  auto check = [&](const auto& act) {
+    ad::tape t;
+    for (int step = 0; step < 2; ++step) {
+      t.clear();  // the second step reuses the first one's memory
+      auto x = t.leaf(input, true);
+      auto h = conv(t, x, act);
+      auto y = up(t, h, act);
+      REQUIRE(h.requires_grad);
+      REQUIRE(y.requires_grad);
+      CHECK(std::all_of(h.grad.data(), h.grad.data() + h.grad.size(), [](float v) { return v == 0.0f; }));
+      CHECK(std::all_of(y.grad.data(), y.grad.data() + y.grad.size(), [](float v) { return v == 0.0f; }));
+      // Dirty every tensor of the step for the next one.
+      for (auto* g : {h.grad.data(), h.value.data()}) std::fill_n(g, h.grad.size(), 7.0f);
+      for (auto* g : {y.grad.data(), y.value.data()}) std::fill_n(g, y.grad.size(), -3.0f);
+    }
+  };
+  SUBCASE("no activation") { check(nn::identity_activation{}); }
+  SUBCASE("leaky ReLU") { check(nn::leaky_relu_activation<float>{0.2f}); }
+  SUBCASE("tanh") { check(nn::tanh_activation<float>{}); }
+}
+
+TEST_CASE("conv_transpose2d layers linked as a chain: the values and gradients of unlinked layers, on reused memory") {
+  // With chain_link the gradient between two layers is never zeroed: the later layer's backward
+  // writes it. The same bits as the unlinked layers, also when the tape's memory holds an
+  // earlier step's values, in both precisions and through both of the input gradient's weight
+  // paths (transposed in cache or copied).
+  std::mt19937 rng(53);
+  nn::conv_transpose2d<20, 16> l0("dec0");
+  nn::conv_transpose2d<16, 12> l1("dec1");
+  nn::conv_transpose2d<12, 5> l2("dec2");
+  randomise(l0, rng);
+  randomise(l1, rng);
+  randomise(l2, rng);
+  tensor<20> input(2, 9, 7);
+  fill_random(input, rng);
+  tensor<5> seed(2, 72, 56);
+  fill_random(seed, rng);
+  const nn::leaky_relu_activation<float> leaky{0.2f};
+  struct result {
+    std::vector<float> y, gx, grads;
+  };
+  auto run = [&](ad::tape& t, bool linked) {
+    auto x = t.leaf(input, true);
+    auto h0 = l0(t, x, leaky, nn::chain_link{false, linked});
+    auto h1 = l1(t, h0, leaky, nn::chain_link{linked, linked});
+    auto y = l2(t, h1, nn::tanh_activation<float>{}, nn::chain_link{linked, false});
+    std::copy(seed.data(), seed.data() + seed.size(), y.grad.data());
+    l0.for_each_parameter([](nn::parameter& p) { p.zero_grad(); });
+    l1.for_each_parameter([](nn::parameter& p) { p.zero_grad(); });
+    l2.for_each_parameter([](nn::parameter& p) { p.zero_grad(); });
+    t.backward();
+    result r{{y.value.data(), y.value.data() + y.value.size()}, {x.grad.data(), x.grad.data() + x.grad.size()}, {}};
+    auto keep = [&](nn::parameter& p) { r.grads.insert(r.grads.end(), p.grad.begin(), p.grad.end()); };
+    l0.for_each_parameter(keep);
+    l1.for_each_parameter(keep);
+    l2.for_each_parameter(keep);
+    // Dirty the step's memory for the next step on this tape.
+    for (auto* v : {&h0.value, &h0.grad}) std::fill_n(v->data(), v->size(), 5.0f);
+    for (auto* v : {&h1.value, &h1.grad}) std::fill_n(v->data(), v->size(), -9.0f);
+    return r;
+  };
+  auto check = [&] {
+    ad::tape plain;
+    const result expected = run(plain, false);
+    ad::tape t;
+    for (int step = 0; step < 2; ++step) {
+      t.clear();
+      const result got = run(t, true);
+      REQUIRE(got.y.size() == expected.y.size());
+      REQUIRE(got.gx.size() == expected.gx.size());
+      REQUIRE(got.grads.size() == expected.grads.size());
+      CHECK(got.y == expected.y);
+      CHECK(got.gx == expected.gx);
+      CHECK(got.grads == expected.grads);
+    }
+  };
+  const std::size_t before = nn::detail::conv::in_cache_transpose_weights_per_pixel;
+  for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
+    nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
+    check();
+    if (nn::bf16_available()) {
+      nn::precision_scope bf16(nn::precision::bf16);
+      check();
+    }
+  }
+  nn::detail::conv::in_cache_transpose_weights_per_pixel = before;
 }
 
 TEST_CASE("conv_transpose2d of a concatenation: the values of the formed concatenation, formed only where a gradient flows") {

@@ -237,8 +237,11 @@ class auto_encoder {
   }
   template <std::size_t I, int C>
   ad::variable<parameter_count, T> decode_from(ad::tape& t, const ad::variable<C, T>& h) {
-    if constexpr (I + 1 == L) return std::get<I>(decoder_)(t, h, nn::tanh_activation<T>{});
-    else return decode_from<I + 1>(t, std::get<I>(decoder_)(t, h, nn::leaky_relu_activation<T>{T(network_detail::leaky_slope)}));
+    // A plain chain: each layer's output gradient is written by the next layer (nn::chain_link).
+    if constexpr (I + 1 == L) return std::get<I>(decoder_)(t, h, nn::tanh_activation<T>{}, nn::chain_link{I > 0, false});
+    else
+      return decode_from<I + 1>(
+          t, std::get<I>(decoder_)(t, h, nn::leaky_relu_activation<T>{T(network_detail::leaky_slope)}, nn::chain_link{I > 0, true}));
   }
 };
 

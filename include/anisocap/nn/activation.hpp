@@ -3,6 +3,7 @@
 /// Element-wise activations of the estimator and the auto-encoder (docs/method.md section 7): leaky ReLU
 /// (Deschaintre's encoder), SELU, tanh (the output layers map to the [-1, 1] network space of
 /// docs/method.md section 1). Each is eager on whole tensors and records one backward closure.
+#include <algorithm>
 #include <cstddef>
 #include <stdexcept>
 #include <string>
@@ -72,6 +73,19 @@ struct tanh_activation {
   B gradient(B gy, B y) const { return gy * (T(1) - y * y); }
 };
 
+/// A layer's place in a plain chain, where each layer's output is read by the next layer only (the
+/// auto-encoder's decoder). The gradient between two such layers is then written by the later
+/// layer's backward, instead of being zeroed when the value is made and added to afterwards: one
+/// pass over memory fewer each way. Both sides must agree; the default is no chain.
+struct chain_link {
+  /// The input is the output of a layer called with `output_to_next`: its gradient holds nothing
+  /// until this layer's backward writes it.
+  bool input_from_previous = false;
+  /// The output goes to the next layer of the chain only (called with `input_from_previous`),
+  /// which writes its gradient: it is not zeroed, and nothing may read or add to it before that.
+  bool output_to_next = false;
+};
+
 namespace detail {
 
 /// y = act(y), value by value (nothing for identity_activation).
@@ -84,6 +98,25 @@ void activate_in_place(const Act& act, tensor<C, T>& y) {
       transform(n, p, act, p);
     });
   }
+}
+
+/// A layer's output made with gradient_init::by_caller: y.value = act(y.value) and, where y needs a
+/// gradient and `zero_gradient`, y.grad = 0, in one parallel pass over the rows (the zeroing of the
+/// gradient shares the pass the activation makes anyway, on every thread). Without
+/// `zero_gradient` the gradient stays uninitialised for the one layer that writes it (chain_link).
+template <int C, class T, class Act>
+void activate_output(const Act& act, ad::variable<C, T>& y, bool zero_gradient = true) {
+  constexpr bool activate = !std::is_same_v<Act, identity_activation>;
+  const bool zero = y.requires_grad && zero_gradient;
+  if (!activate && !zero) return;
+  const std::size_t n = std::size_t(y.value.width()) * C;
+  for_each_row(y.value.batch(), y.value.height(), y.value.size(), [&](int b, int r) {
+    if constexpr (activate) {
+      T* p = y.value.pixel(b, r, 0);
+      transform(n, p, act, p);
+    }
+    if (zero) std::fill_n(y.grad.pixel(b, r, 0), n, T(0));
+  });
 }
 
 /// g = act'(pre-activation) * gy, written, from the output y (nothing for identity_activation,

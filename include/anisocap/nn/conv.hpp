@@ -391,9 +391,10 @@ class conv2d {
     const bool bias_grad = has_bias_ && bias.trainable();
     const int Ho = conv2d_output_size<K, Stride, Pad>(x.value.height());
     const int Wo = conv2d_output_size<K, Stride, Pad>(x.value.width());
-    ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), Ho, Wo, x.requires_grad || weight_grad || bias_grad);
+    ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), Ho, Wo, x.requires_grad || weight_grad || bias_grad,
+                                                       ad::tape::gradient_init::by_caller);
     conv2d_forward<Cin, Cout, K, Stride, Pad>(x.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr, y.value);
-    detail::activate_in_place(act, y.value);
+    detail::activate_output(act, y);
     if (y.requires_grad) {
       t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
                 grad_out = detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad]() mutable {

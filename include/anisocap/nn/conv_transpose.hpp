@@ -43,16 +43,17 @@ void conv_transpose2d_forward_concat(const tensor<C1, T>& a, const tensor<C2, T>
 
 namespace detail::conv {
 
-/// The input gradient, ACCUMULATED into grad_in, from the output gradient padded by one pixel on
-/// each side (`a`, Cout channels a pixel): in[i][j] fed out[2i-1+kh][2j-1+kw], so its gradient is
-/// a 4x4 stride-2 pad-1 convolution of the output gradient with the transposed kernel (in <-> out).
+/// The input gradient, ACCUMULATED into grad_in (written over it where not `accumulate`), from the
+/// output gradient padded by one pixel on each side (`a`, Cout channels a pixel): in[i][j] fed
+/// out[2i-1+kh][2j-1+kw], so its gradient is a 4x4 stride-2 pad-1 convolution of the output
+/// gradient with the transposed kernel (in <-> out).
 template <int Cin, int Cout, class T>
-void transposed_input_gradient(const padded_source<T>& a, const T* weight, tensor<Cin, T>& grad_in) {
+void transposed_input_gradient(const padded_source<T>& a, const T* weight, tensor<Cin, T>& grad_in, bool accumulate) {
   if (prefer_in_cache_transpose(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
     // Few pixels for a large kernel: transpose it block by block inside the work items.
-    conv_core<Cout, Cin, 4, 2>(a, in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
+    conv_core<Cout, Cin, 4, 2>(a, in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, accumulate);
   } else {
-    conv_core<Cout, Cin, 4, 2>(a, input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, true);
+    conv_core<Cout, Cin, 4, 2>(a, input_gradient_weights<16, Cin, Cout>(weight, false), nullptr, grad_in, accumulate);
   }
 }
 
@@ -81,14 +82,22 @@ void transposed_weight_gradient(const tensor<Cin, T>& in, const padded_source<T>
 
 }  // namespace detail::conv
 
-/// Gradient for the input, ACCUMULATED into grad_in (batch x H x W; grad_out is batch x 2H x 2W).
+/// How a backward pass stores an input's gradient: added to what the tensor holds (the tape's rule:
+/// each reader of a value adds its share), or written over it (the one reader of a value whose
+/// gradient was left uninitialised; chain_link).
+enum class input_gradient { accumulated, written };
+
+/// Gradient for the input, ACCUMULATED into grad_in (batch x H x W; grad_out is batch x 2H x 2W),
+/// or written over it with input_gradient::written.
 template <int Cin, int Cout, class T>
-void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, tensor<Cin, T>& grad_in) {
+void conv_transpose2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, tensor<Cin, T>& grad_in,
+                                     input_gradient mode = input_gradient::accumulated) {
   namespace dc = detail::conv;
   const int H = grad_in.height(), W = grad_in.width();
   dc::require_shape(grad_out, grad_in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward_input", "output gradient");
   if (grad_in.empty()) return;
-  dc::transposed_input_gradient<Cin, Cout>(dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0), weight, grad_in);
+  dc::transposed_input_gradient<Cin, Cout>(dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0), weight, grad_in,
+                                           mode == input_gradient::accumulated);
 }
 
 /// Gradients for the weights [4][4][Cin][Cout] and bias [Cout] (null: skipped), ACCUMULATED.
@@ -105,18 +114,20 @@ void conv_transpose2d_backward_weight(const tensor<Cin, T>& in, const tensor<Cou
   dc::transposed_weight_gradient<Cin, Cout>(in, dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, ldg, 2), ldg, grad_weight);
 }
 
-/// Every gradient of a transposed convolution at once, ACCUMULATED: the input's into grad_in, the
-/// weights' and the bias's (each null: skipped). The same values as conv_transpose2d_backward_input
-/// and conv_transpose2d_backward_weight; where both passes read the output gradient's padded copy
-/// alike (its channels whole registers, or only broadcast by the weight pass), it is made once.
+/// Every gradient of a transposed convolution at once, ACCUMULATED: the input's into grad_in (or
+/// written over it, `mode`), the weights' and the bias's (each null: skipped). The same values as
+/// conv_transpose2d_backward_input and conv_transpose2d_backward_weight; where both passes read
+/// the output gradient's padded copy alike (its channels whole registers, or only broadcast by the
+/// weight pass), it is made once.
 template <int Cin, int Cout, class T>
 void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& grad_out, const std::type_identity_t<T>* weight,
                                tensor<Cin, std::type_identity_t<T>>* grad_in,
-                               std::type_identity_t<T>* grad_weight, std::type_identity_t<T>* grad_bias) {
+                               std::type_identity_t<T>* grad_weight, std::type_identity_t<T>* grad_bias,
+                               input_gradient mode = input_gradient::accumulated) {
   namespace dc = detail::conv;
   constexpr int ldg = dc::weight_gradient_channels<T, Cin, Cout>;
   if (ldg != Cout || !grad_in || !grad_weight) {
-    if (grad_in) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight, *grad_in);
+    if (grad_in) conv_transpose2d_backward_input<Cin, Cout>(grad_out, weight, *grad_in, mode);
     conv_transpose2d_backward_weight<Cin, Cout>(in, grad_out, grad_weight, grad_bias);
     return;
   }
@@ -126,7 +137,7 @@ void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& 
   if (in.empty()) return;
   if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
   const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  dc::transposed_input_gradient<Cin, Cout>(g, weight, *grad_in);
+  dc::transposed_input_gradient<Cin, Cout>(g, weight, *grad_in, mode == input_gradient::accumulated);
   dc::transposed_weight_gradient<Cin, Cout>(in, g, Cout, grad_weight);
 }
 
@@ -148,22 +159,24 @@ class conv_transpose2d {
   bool has_bias() const noexcept { return has_bias_; }
 
   /// y = act(conv_transpose(x) (+ bias)), recorded on t; `act` (nn/activation.hpp) is applied in
-  /// place: the same values and gradients as act(t, layer(t, x)) with less memory.
+  /// place: the same values and gradients as act(t, layer(t, x)) with less memory. `link`: the
+  /// layer's place in a plain chain of layers (chain_link), the same values and gradients.
   template <class Act = identity_activation>
-  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x, const Act& act = {}) {
+  ad::variable<Cout, T> operator()(ad::tape& t, const ad::variable<Cin, T>& x, const Act& act = {}, chain_link link = {}) {
     detail::require_in_place_activation(act, "conv_transpose2d");
     const bool weight_grad = weight.trainable();
     const bool bias_grad = has_bias_ && bias.trainable();
     ad::variable<Cout, T> y = t.make_variable<Cout, T>(x.value.batch(), 2 * x.value.height(), 2 * x.value.width(),
-                                                       x.requires_grad || weight_grad || bias_grad);
+                                                       x.requires_grad || weight_grad || bias_grad, ad::tape::gradient_init::by_caller);
     conv_transpose2d_forward<Cin, Cout>(x.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr, y.value);
-    nn::detail::activate_in_place(act, y.value);
+    nn::detail::activate_output(act, y, !link.output_to_next);
     if (y.requires_grad) {
+      const input_gradient mode = link.input_from_previous ? input_gradient::written : input_gradient::accumulated;
       t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
-                grad_out = nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad]() mutable {
+                grad_out = nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad, mode]() mutable {
         nn::detail::activation_gradient(act, output, grad_y, grad_out);
         conv_transpose2d_backward<Cin, Cout>(input, grad_out, weight.value.data(), input_grad ? &grad_in : nullptr,
-                                             weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr);
+                                             weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr, mode);
       });
     }
     return y;

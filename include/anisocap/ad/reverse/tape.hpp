@@ -81,13 +81,19 @@ class tape {
   template <int C, class T = float>
   tensor<C, T> make_tensor(int batch, int height, int width) { return tensor<C, T>(arena_, batch, height, width); }
 
-  /// A new variable in the arena; its gradient is allocated and zeroed when requires_grad.
+  /// How make_variable leaves a new gradient: zeroed, or uninitialised for a caller that zeroes it
+  /// itself before anyone else sees the variable (a layer does it in its own parallel pass over
+  /// the output, instead of a zeroing pass on one thread here).
+  enum class gradient_init { zeroed, by_caller };
+
+  /// A new variable in the arena; its gradient is allocated when requires_grad (and recording),
+  /// and zeroed unless `init` is gradient_init::by_caller.
   template <int C, class T = float>
-  variable<C, T> make_variable(int batch, int height, int width, bool requires_grad) {
+  variable<C, T> make_variable(int batch, int height, int width, bool requires_grad, gradient_init init = gradient_init::zeroed) {
     variable<C, T> v{make_tensor<C, T>(batch, height, width), {}, requires_grad && recording_};
     if (v.requires_grad) {
       v.grad = make_tensor<C, T>(batch, height, width);
-      v.grad.fill(T(0));
+      if (init == gradient_init::zeroed) v.grad.fill(T(0));
     }
     return v;
   }
