@@ -150,11 +150,12 @@ namespace {
 // own) against the activation recorded after the layer: the same output and the same gradients
 // for the input, the weights and the bias, bit for bit.
 template <int Cin, class Layer, class Act, class Separate>
-void check_in_place_activation(Layer& layer, const tensor<Cin>& input, const Act& act, Separate separate, std::mt19937& rng) {
+void check_in_place_activation(Layer& layer, const tensor<Cin>& input, const Act& act, Separate separate, std::mt19937& rng,
+                               bool input_needs_grad = true) {
   ad::tape t1, t2;
-  auto x1 = t1.leaf(input, true);
+  auto x1 = t1.leaf(input, input_needs_grad);
   auto y1 = layer(t1, x1, act);
-  auto x2 = t2.leaf(input, true);
+  auto x2 = t2.leaf(input, input_needs_grad);
   auto y2 = separate(t2, layer(t2, x2));
   REQUIRE(y1.value.size() == y2.value.size());
   int negative = 0;
@@ -201,6 +202,27 @@ TEST_CASE("a layer's activation applied in place gives the values and gradients 
   fill_random(small, rng);
   SUBCASE("conv_transpose2d, leaky ReLU") { check_in_place_activation(up, small, nn::leaky_relu_activation<float>{slope}, leaky, rng); }
   SUBCASE("conv_transpose2d, tanh") { check_in_place_activation(up, small, nn::tanh_activation<float>{}, tanh, rng); }
+  // Shapes whose backward passes read one padded copy of the output gradient: the activation's
+  // gradient is written straight into it (conv_transpose2d_backward_activated).
+  nn::conv_transpose2d<20, 16> up16("dec1");
+  nn::conv_transpose2d<16, 12> up12("dec2");  // the weight pass exchanges the operands' roles
+  randomise(up16, rng);
+  randomise(up12, rng);
+  tensor<16> small16(2, 6, 5);
+  fill_random(small16, rng);
+  for (bool input_grad : {true, false}) {
+    CAPTURE(input_grad);
+    SUBCASE("conv_transpose2d 20 -> 16, leaky ReLU") {
+      check_in_place_activation(up16, small, nn::leaky_relu_activation<float>{slope}, leaky, rng, input_grad);
+    }
+    SUBCASE("conv_transpose2d 16 -> 12, tanh") { check_in_place_activation(up12, small16, nn::tanh_activation<float>{}, tanh, rng, input_grad); }
+    SUBCASE("conv_transpose2d 16 -> 12, leaky ReLU, bf16") {
+      if (nn::bf16_available()) {
+        nn::precision_scope bf16(nn::precision::bf16);
+        check_in_place_activation(up12, small16, nn::leaky_relu_activation<float>{slope}, leaky, rng, input_grad);
+      }
+    }
+  }
   SUBCASE("a negative slope is refused: the output's sign would not give the derivative") {
     ad::tape t;
     auto x = t.leaf(small, true);

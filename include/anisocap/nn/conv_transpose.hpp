@@ -80,6 +80,20 @@ void transposed_weight_gradient(const tensor<Cin, T>& in, const padded_source<T>
   run_weight_of<Cin, Cout>(ps, grad_weight);
 }
 
+/// padded(g, 1, 1, 2H + 2, 2W + 2, C, slot) of a layer's pre-activation gradient g = act'(y) * gy
+/// (activation_gradient's values, bit for bit), written straight into the padded buffer: g itself
+/// is never formed.
+template <int C, class T, class Act>
+padded_source<T> padded_activation_gradient(const Act& act, const tensor<C, T>& y, const tensor<C, T>& gy, int slot) {
+  const int B = y.batch(), Hp = y.height() + 2, Wp = y.width() + 2;
+  T* buffer = scratch<T>(slot, std::size_t(B) * Hp * Wp * C);
+  pad_rows(B, y.height(), y.width(), 1, 1, Hp, Wp, C, buffer, [&](int b, int r, int x0, int x1, T* d) {
+    transform(std::size_t(x1 - x0) * C, d, [&](auto gv, auto yv) { return act.gradient(gv, yv); }, gy.pixel(b, r, x0 - 1),
+              y.pixel(b, r, x0 - 1));
+  });
+  return {buffer, std::ptrdiff_t(Hp) * Wp * C, std::ptrdiff_t(Wp) * C};
+}
+
 }  // namespace detail::conv
 
 /// How a backward pass stores an input's gradient: added to what the tensor holds (the tape's rule:
@@ -141,6 +155,39 @@ void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& 
   dc::transposed_weight_gradient<Cin, Cout>(in, g, Cout, grad_weight);
 }
 
+/// conv_transpose2d_backward of a layer's pre-activation gradient act'(y) * gy, from its output y and
+/// the output's gradient gy: the same values. Where the passes read one padded copy of that
+/// gradient (its channels whole registers, or only broadcast by the weight pass) and the weights
+/// need a gradient, the activation's gradient is written straight into the copy, and the bias's
+/// gradient is summed from it: two passes over memory fewer. Otherwise through `g` (y's shape), as
+/// activation_gradient then conv_transpose2d_backward.
+template <int Cin, int Cout, class T, class Act>
+void conv_transpose2d_backward_activated(const Act& act, const tensor<Cin, T>& in, const tensor<Cout, T>& y,
+                                         const tensor<Cout, T>& gy, tensor<Cout, T>& g, const std::type_identity_t<T>* weight,
+                                         tensor<Cin, std::type_identity_t<T>>* grad_in, std::type_identity_t<T>* grad_weight,
+                                         std::type_identity_t<T>* grad_bias, input_gradient mode = input_gradient::accumulated) {
+  namespace dc = detail::conv;
+  constexpr bool fused = !std::is_same_v<Act, identity_activation> && dc::weight_gradient_channels<T, Cin, Cout> == Cout;
+  if constexpr (fused) {
+    if (grad_weight) {
+      const int B = in.batch(), H = in.height(), W = in.width();
+      dc::require_shape(y, B, 2 * H, 2 * W, "conv_transpose2d_backward", "output");
+      dc::require_shape(gy, B, 2 * H, 2 * W, "conv_transpose2d_backward", "output gradient");
+      if (grad_in) dc::require_shape(*grad_in, B, H, W, "conv_transpose2d_backward", "input gradient");
+      if (in.empty()) return;
+      // The slots conv_transpose2d_backward and conv_transpose2d_backward_weight pad into.
+      const auto p = dc::padded_activation_gradient(act, y, gy, grad_in ? 0 : 2);
+      if (grad_bias)
+        dc::bias_gradient(tensor<Cout, T>::wrap(const_cast<T*>(p.data), B, 2 * H + 2, 2 * W + 2).tile(1, 1, 2 * H, 2 * W), grad_bias);
+      if (grad_in) dc::transposed_input_gradient<Cin, Cout>(p, weight, *grad_in, mode == input_gradient::accumulated);
+      dc::transposed_weight_gradient<Cin, Cout>(in, p, Cout, grad_weight);
+      return;
+    }
+  }
+  detail::activation_gradient(act, y, gy, g);
+  conv_transpose2d_backward<Cin, Cout>(in, g, weight, grad_in, grad_weight, grad_bias, mode);
+}
+
 /// A 4x4 stride-2 transposed convolution layer (weights [4][4][Cin][Cout] named
 /// name+".weight", bias name+".bias"), with the gradient rules of conv2d.
 template <int Cin, int Cout, class T = float>
@@ -174,9 +221,9 @@ class conv_transpose2d {
       const input_gradient mode = link.input_from_previous ? input_gradient::written : input_gradient::accumulated;
       t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
                 grad_out = nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad, mode]() mutable {
-        nn::detail::activation_gradient(act, output, grad_y, grad_out);
-        conv_transpose2d_backward<Cin, Cout>(input, grad_out, weight.value.data(), input_grad ? &grad_in : nullptr,
-                                             weight_grad ? weight.grad.data() : nullptr, bias_grad ? bias.grad.data() : nullptr, mode);
+        conv_transpose2d_backward_activated<Cin, Cout>(act, input, output, grad_y, grad_out, weight.value.data(),
+                                                       input_grad ? &grad_in : nullptr, weight_grad ? weight.grad.data() : nullptr,
+                                                       bias_grad ? bias.grad.data() : nullptr, mode);
       });
     }
     return y;
