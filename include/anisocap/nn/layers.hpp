@@ -8,7 +8,8 @@
 /// are free functions. An output requires a gradient iff an input does or a parameter is not
 /// frozen; the backward pass computes an input's gradient only if that input requires it and a
 /// weight gradient only for parameters that are not frozen; nothing is recorded in no-grad mode.
-/// Outputs and gradients live in the tape's arena and gradients accumulate.
+/// Outputs and gradients live in the tape's arena and gradients accumulate (but between two
+/// transposed convolutions linked by a chain_link, whose later layer writes the gradient).
 #include "anisocap/nn/activation.hpp"
 #include "anisocap/nn/combine.hpp"
 #include "anisocap/nn/linear.hpp"
