@@ -88,22 +88,11 @@ struct chain_link {
 
 namespace detail {
 
-/// y = act(y), value by value (nothing for identity_activation).
-template <int C, class T, class Act>
-void activate_in_place(const Act& act, tensor<C, T>& y) {
-  if constexpr (!std::is_same_v<Act, identity_activation>) {
-    const std::size_t n = std::size_t(y.width()) * C;
-    for_each_row(y.batch(), y.height(), y.size(), [&](int b, int r) {
-      T* p = y.pixel(b, r, 0);
-      transform(n, p, act, p);
-    });
-  }
-}
-
-/// A layer's output made with gradient_init::by_caller: y.value = act(y.value) and, where y needs a
-/// gradient and `zero_gradient`, y.grad = 0, in one parallel pass over the rows (the zeroing of the
-/// gradient shares the pass the activation makes anyway, on every thread). Without
-/// `zero_gradient` the gradient stays uninitialised for the one layer that writes it (chain_link).
+/// A layer's output: y.value = act(y.value) (nothing for identity_activation) and, where y needs a
+/// gradient and `zero_gradient`, y.grad = 0, in one parallel pass over the rows: an output made
+/// with gradient_init::by_caller has its gradient zeroed in the pass the activation makes anyway,
+/// on every thread. Without `zero_gradient` the gradient stays uninitialised for the one layer
+/// that writes it (chain_link).
 template <int C, class T, class Act>
 void activate_output(const Act& act, ad::variable<C, T>& y, bool zero_gradient = true) {
   constexpr bool activate = !std::is_same_v<Act, identity_activation>;

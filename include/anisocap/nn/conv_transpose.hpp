@@ -94,6 +94,19 @@ padded_source<T> padded_activation_gradient(const Act& act, const tensor<C, T>& 
   return {buffer, std::ptrdiff_t(Hp) * Wp * C, std::ptrdiff_t(Wp) * C};
 }
 
+/// The passes of a transposed convolution's backward from one padded copy `g` of the output
+/// gradient (Cout channels a pixel, 2H + 2 x 2W + 2 with a border of one, H x W the input's):
+/// the bias's gradient summed from the copy's interior (null: skipped), the input's accumulated
+/// into grad_in, or written over it where not `accumulate` (null: skipped), and the weights'.
+template <int Cin, int Cout, class T>
+void transposed_backward_passes(const tensor<Cin, T>& in, const padded_source<T>& g, const T* weight, tensor<Cin, T>* grad_in,
+                                T* grad_weight, T* grad_bias, bool accumulate) {
+  const int B = in.batch(), H = in.height(), W = in.width();
+  if (grad_bias) bias_gradient(tensor<Cout, T>::wrap(const_cast<T*>(g.data), B, 2 * H + 2, 2 * W + 2).tile(1, 1, 2 * H, 2 * W), grad_bias);
+  if (grad_in) transposed_input_gradient<Cin, Cout>(g, weight, *grad_in, accumulate);
+  transposed_weight_gradient<Cin, Cout>(in, g, Cout, grad_weight);
+}
+
 }  // namespace detail::conv
 
 /// How a backward pass stores an input's gradient: added to what the tensor holds (the tape's rule:
@@ -149,10 +162,8 @@ void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& 
   dc::require_shape(*grad_in, in.batch(), H, W, "conv_transpose2d_backward", "input gradient");
   dc::require_shape(grad_out, in.batch(), 2 * H, 2 * W, "conv_transpose2d_backward", "output gradient");
   if (in.empty()) return;
-  if (grad_bias) dc::bias_gradient(grad_out, grad_bias);
-  const auto g = dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0);
-  dc::transposed_input_gradient<Cin, Cout>(g, weight, *grad_in, mode == input_gradient::accumulated);
-  dc::transposed_weight_gradient<Cin, Cout>(in, g, Cout, grad_weight);
+  dc::transposed_backward_passes<Cin, Cout>(in, dc::padded(grad_out, 1, 1, 2 * H + 2, 2 * W + 2, Cout, 0), weight, grad_in, grad_weight,
+                                            grad_bias, mode == input_gradient::accumulated);
 }
 
 /// conv_transpose2d_backward of a layer's pre-activation gradient act'(y) * gy, from its output y and
@@ -176,11 +187,8 @@ void conv_transpose2d_backward_activated(const Act& act, const tensor<Cin, T>& i
       if (grad_in) dc::require_shape(*grad_in, B, H, W, "conv_transpose2d_backward", "input gradient");
       if (in.empty()) return;
       // The slots conv_transpose2d_backward and conv_transpose2d_backward_weight pad into.
-      const auto p = dc::padded_activation_gradient(act, y, gy, grad_in ? 0 : 2);
-      if (grad_bias)
-        dc::bias_gradient(tensor<Cout, T>::wrap(const_cast<T*>(p.data), B, 2 * H + 2, 2 * W + 2).tile(1, 1, 2 * H, 2 * W), grad_bias);
-      if (grad_in) dc::transposed_input_gradient<Cin, Cout>(p, weight, *grad_in, mode == input_gradient::accumulated);
-      dc::transposed_weight_gradient<Cin, Cout>(in, p, Cout, grad_weight);
+      dc::transposed_backward_passes<Cin, Cout>(in, dc::padded_activation_gradient(act, y, gy, grad_in ? 0 : 2), weight, grad_in,
+                                                grad_weight, grad_bias, mode == input_gradient::accumulated);
       return;
     }
   }
@@ -244,7 +252,7 @@ class conv_transpose2d {
     ad::variable<Cout, T> y = t.make_variable<Cout, T>(a.value.batch(), 2 * a.value.height(), 2 * a.value.width(), false);
     conv_transpose2d_forward_concat<C1, Cin - C1, Cout>(a.value, b.value, weight.value.data(), has_bias_ ? bias.value.data() : nullptr,
                                                          y.value);
-    nn::detail::activate_in_place(act, y.value);
+    nn::detail::activate_output(act, y);
     return y;
   }
 
