@@ -80,6 +80,13 @@ void transposed_weight_gradient(const tensor<Cin, T>& in, const padded_source<T>
   run_weight_of<Cin, Cout>(ps, grad_weight);
 }
 
+/// Whether conv_transpose2d_backward_activated writes the activation's gradient straight into the
+/// padded copy its passes read (where the weights need a gradient): an activation, and one padded
+/// copy read alike by both passes.
+template <class Act, int Cin, int Cout, class T>
+inline constexpr bool writes_padded_activation_gradient =
+    !std::is_same_v<Act, identity_activation> && weight_gradient_channels<T, Cin, Cout> == Cout;
+
 /// padded(g, 1, 1, 2H + 2, 2W + 2, C, slot) of a layer's pre-activation gradient g = act'(y) * gy
 /// (activation_gradient's values, bit for bit), written straight into the padded buffer: g itself
 /// is never formed.
@@ -171,15 +178,15 @@ void conv_transpose2d_backward(const tensor<Cin, T>& in, const tensor<Cout, T>& 
 /// gradient (its channels whole registers, or only broadcast by the weight pass) and the weights
 /// need a gradient, the activation's gradient is written straight into the copy, and the bias's
 /// gradient is summed from it: two passes over memory fewer. Otherwise through `g` (y's shape), as
-/// activation_gradient then conv_transpose2d_backward.
+/// activation_gradient then conv_transpose2d_backward; `g` may be empty where it is not used
+/// (detail::conv::writes_padded_activation_gradient and a weight gradient).
 template <int Cin, int Cout, class T, class Act>
 void conv_transpose2d_backward_activated(const Act& act, const tensor<Cin, T>& in, const tensor<Cout, T>& y,
                                          const tensor<Cout, T>& gy, tensor<Cout, T>& g, const std::type_identity_t<T>* weight,
                                          tensor<Cin, std::type_identity_t<T>>* grad_in, std::type_identity_t<T>* grad_weight,
                                          std::type_identity_t<T>* grad_bias, input_gradient mode = input_gradient::accumulated) {
   namespace dc = detail::conv;
-  constexpr bool fused = !std::is_same_v<Act, identity_activation> && dc::weight_gradient_channels<T, Cin, Cout> == Cout;
-  if constexpr (fused) {
+  if constexpr (dc::writes_padded_activation_gradient<Act, Cin, Cout, T>) {
     if (grad_weight) {
       const int B = in.batch(), H = in.height(), W = in.width();
       dc::require_shape(y, B, 2 * H, 2 * W, "conv_transpose2d_backward", "output");
@@ -227,8 +234,11 @@ class conv_transpose2d {
     nn::detail::activate_output(act, y, !link.output_to_next);
     if (y.requires_grad) {
       const input_gradient mode = link.input_from_previous ? input_gradient::written : input_gradient::accumulated;
+      // No pre-activation tensor where the backward writes the activation's gradient into its padded copy.
+      const bool padded_only = detail::conv::writes_padded_activation_gradient<Act, Cin, Cout, T> && weight_grad;
       t.record([this, input = x.value, grad_in = x.grad, input_grad = x.requires_grad, output = y.value, grad_y = y.grad,
-                grad_out = nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad, mode]() mutable {
+                grad_out = padded_only ? tensor<Cout, T>{} : nn::detail::pre_activation_gradient<Act>(t, y), act, weight_grad, bias_grad,
+                mode]() mutable {
         conv_transpose2d_backward_activated<Cin, Cout>(act, input, output, grad_y, grad_out, weight.value.data(),
                                                        input_grad ? &grad_in : nullptr, weight_grad ? weight.grad.data() : nullptr,
                                                        bias_grad ? bias.grad.data() : nullptr, mode);
