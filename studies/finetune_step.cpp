@@ -53,6 +53,7 @@ step_times time_steps(auto_encoder<P>& ae, int size, int repeats, int warmup, in
   nn::adam adam(nn::learning_rate_schedule::constant(1e-5));  // small: the weights barely move while timing
   ae.for_each_decoder_parameter([&](nn::parameter& p) { adam.add(p); });
   material_maps grad(size, size);
+  material_maps m;  // one map set for every step, as the pipeline's fine-tune keeps
   step_times st;
   ad::tape t;
   for (int s = 0; s < warmup + repeats; ++s) {
@@ -61,7 +62,7 @@ step_times time_steps(auto_encoder<P>& ae, int size, int repeats, int warmup, in
     auto y = ae.decode(t, t.leaf(z));
     const auto t1 = clock_type::now();
     const auto u_view = y.value.tile(0, 0, size, size);
-    const material_maps m = network_space::network_to_maps(u_view, 0);
+    network_space::network_to_maps(u_view, 0, m);
     const auto t2 = clock_type::now();
     loss_and_gradient(m, cap, targets, &grad);
     const auto t3 = clock_type::now();
