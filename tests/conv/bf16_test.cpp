@@ -230,6 +230,8 @@ TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * d
   check_transposed<64, 32>(2, 5, 7, 9);
   check_transposed<33, 16>(1, 4, 4, 10);                    // odd Ca
   check_transposed<128, 64>(1, 16, 16, 11);
+  check_transposed<32, 12>(1, 3, 200, 13);                  // the decoder's last layer: one row a chunk, rows cut
+                                                            // into segments, each kernel row's rows reused a chunk later
 }
 
 TEST_CASE("bf16 weight gradients are the same bits on any thread count" * doctest::skip(!nn::bf16_available())) {

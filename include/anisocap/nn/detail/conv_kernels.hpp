@@ -661,14 +661,142 @@ inline void weight_tile_bf16(const std::uint16_t* const* a16, const std::uint16_
   tile_finish<CIB, NV>(acc, gw, ldw, last_lanes);
 }
 
-/// run_weight in bf16 (see nn/precision.hpp): the same work items; for each chunk of pixels an
-/// item converts its input channels and its output-gradient block to bf16 pixel pairs once, in
-/// cache, and its tiles reduce two pixels per instruction in FP32.
+/// The taps of one operand of a weight pass in classes that read the same pixels: taps whose
+/// offsets differ by whole pass rows (a stride-1 kernel's rows, a strided kernel's rows `stride`
+/// apart) read the rows of the class's first tap (its smallest offset), `shift` rows on.
+struct tap_classes {
+  /// The most rows a class spans beyond its first tap's.
+  static constexpr int max_shift = 4;
+  int count = 0;
+  int of[16] = {}, shift[16] = {};
+  std::ptrdiff_t offset[16] = {};
+  tap_classes(const std::ptrdiff_t* tap, int taps, std::ptrdiff_t row) {
+    int order[16];
+    for (int t = 0; t < taps; ++t) order[t] = t;
+    std::stable_sort(order, order + taps, [&](int x, int y) { return tap[x] < tap[y]; });
+    for (int i = 0; i < taps; ++i) {
+      const int t = order[i];
+      int c = 0;
+      for (; c < count; ++c) {
+        const std::ptrdiff_t d = tap[t] - offset[c];
+        if (d == 0 || (row > 0 && d % row == 0 && d / row <= max_shift)) break;
+      }
+      if (c == count) offset[count++] = tap[t];
+      of[t] = c;
+      shift[t] = tap[t] == offset[c] ? 0 : int((tap[t] - offset[c]) / row);
+    }
+  }
+};
+
+/// One operand's bf16 pixel pairs in a work item of the bf16 weight pass: for each class of the
+/// item's taps, the rows the class's taps read, each converted once while the item sweeps the
+/// pixels. Within an image the rows go round a ring of `ring` rows per class and segment: a chunk
+/// converts only the rows the previous chunk did not (a kernel row shifted by one pass row reads
+/// the rows the item's other tap of the class read the chunk before). A chunk that spans images
+/// converts each (row, shift) it reads into rows of its own after the rings.
+struct item_pairs {
+  int classes = 0, segs = 1, ring = 1, stride = 1, rows_per_image = 1;
+  int class_of[16] = {}, shift_of[16] = {};  // per tap of the item: its class slot and shift
+  int cls[16] = {}, smin[16] = {}, smax[16] = {}, nshift[16] = {}, shifts[16][16] = {};
+  std::ptrdiff_t row_len = 0;
+  std::uint16_t* buffer = nullptr;
+  long long* tag = nullptr;  // [class][segment][ring slot]: the (image, row) a slot holds, -1 none
+  int r0 = 0, nr = 0;
+  bool one_image = true;
+
+  /// The taps order[t_first..t_end) of an item, of an operand whose classes are `tc`.
+  item_pairs(const tap_classes& tc, const int* order, int t_first, int t_end) {
+    for (int i = t_first; i < t_end; ++i) {
+      const int t = order[i], c = tc.of[t], s = tc.shift[t];
+      int k = 0;
+      while (k < classes && cls[k] != c) ++k;
+      if (k == classes) cls[classes++] = c, smin[k] = s, smax[k] = s;
+      smin[k] = std::min(smin[k], s), smax[k] = std::max(smax[k], s);
+      int j = 0;
+      while (j < nshift[k] && shifts[k][j] != s) ++j;
+      if (j == nshift[k]) shifts[k][nshift[k]++] = s;
+      class_of[i - t_first] = k, shift_of[i - t_first] = s;
+    }
+  }
+  /// Ring rows per class and segment for chunks of up to chunk_rows rows (the most any class needs).
+  int ring_rows(int chunk_rows) const {
+    int n = 1;
+    for (int k = 0; k < classes; ++k) n = std::max(n, chunk_rows + smax[k] - smin[k]);
+    return n;
+  }
+  /// Rows per class and segment: the ring, then the rows of a chunk that spans images.
+  int rows_per_class(int chunk_rows) const {
+    int spanning = 0;
+    for (int k = 0; k < classes; ++k) spanning = std::max(spanning, chunk_rows * nshift[k]);
+    return ring_rows(chunk_rows) + spanning;
+  }
+  /// Sets up an item's sweep with chunks of up to chunk_rows rows and `segs_` segments of `pairs`
+  /// pixel pairs of `width` channels: `buffer_` holds classes x segs x rows_per_class rows,
+  /// `tag_` classes x segs x ring_rows values.
+  void start(int chunk_rows, int segs_, int pairs, int width, int rows_per_image_, std::uint16_t* buffer_, long long* tag_) {
+    segs = segs_, rows_per_image = rows_per_image_, row_len = std::ptrdiff_t(pairs) * width * 2;
+    ring = ring_rows(chunk_rows), stride = rows_per_class(chunk_rows);
+    buffer = buffer_, tag = tag_;
+    std::fill(tag, tag + std::size_t(classes) * segs * ring, -1LL);
+  }
+  std::uint16_t* row(int k, int sg, int slot) const { return buffer + ((std::ptrdiff_t(k) * segs + sg) * stride + slot) * row_len; }
+  /// Sets the chunk of nr_ pass rows from r0_.
+  void chunk(int r0_, int nr_) {
+    r0 = r0_, nr = nr_;
+    one_image = r0 / rows_per_image == (r0 + nr - 1) / rows_per_image;
+  }
+  /// Converts the rows segment sg of the chunk needs and has not converted: convert(k, b, y, dst)
+  /// writes class k's row y of image b.
+  template <class Convert>
+  void convert_rows(int sg, Convert&& convert) {
+    for (int k = 0; k < classes; ++k) {
+      long long* tags = tag + (std::ptrdiff_t(k) * segs + sg) * ring;
+      if (one_image) {
+        const int b = r0 / rows_per_image, y0 = r0 % rows_per_image;
+        for (int y = y0 + smin[k]; y <= y0 + nr - 1 + smax[k]; ++y) {
+          const long long key = (long long)b * (rows_per_image + tap_classes::max_shift + 1) + y;
+          const int slot = y % ring;
+          if (tags[slot] == key) continue;
+          convert(k, b, y, row(k, sg, slot));
+          tags[slot] = key;
+        }
+      } else {
+        for (int r = 0; r < nr; ++r)
+          for (int j = 0; j < nshift[k]; ++j) {
+            const int R = r0 + r;
+            convert(k, R / rows_per_image, R % rows_per_image + shifts[k][j], row(k, sg, ring + r * nshift[k] + j));
+          }
+        std::fill(tags, tags + ring, -1LL);
+      }
+    }
+  }
+  /// The converted row that tap i of the item reads at chunk row r, segment sg.
+  const std::uint16_t* at(int i, int sg, int r) const {
+    const int k = class_of[i], s = shift_of[i];
+    if (one_image) return row(k, sg, (r0 % rows_per_image + r + s) % ring);
+    int j = 0;
+    while (shifts[k][j] != s) ++j;
+    return row(k, sg, ring + r * nshift[k] + j);
+  }
+};
+
+/// run_weight in bf16 (see nn/precision.hpp): the same work items, each summing its pixels in the
+/// same order. An item takes a group of taps that share classes (tap_classes) and converts the
+/// rows of its input channels and of its output-gradient block that its taps read to bf16 pixel
+/// pairs once each, in cache, as it sweeps the pixels (item_pairs); its tiles reduce two pixels per
+/// instruction in FP32.
 template <int NV, int CIB>
 void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
   constexpr int W = lanes<float>;
   const weight_items plan(ps.taps, ps.batch, ps.rows, ps.cols, Ca, Cb, W, NV, CIB, sizeof(float), true, true);
   const int block = plan.block, seg = plan.seg, chunk_rows = plan.chunk_rows;
+  const tap_classes a_classes(ps.a_tap, ps.taps, ps.a_row), g_classes(ps.g_tap, ps.taps, ps.g_row);
+  // The taps grouped by their classes, so that a group of consecutive taps shares them.
+  int order[16];
+  for (int t = 0; t < ps.taps; ++t) order[t] = t;
+  std::stable_sort(order, order + ps.taps, [&](int x, int y) {
+    return a_classes.of[x] * 16 + g_classes.of[x] < a_classes.of[y] * 16 + g_classes.of[y];
+  });
 #pragma omp parallel for schedule(dynamic, 1) if (plan.items > 1 && plan.work > double(1 << 16))
   for (long long it = 0; it < plan.items; ++it) {
     const auto [cb, t_first, k0, k1, t_end] = plan.at(it, ps.taps);
@@ -677,33 +805,36 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
     const int nci = ci_hi - ci_lo;
     const int co0 = cb * block;
     const int lanes_here = (cb == plan.coblocks - 1) ? plan.last_lanes : W;
-    const int max_pairs = (seg + 1) / 2;
-    std::uint16_t* abuf = scratch<std::uint16_t>(5, std::size_t(chunk_rows) * max_pairs * nci * 2);
-    std::uint16_t* gbuf = scratch<std::uint16_t>(6, std::size_t(chunk_rows) * max_pairs * block * 2);
+    const int max_pairs = (seg + 1) / 2, segs = plan.segs_per_row;
+    item_pairs ap(a_classes, order, t_first, t_end), gp(g_classes, order, t_first, t_end);
+    const std::size_t a_rows = std::size_t(ap.classes) * segs * ap.rows_per_class(chunk_rows);
+    const std::size_t g_rows = std::size_t(gp.classes) * segs * gp.rows_per_class(chunk_rows);
+    const std::size_t a_tags = std::size_t(ap.classes) * segs * ap.ring_rows(chunk_rows);
+    long long* tags = scratch<long long>(0, a_tags + std::size_t(gp.classes) * segs * gp.ring_rows(chunk_rows));
+    ap.start(chunk_rows, segs, max_pairs, nci, ps.rows, scratch<std::uint16_t>(5, a_rows * max_pairs * nci * 2), tags);
+    gp.start(chunk_rows, segs, max_pairs, block, ps.rows, scratch<std::uint16_t>(6, g_rows * max_pairs * block * 2), tags + a_tags);
     const std::uint16_t* a16[64];
     const std::uint16_t* g16[64];
     for (int r0 = 0; r0 < plan.rows_total; r0 += chunk_rows) {
       const int nr = std::min(chunk_rows, plan.rows_total - r0);
-      for (int sg = 0; sg < plan.segs_per_row; ++sg) {
+      ap.chunk(r0, nr);
+      gp.chunk(r0, nr);
+      for (int sg = 0; sg < segs; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
         const int pairs = (nc + 1) / 2;
-        for (int t = t_first; t < t_end; ++t) {
-          // Each operand is converted again only where this tap's offset differs from the last.
-          const bool convert_a = t == t_first || ps.a_tap[t] != ps.a_tap[t - 1];
-          const bool convert_g = t == t_first || ps.g_tap[t] != ps.g_tap[t - 1];
+        ap.convert_rows(sg, [&](int k, int b, int y, std::uint16_t* d) {
+          const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + a_classes.offset[ap.cls[k]] + ci_lo;
+          for (int q = 0; q < pairs; ++q) pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, 2 * q + 1 < nc, nci, d + std::ptrdiff_t(q) * nci * 2);
+        });
+        gp.convert_rows(sg, [&](int k, int b, int y, std::uint16_t* d) {
+          const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + g_classes.offset[gp.cls[k]] + co0;
+          for (int q = 0; q < pairs; ++q) pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, 2 * q + 1 < nc, block, d + std::ptrdiff_t(q) * block * 2);
+        });
+        for (int i = t_first; i < t_end; ++i) {
+          const int t = order[i];
           for (int r = 0; r < nr; ++r) {
-            const int b = (r0 + r) / ps.rows, y = (r0 + r) % ps.rows;
-            const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + ps.a_tap[t] + ci_lo;
-            const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + ps.g_tap[t] + co0;
-            std::uint16_t* ad = abuf + std::ptrdiff_t(r) * max_pairs * nci * 2;
-            std::uint16_t* gd = gbuf + std::ptrdiff_t(r) * max_pairs * block * 2;
-            for (int q = 0; q < pairs; ++q) {
-              const bool second = 2 * q + 1 < nc;
-              if (convert_a) pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, second, nci, ad + std::ptrdiff_t(q) * nci * 2);
-              if (convert_g) pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, second, block, gd + std::ptrdiff_t(q) * block * 2);
-            }
-            a16[r] = ad;
-            g16[r] = gd;
+            a16[r] = ap.at(i - t_first, sg, r);
+            g16[r] = gp.at(i - t_first, sg, r);
           }
           for (int ck = k0; ck < k1; ++ck) {
             const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
