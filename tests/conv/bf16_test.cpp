@@ -215,6 +215,24 @@ TEST_CASE("interleave_to_bf16 rounds every channel in hardware and writes 2n val
     for (std::size_t k = std::size_t(2 * n); k < got.size(); ++k) CHECK(got[k] == 0xABCD);  // nothing beyond
   }
 }
+
+TEST_CASE("convert_to_bf16 converts every value in hardware, the last ones too, and writes n values") {
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> u(-3, 3);
+  for (int n = 1; n <= 70; ++n) {
+    CAPTURE(n);
+    std::vector<float> a(static_cast<std::size_t>(n));
+    for (auto& v : a) v = u(rng);
+    a[std::size_t(n - 1)] = 1e-40f;  // a denormal reads as zero wherever it sits, the tail included
+    std::vector<std::uint16_t> got(std::size_t(n + 8), 0xABCD);
+    simd::convert_to_bf16(a.data(), n, got.data());
+    CHECK(got[std::size_t(n - 1)] == 0);
+    bool same = true;
+    for (int j = 0; j + 1 < n; ++j) same = same && got[std::size_t(j)] == simd::to_bf16(a[std::size_t(j)]);
+    CHECK(same);
+    for (std::size_t k = std::size_t(n); k < got.size(); ++k) CHECK(got[k] == 0xABCD);  // nothing beyond
+  }
+}
 #endif
 
 TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * doctest::skip(!nn::bf16_available())) {

@@ -376,7 +376,12 @@ inline void convert_to_bf16(const float* src, std::ptrdiff_t n, std::uint16_t* d
   std::ptrdiff_t i = 0;
   for (; i + 32 <= n; i += 32)
     _mm512_storeu_si512(dst + i, (__m512i)_mm512_cvtne2ps_pbh(_mm512_loadu_ps(src + i + 16), _mm512_loadu_ps(src + i)));
-  for (; i < n; ++i) dst[i] = to_bf16(src[i]);
+  // The last n - i < 32 values masked, converted by the hardware as the others (denormals read as zero).
+  for (; i < n; i += 16) {
+    const int k = n - i < 16 ? int(n - i) : 16;
+    const __mmask16 m = __mmask16((1u << k) - 1);
+    _mm256_mask_storeu_epi16(dst + i, m, (__m256i)_mm512_cvtneps_pbh(_mm512_maskz_loadu_ps(m, src + i)));
+  }
 }
 #else
 #define ANISOCAP_BF16_DOT 0
