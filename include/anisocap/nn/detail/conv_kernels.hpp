@@ -584,12 +584,12 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
 /// input-channel blocks run over it. Input channels go in blocks of CIB; a remainder of 4 or more
 /// runs as one 4-channel block, the rest one channel at a time. `even`: segments of an even width.
 ///
-/// `group_taps` (the bf16 pass): an item takes a group of taps instead of one, and runs them one
-/// after another on each chunk, so that the operand whose offset the taps share (the input of a
-/// transposed convolution's pass, the output gradient of a convolution's) is converted to bf16
-/// once per chunk instead of once per tap. Groups are as few as give about two items per thread.
-/// Each item still owns its part of gW and sums its pixels in the same order, so the result is the
-/// same either way.
+/// `group_taps` (the bf16 pass): an item takes a group of taps instead of one (consecutive taps in
+/// the order run_weight_bf16 gives them, which puts the taps that read the same rows together),
+/// and runs them one after another on each chunk, so that each row its taps read is converted to
+/// bf16 once (item_pairs) instead of once per tap. Groups are as few as give about two items per
+/// thread. Each item still owns its part of gW and sums its pixels in the same order, so the
+/// result is the same either way.
 struct weight_items {
   int block, coblocks, last_lanes, CIB, ciblocks, quads, ci_items, groups, parts;
   long long items;
