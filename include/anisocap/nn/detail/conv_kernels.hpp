@@ -696,7 +696,7 @@ struct tap_classes {
 /// converts each (row, shift) it reads into rows of its own after the rings.
 struct item_pairs {
   int classes = 0, segs = 1, ring = 1, stride = 1, rows_per_image = 1;
-  int class_of[16] = {}, shift_of[16] = {};  // per tap of the item: its class slot and shift
+  int class_of[16] = {}, shift_of[16] = {}, shift_index[16] = {};  // per tap of the item: class slot, shift, its index in shifts
   int cls[16] = {}, smin[16] = {}, smax[16] = {}, nshift[16] = {}, shifts[16][16] = {};
   std::ptrdiff_t row_len = 0;
   std::uint16_t* buffer = nullptr;
@@ -715,7 +715,7 @@ struct item_pairs {
       int j = 0;
       while (j < nshift[k] && shifts[k][j] != s) ++j;
       if (j == nshift[k]) shifts[k][nshift[k]++] = s;
-      class_of[i - t_first] = k, shift_of[i - t_first] = s;
+      class_of[i - t_first] = k, shift_of[i - t_first] = s, shift_index[i - t_first] = j;
     }
   }
   /// Ring rows per class and segment for chunks of up to chunk_rows rows (the most any class needs).
@@ -766,17 +766,14 @@ struct item_pairs {
             const int R = r0 + r;
             convert(k, R / rows_per_image, R % rows_per_image + shifts[k][j], row(k, sg, ring + r * nshift[k] + j));
           }
-        std::fill(tags, tags + ring, -1LL);
       }
     }
   }
   /// The converted row that tap i of the item reads at chunk row r, segment sg.
   const std::uint16_t* at(int i, int sg, int r) const {
-    const int k = class_of[i], s = shift_of[i];
-    if (one_image) return row(k, sg, (r0 % rows_per_image + r + s) % ring);
-    int j = 0;
-    while (shifts[k][j] != s) ++j;
-    return row(k, sg, ring + r * nshift[k] + j);
+    const int k = class_of[i];
+    if (one_image) return row(k, sg, (r0 % rows_per_image + r + shift_of[i]) % ring);
+    return row(k, sg, ring + r * nshift[k] + shift_index[i]);
   }
 };
 
@@ -822,13 +819,15 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
       for (int sg = 0; sg < segs; ++sg) {
         const int c0 = sg * seg, nc = std::min(seg, ps.cols - c0);
         const int pairs = (nc + 1) / 2;
+        // The nc pixels of a row (col apart, n channels each) as pixel pairs [pair][n][2].
+        const auto pairs_of_row = [&](const float* src, std::ptrdiff_t col, int n, std::uint16_t* d) {
+          for (int q = 0; q < pairs; ++q) pixel_pair_to_bf16(src + 2 * q * col, col, 2 * q + 1 < nc, n, d + std::ptrdiff_t(q) * n * 2);
+        };
         ap.convert_rows(sg, [&](int k, int b, int y, std::uint16_t* d) {
-          const float* a = ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + a_classes.offset[ap.cls[k]] + ci_lo;
-          for (int q = 0; q < pairs; ++q) pixel_pair_to_bf16(a + 2 * q * ps.a_col, ps.a_col, 2 * q + 1 < nc, nci, d + std::ptrdiff_t(q) * nci * 2);
+          pairs_of_row(ps.a + b * ps.a_batch + y * ps.a_row + c0 * ps.a_col + a_classes.offset[ap.cls[k]] + ci_lo, ps.a_col, nci, d);
         });
         gp.convert_rows(sg, [&](int k, int b, int y, std::uint16_t* d) {
-          const float* g = ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + g_classes.offset[gp.cls[k]] + co0;
-          for (int q = 0; q < pairs; ++q) pixel_pair_to_bf16(g + 2 * q * ps.g_col, ps.g_col, 2 * q + 1 < nc, block, d + std::ptrdiff_t(q) * block * 2);
+          pairs_of_row(ps.g + b * ps.g_batch + y * ps.g_row + c0 * ps.g_col + g_classes.offset[gp.cls[k]] + co0, ps.g_col, block, d);
         });
         for (int i = t_first; i < t_end; ++i) {
           const int t = order[i];
