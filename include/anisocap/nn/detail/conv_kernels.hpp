@@ -587,9 +587,11 @@ inline void weight_tile(const T* const* a_rows, const T* const* g_rows, int nrow
 /// `group_taps` (the bf16 pass): an item takes a group of taps instead of one (consecutive taps in
 /// the order run_weight_bf16 gives them, which puts the taps that read the same rows together),
 /// and runs them one after another on each chunk, so that each row its taps read is converted to
-/// bf16 once (item_pairs) instead of once per tap. Groups are as few as give about two items per
-/// thread. Each item still owns its part of gW and sums its pixels in the same order, so the
-/// result is the same either way.
+/// bf16 once (item_pairs) instead of once per tap. Groups are as few as give about one item per
+/// thread: every further group converts its operands' rows again, which cost more on the
+/// decoder's narrow layers than the finer balance gained (measured on 2 threads). Each item still
+/// owns its part of gW and sums its pixels in the same order, so the result is the same either
+/// way.
 struct weight_items {
   int block, coblocks, last_lanes, CIB, ciblocks, quads, ci_items, groups, parts;
   long long items;
@@ -605,10 +607,10 @@ struct weight_items {
         CIB(cib), ciblocks(Ca / cib), quads(cib > 4 && Ca % cib >= 4 ? 1 : 0),
         ci_items(ciblocks + quads + (Ca % cib - 4 * quads)) {
     const int threads = omp_get_max_threads();
-    groups = group_taps ? std::clamp((2 * threads + coblocks - 1) / coblocks, 1, taps) : taps;
+    groups = group_taps ? std::clamp((threads + coblocks - 1) / coblocks, 1, taps) : taps;
     // Split the input channels when (block, tap group) pairs alone would not feed every thread.
     const int pairs = coblocks * groups;
-    const int wanted = group_taps ? 2 * threads : 8 * threads;
+    const int wanted = group_taps ? threads : 8 * threads;
     parts = std::max(1, std::min(ci_items, (wanted + pairs - 1) / pairs));
     items = (long long)pairs * parts;
     rows_total = batch * rows;
