@@ -88,6 +88,7 @@ void check_conv(int B, int H, int W, unsigned seed) {
   tensor<Cout> gout(B, Ho, Wo);
   fill_random(gout, rng);
   const tensor<Cout> gout16 = rounded(gout);
+  // The threshold decides the FP32 path only: a bf16 pass transposes the kernel as it converts it.
   for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
     nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
     tensor<Cin> gin(B, H, W);
@@ -147,6 +148,7 @@ void check_transposed(int B, int H, int W, unsigned seed) {
         wt[(t * Cout + co) * Cin + ci] = w[(t * Cin + ci) * Cout + co];
         wt16[(t * Cout + co) * Cin + ci] = w16[(t * Cin + ci) * Cout + co];
       }
+  // The threshold decides the FP32 path only: a bf16 pass transposes the kernel as it converts it.
   for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
     nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
     tensor<Cin> gin(B, H, W);

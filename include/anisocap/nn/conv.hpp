@@ -201,8 +201,16 @@ int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdif
 /// pixels (few work items share a block), the copy (memory-bound, about 2 ns per weight) would
 /// cost more than the pass itself.
 /// Tests set it to 0 (always in cache) or SIZE_MAX (never) to check both paths on small shapes.
+/// A bf16 pass (float, precision::bf16) always transposes in cache: it converts the kernel to bf16
+/// pairs itself, transposing as it converts, so a transposed FP32 copy would only add a pass over
+/// the weights.
 inline std::size_t in_cache_transpose_weights_per_pixel = 8192;
-inline bool prefer_in_cache_transpose(std::size_t weights, std::size_t pixels) {
+template <class T>
+bool prefer_in_cache_transpose(std::size_t weights, std::size_t pixels) {
+#if ANISOCAP_BF16_DOT
+  if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available)
+    if (convolution_precision() == precision::bf16) return true;
+#endif
   return in_cache_transpose_weights_per_pixel == 0 || (pixels <= weights / in_cache_transpose_weights_per_pixel);
 }
 
@@ -289,7 +297,7 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int top = K - 1 - G::pad_before;
     const auto a = dc::padded(grad_out, top, top, H + K - 1, W + K - 1, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (dc::prefer_in_cache_transpose(weights, grad_in.size() / Cin)) {
+    if (dc::prefer_in_cache_transpose<T>(weights, grad_in.size() / Cin)) {
       dc::conv_core<Cout, Cin, K, 1>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true, true);
     } else {
       dc::conv_core<Cout, Cin, K, 1>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, true), nullptr, grad_in, true);
@@ -300,7 +308,7 @@ void conv2d_backward_input(const tensor<Cout, T>& grad_out, const T* weight, ten
     const int Hh = (H + 1) / 2, Wh = (W + 1) / 2;
     const auto a = dc::padded(grad_out, 1, 1, Hh + 2, Wh + 2, Cout, 0);
     constexpr std::size_t weights = std::size_t(K) * K * Cin * Cout;
-    if (dc::prefer_in_cache_transpose(weights, grad_in.size() / Cin)) {
+    if (dc::prefer_in_cache_transpose<T>(weights, grad_in.size() / Cin)) {
       dc::transposed_core<Cout, Cin>(a, dc::in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, true);
     } else {
       dc::transposed_core<Cout, Cin>(a, dc::input_gradient_weights<K * K, Cin, Cout>(weight, false), nullptr, grad_in, true);

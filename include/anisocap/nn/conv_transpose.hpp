@@ -49,7 +49,7 @@ namespace detail::conv {
 /// gradient with the transposed kernel (in <-> out).
 template <int Cin, int Cout, class T>
 void transposed_input_gradient(const padded_source<T>& a, const T* weight, tensor<Cin, T>& grad_in, bool accumulate) {
-  if (prefer_in_cache_transpose(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
+  if (prefer_in_cache_transpose<T>(std::size_t(16) * Cin * Cout, grad_in.size() / Cin)) {
     // Few pixels for a large kernel: transpose it block by block inside the work items.
     conv_core<Cout, Cin, 4, 2>(a, in_cache_transposed<Cin, Cout>(weight), nullptr, grad_in, accumulate);
   } else {

@@ -321,26 +321,33 @@ inline void pixel_pair_to_bf16(const float* p, std::ptrdiff_t step, bool second,
 
 /// Writes rows r0..r1 of one tap of a forward-type pass's weights (layout wl, output-channel block
 /// cb of `block` columns, n_cols of them real) as bf16 pairs [(r1 - r0 + 1) / 2][block][2]; a
-/// missing odd row and the columns beyond n_cols are zero. A transposed source is first
-/// transposed into FP32 rows in cache (as the FP32 path packs it), then interleaved.
+/// missing odd row and the columns beyond n_cols are zero. A transposed source (the kernel of an
+/// input-gradient pass in its stored layout) is converted row by row and its pairs written
+/// across, one 32-bit word each: no FP32 copy of the transposed kernel.
 inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap, int cb, int block, int n_cols, int r0, int r1,
                             std::uint16_t* dst) {
   const int rows = r1 - r0;
   const int co0 = cb * block;
-  const float* base;
-  std::ptrdiff_t ld;
-  int n;
   if (wl.pack && wl.transposed) {
-    float* t = scratch<float>(7, std::size_t(rows) * block);
-    transpose_block(wl.w + w_tap, wl.ld, co0, n_cols, r0, r1, block, t);
-    base = t;
-    ld = block;
-    n = block;
-  } else {
-    base = wl.pack ? wl.w + w_tap + co0 + std::ptrdiff_t(r0) * wl.ld : wl.w + w_tap + cb * wl.block_stride + std::ptrdiff_t(r0) * wl.ld;
-    ld = wl.ld;
-    n = wl.pack ? n_cols : block;
+    // Column j of the block is source row co0 + j, whose values r0..r1 lie side by side: pair q of
+    // column j is two neighbours of it, converted together and written as one 32-bit word.
+    const int full = rows & ~1, pairs = (rows + 1) / 2;
+    std::uint16_t* t = scratch<std::uint16_t>(7, std::size_t(pairs) * 2);
+    for (int j = 0; j < block; ++j) {
+      if (j < n_cols) {
+        const float* s = wl.w + w_tap + std::ptrdiff_t(co0 + j) * wl.ld + r0;
+        simd::convert_to_bf16(s, full, t);
+        if (rows & 1) t[full] = simd::to_bf16(s[full]), t[full + 1] = 0;
+      } else {
+        std::fill(t, t + 2 * pairs, std::uint16_t(0));
+      }
+      for (int q = 0; q < pairs; ++q) std::memcpy(dst + (std::ptrdiff_t(q) * block + j) * 2, t + 2 * q, 2 * sizeof(std::uint16_t));
+    }
+    return;
   }
+  const float* base = wl.pack ? wl.w + w_tap + co0 + std::ptrdiff_t(r0) * wl.ld : wl.w + w_tap + cb * wl.block_stride + std::ptrdiff_t(r0) * wl.ld;
+  const std::ptrdiff_t ld = wl.ld;
+  const int n = wl.pack ? n_cols : block;
   for (int r = 0; r < rows; r += 2) {
     std::uint16_t* d = dst + std::ptrdiff_t(r) * block;
     const float* a = base + std::ptrdiff_t(r) * ld;
