@@ -88,9 +88,9 @@ void check_conv(int B, int H, int W, unsigned seed) {
   tensor<Cout> gout(B, Ho, Wo);
   fill_random(gout, rng);
   const tensor<Cout> gout16 = rounded(gout);
-  // The threshold decides the FP32 path only: a bf16 pass transposes the kernel as it converts it.
-  for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
-    nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
+  // One pass: a bf16 input-gradient pass transposes the kernel as it converts it, whatever the
+  // in-cache threshold (which decides the FP32 path only).
+  {
     tensor<Cin> gin(B, H, W);
     gin.fill(0);
     {
@@ -102,7 +102,6 @@ void check_conv(int B, int H, int W, unsigned seed) {
     testing::naive_conv_backward_input(gout, w.data(), g32, K, S, G::pad_before);
     check_bf16(gin, gexact, g32, K * K * Cout);
   }
-  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 
   // The weight gradient accumulates onto what is there.
   std::vector<float> gw(w.size(), 0.5f);
@@ -148,9 +147,9 @@ void check_transposed(int B, int H, int W, unsigned seed) {
         wt[(t * Cout + co) * Cin + ci] = w[(t * Cin + ci) * Cout + co];
         wt16[(t * Cout + co) * Cin + ci] = w16[(t * Cin + ci) * Cout + co];
       }
-  // The threshold decides the FP32 path only: a bf16 pass transposes the kernel as it converts it.
-  for (std::size_t threshold : {std::size_t(0), SIZE_MAX}) {
-    nn::detail::conv::in_cache_transpose_weights_per_pixel = threshold;
+  // One pass: a bf16 input-gradient pass transposes the kernel as it converts it, whatever the
+  // in-cache threshold (which decides the FP32 path only).
+  {
     tensor<Cin> gin(B, H, W);
     gin.fill(0);
     {
@@ -162,7 +161,6 @@ void check_transposed(int B, int H, int W, unsigned seed) {
     testing::naive_conv(gout, wt.data(), static_cast<const float*>(nullptr), g32, 4, 2, 1);
     check_bf16(gin, gexact, g32, 16 * Cout);
   }
-  nn::detail::conv::in_cache_transpose_weights_per_pixel = 8192;
 
   // gW[kh][kw][ci][co] = sum in[i][j][ci] gout[2i-1+kh][2j-1+kw][co]: the conv weight gradient with
   // input gout and output gradient in, transposed.

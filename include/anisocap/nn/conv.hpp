@@ -207,10 +207,8 @@ int transposed_passes(const padded_source<T>& a, tensor<Cb, T>& out, std::ptrdif
 inline std::size_t in_cache_transpose_weights_per_pixel = 8192;
 template <class T>
 bool prefer_in_cache_transpose(std::size_t weights, std::size_t pixels) {
-#if ANISOCAP_BF16_DOT
   if constexpr (std::is_same_v<T, float> && simd::bf16_dot_available)
     if (convolution_precision() == precision::bf16) return true;
-#endif
   return in_cache_transpose_weights_per_pixel == 0 || (pixels <= weights / in_cache_transpose_weights_per_pixel);
 }
 
