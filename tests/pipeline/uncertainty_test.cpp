@@ -178,12 +178,15 @@ TEST_CASE("texel_uncertainty: the prior where the photographs say nothing, surer
       CHECK(lossiest_encoding(jpeg) == e);
       const uncertainty_calibration_table& table = calibration_for(e);
       CHECK(&table != &calibration_for(photo_encoding::lossless));
-      for (const int k : {specular_r, specular_g, specular_b, lobe_x, lobe_y, fresnel_f0, rotation}) {  // only the colour's entries differ
+      for (int k = 0; k < parameter_count; ++k) {  // a table widens or narrows, never removes, a deviation
         const auto i = std::size_t(k);
-        CHECK(table.scale[i] == uncertainty_calibration.scale[i]);
-        CHECK(table.floor[i] == uncertainty_calibration.floor[i]);
-        CHECK(table.relative[i] == uncertainty_calibration.relative[i]);
+        CHECK(table.scale[i] > 0);
+        CHECK(table.floor[i] >= 0);
+        CHECK(table.relative[i] >= 0);
       }
+      // Stored highlights clip and round alike in every photograph: wider deviations of a'_s than
+      // for linear photographs.
+      for (const int k : {specular_r, specular_g, specular_b}) CHECK(table.scale[std::size_t(k)] > uncertainty_calibration.scale[std::size_t(k)]);
       const uncertainty_result& j = kept.emplace_back(texel_uncertainty(truth, jpeg, flash_targets, c));
       CHECK(j.calibration == e);
       for (int k = 0; k < parameter_count; ++k) {

@@ -109,58 +109,42 @@ struct uncertainty_calibration_table {
 
 /// The fitted calibration for photographs stored losslessly, as floats or 16-bit codes (see
 /// uncertainty_calibration_table), in parameter order a_d (r, g, b), a'_s (r, g, b), sigma_x,
-/// sigma_y, F0, n_x, n_y, alpha. Fitted by studies/fit_uncertainty_calibration.py on 16 captures:
-/// 8 families under a lamp and a flash with 8 linear photographs with sensor noise. Where the table
-/// shrinks a deviation (scale below 1) most texels fit better than the residuals' RMS says;
-/// sigma_y's error grows with its value (relative 0.3).
+/// sigma_y, F0, n_x, n_y, alpha. Fitted by studies/fit_uncertainty_calibration.py on 48 captures:
+/// 8 families under a lamp and a flash, three seed sets, with 8 linear photographs with sensor
+/// noise. Where the table shrinks a deviation (scale below 1) most texels fit better than the
+/// residuals' RMS says; sigma_x's error grows with its value (relative 0.3).
 inline constexpr uncertainty_calibration_table uncertainty_calibration{
-    {0.27, 0.221, 0.543, 1.09, 1.09, 0.988, 0.809, 0.2, 0.6, 0.663, 0.663, 0.809},
-    {0.002, 0.002, 0.001, 0, 0, 0, 0, 0, 0, 0.001, 0, 0},
-    {0, 0, 0, 0, 0, 0, 0, 0.3, 0, 0, 0, 0}};
-
-namespace uncertainty_detail {
-
-/// `base` with the entries of the diffuse albedo (r, g, b) and the normal (x, y), the parameters
-/// a JPEG's colour error moves, replaced by `scale`, `floor` and `relative` in that order.
-constexpr uncertainty_calibration_table with_colour_entries(uncertainty_calibration_table base, const std::array<double, 5>& scale,
-                                                            const std::array<double, 5>& floor, const std::array<double, 5>& relative) {
-  constexpr std::array<int, 5> at = {diffuse_r, diffuse_g, diffuse_b, normal_x, normal_y};
-  for (std::size_t j = 0; j < at.size(); ++j) {
-    const auto k = std::size_t(at[j]);
-    base.scale[k] = scale[j];
-    base.floor[k] = floor[j];
-    base.relative[k] = relative[j];
-  }
-  return base;
-}
-
-}  // namespace uncertainty_detail
+    {0.298, 0.27, 0.543, 0.894, 0.894, 0.809, 0.2, 0.491, 0.6, 0.663, 0.663, 0.663},
+    {0.002, 0.002, 0.001, 0, 0, 0, 0.002, 0, 0, 0, 0.002, 0},
+    {0, 0, 0, 0, 0, 0, 0.3, 0, 0, 0, 0, 0}};
 
 /// The calibration for photographs stored as 8-bit codes without JPEG (photo_encoding::eight_bit,
 /// 8-bit PNGs): each value is rounded to one of 256 codes, alike in every photograph where the
-/// texel's shading is alike. The diffuse albedo and the normal are fitted on 16 captures of the 8
-/// families with 12 photographs stored so, the rest are uncertainty_calibration's.
-inline constexpr uncertainty_calibration_table uncertainty_calibration_eight_bit =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.402, 0.445, 0.402, 0.733, 0.894}, {0.002, 0.002, 0.002, 0, 0},
-                                            {0, 0, 0, 0, 0});
+/// texel's shading is alike, and the brightest highlights clip. Fitted on 16 captures of the 8
+/// families with 12 photographs stored so: wider than uncertainty_calibration for the specular
+/// albedo (the clipped and rounded highlights), narrower for the lobes.
+inline constexpr uncertainty_calibration_table uncertainty_calibration_eight_bit{
+    {0.402, 0.445, 0.402, 1.47, 1.47, 1.33, 0.543, 0.543, 0.491, 0.733, 0.894, 0.6},
+    {0.002, 0.002, 0.002, 0, 0, 0, 0.001, 0, 0, 0, 0, 0},
+    {0, 0, 0, 0.02, 0, 0, 0.02, 0, 0.5, 0, 0, 0}};
 
 /// The calibration for photographs stored as JPEGs with their colour at full resolution
 /// (photo_encoding::jpeg). JPEG quantises the colour more coarsely than the brightness, an error
 /// alike in every photograph that the residuals cannot show, so the diffuse albedo and the normal
-/// read from the shading need wider deviations than uncertainty_calibration's: those five are
-/// fitted on 16 captures of the 8 families with 12 JPEG photographs of quality 95, the rest are
-/// uncertainty_calibration's.
-inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {0.6, 0.6, 0.733, 0.894, 0.988}, {0.002, 0.002, 0.002, 0, 0},
-                                            {0, 0, 0, 0.02, 0});
+/// read from the shading need wider deviations than uncertainty_calibration's. Fitted on 16
+/// captures of the 8 families with 12 JPEG photographs of quality 95.
+inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg{
+    {0.6, 0.6, 0.733, 1.47, 1.47, 1.33, 0.491, 0.491, 0.894, 0.894, 0.988, 0.663},
+    {0.002, 0.002, 0.002, 0, 0, 0, 0.05, 0, 0, 0, 0, 0.001},
+    {0, 0, 0, 0, 0, 0, 0.02, 0.1, 0, 0.02, 0, 0}};
 
 /// The calibration for JPEGs with their colour at a lower resolution than their brightness
 /// (photo_encoding::jpeg_subsampled, most phones' JPEGs): the colour is also blurred, alike in
-/// every photograph. The diffuse albedo and the normal are fitted on the same 16 captures stored
-/// at quality 90 (4:2:0), the rest are uncertainty_calibration's.
-inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg_subsampled =
-    uncertainty_detail::with_colour_entries(uncertainty_calibration, {1.47, 0.809, 1.47, 1.21, 1.33}, {0, 0.002, 0, 0.005, 0.002},
-                                            {0, 0, 0, 0.02, 0});
+/// every photograph. Fitted on the same 16 captures stored at quality 90 (4:2:0).
+inline constexpr uncertainty_calibration_table uncertainty_calibration_jpeg_subsampled{
+    {1.47, 0.809, 1.47, 1.63, 1.47, 1.33, 0.6, 0.364, 0.894, 1.09, 1.33, 0.809},
+    {0, 0.002, 0, 0, 0, 0, 0.05, 0, 0, 0.001, 0.002, 0.02},
+    {0, 0, 0, 0, 0, 0, 0.02, 0.2, 0, 0.1, 0, 0}};
 
 /// The lossiest encoding among the photographs `cap` describes (capture_image::encoding).
 inline photo_encoding lossiest_encoding(const capture& cap) {
