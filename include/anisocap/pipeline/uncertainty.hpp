@@ -122,7 +122,7 @@ inline constexpr uncertainty_calibration_table uncertainty_calibration{
 /// 8-bit PNGs): each value is rounded to one of 256 codes, alike in every photograph where the
 /// texel's shading is alike, and the brightest highlights clip. Fitted on 16 captures of the 8
 /// families with 12 photographs stored so: wider than uncertainty_calibration for the specular
-/// albedo (the clipped and rounded highlights), narrower for the lobes.
+/// albedo (the clipped and rounded highlights).
 inline constexpr uncertainty_calibration_table uncertainty_calibration_eight_bit{
     {0.402, 0.445, 0.402, 1.47, 1.47, 1.33, 0.543, 0.543, 0.491, 0.733, 0.894, 0.6},
     {0.002, 0.002, 0.002, 0, 0, 0, 0.001, 0, 0, 0, 0, 0},
