@@ -233,6 +233,37 @@ TEST_CASE("convert_to_bf16 converts every value in hardware, the last ones too, 
     for (std::size_t k = std::size_t(n); k < got.size(); ++k) CHECK(got[k] == 0xABCD);  // nothing beyond
   }
 }
+
+TEST_CASE("transpose_to_bf16_pairs writes each row's pairs down a column, zero rows past nrows, nothing else") {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-3, 3);
+  const std::ptrdiff_t ld = 100, stride = 48;  // rows 100 floats apart; 48 pairs per written row, 16 of them ours
+  std::vector<float> src(std::size_t(16 * ld));
+  for (auto& v : src) v = u(rng);
+  src[3] = 1e-40f;  // a denormal reads as zero, as in convert_to_bf16
+  for (int nrows : {0, 1, 7, 16})
+    for (int pairs : {1, 5, 16, 17, 40}) {
+      CAPTURE(nrows);
+      CAPTURE(pairs);
+      std::vector<std::uint16_t> got(std::size_t(2 * pairs * stride), 0xABCD);
+      simd::transpose_to_bf16_pairs(nrows ? src.data() : nullptr, ld, nrows, pairs, got.data(), stride);
+      bool same = true, untouched = true;
+      for (int q = 0; q < pairs; ++q)
+        for (int c = 0; c < stride; ++c)
+          for (int h = 0; h < 2; ++h) {
+            const std::uint16_t g = got[std::size_t(2 * (q * stride + c) + h)];
+            if (c >= 16) {
+              untouched = untouched && g == 0xABCD;
+            } else {
+              const float x = src[std::size_t(c * ld + 2 * q + h)];
+              const std::uint16_t want = c >= nrows ? 0 : std::fabs(x) < 1e-38f ? 0 : simd::to_bf16(x);
+              same = same && g == want;
+            }
+          }
+      CHECK(same);
+      CHECK(untouched);
+    }
+}
 #endif
 
 TEST_CASE("bf16 convolutions equal the naive loops on bf16-rounded operands" * doctest::skip(!nn::bf16_available())) {

@@ -371,6 +371,50 @@ inline void interleave_to_bf16(const float* a, const float* b, int n, std::uint1
     _mm512_mask_storeu_epi32(dst + 2 * j, m, (__m512i)v);
   }
 }
+/// The bf16 pairs of 16 float rows, transposed: for l < 16 and q < pairs, the pair
+/// (bf16(row_l[2q]), bf16(row_l[2q + 1])) is written at dst + 2 (q stride + l), row l being
+/// src + l ld (2 pairs floats each) for l < nrows, and zero for the rows from nrows on (src is not
+/// read when nrows is 0). Rounded as convert_to_bf16 rounds; 16 pairs of the 16 rows at a time are
+/// converted into 16 registers, transposed in registers and stored as 16 whole registers.
+inline void transpose_to_bf16_pairs(const float* src, std::ptrdiff_t ld, int nrows, int pairs, std::uint16_t* dst,
+                                    std::ptrdiff_t stride) {
+  for (int q0 = 0; q0 < pairs; q0 += 16) {
+    const int k = pairs - q0 < 16 ? pairs - q0 : 16;  // pairs in this step
+    const int values = 2 * k;
+    const __mmask16 m0 = values >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << values) - 1);
+    const __mmask16 m1 = values >= 32 ? __mmask16(0xFFFF) : values > 16 ? __mmask16((1u << (values - 16)) - 1) : __mmask16(0);
+    __m512i r[16], t[16];
+    for (int l = 0; l < 16; ++l) {
+      if (l < nrows) {
+        const float* s = src + l * ld + 2 * q0;
+        r[l] = (__m512i)_mm512_cvtne2ps_pbh(_mm512_maskz_loadu_ps(m1, s + 16), _mm512_maskz_loadu_ps(m0, s));
+      } else {
+        r[l] = _mm512_setzero_si512();
+      }
+    }
+    // A 16 x 16 transpose of 32-bit words: pairs of rows interleaved by words, then by two words
+    // (t[4i + m], 128-bit lane c: rows 4i..4i+3 of column 4c + m), then the lanes gathered.
+    for (int i = 0; i < 8; ++i) {
+      t[2 * i] = _mm512_unpacklo_epi32(r[2 * i], r[2 * i + 1]);
+      t[2 * i + 1] = _mm512_unpackhi_epi32(r[2 * i], r[2 * i + 1]);
+    }
+    for (int i = 0; i < 4; ++i) {
+      r[4 * i] = _mm512_unpacklo_epi64(t[4 * i], t[4 * i + 2]);
+      r[4 * i + 1] = _mm512_unpackhi_epi64(t[4 * i], t[4 * i + 2]);
+      r[4 * i + 2] = _mm512_unpacklo_epi64(t[4 * i + 1], t[4 * i + 3]);
+      r[4 * i + 3] = _mm512_unpackhi_epi64(t[4 * i + 1], t[4 * i + 3]);
+    }
+    for (int m = 0; m < 4; ++m) {
+      const __m512i x0 = _mm512_shuffle_i32x4(r[m], r[4 + m], 0x88), x1 = _mm512_shuffle_i32x4(r[m], r[4 + m], 0xDD);
+      const __m512i y0 = _mm512_shuffle_i32x4(r[8 + m], r[12 + m], 0x88), y1 = _mm512_shuffle_i32x4(r[8 + m], r[12 + m], 0xDD);
+      t[m] = _mm512_shuffle_i32x4(x0, y0, 0x88);       // column m
+      t[4 + m] = _mm512_shuffle_i32x4(x1, y1, 0x88);   // column 4 + m
+      t[8 + m] = _mm512_shuffle_i32x4(x0, y0, 0xDD);   // column 8 + m
+      t[12 + m] = _mm512_shuffle_i32x4(x1, y1, 0xDD);  // column 12 + m
+    }
+    for (int c = 0; c < k; ++c) _mm512_storeu_si512(dst + 2 * (std::ptrdiff_t(q0 + c) * stride), t[c]);
+  }
+}
 /// dst[i] = bf16(src[i]) for i < n (rounded to nearest even; denormal inputs read as zero).
 inline void convert_to_bf16(const float* src, std::ptrdiff_t n, std::uint16_t* dst) {
   std::ptrdiff_t i = 0;

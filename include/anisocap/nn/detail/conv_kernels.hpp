@@ -332,6 +332,15 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
     // Column j of the block is source row co0 + j, whose values r0..r1 lie side by side: pair q of
     // column j is two neighbours of it, converted together and written as one 32-bit word.
     const int full = rows & ~1, pairs = (rows + 1) / 2;
+    if (full == rows && block % 16 == 0) {
+      // Sixteen columns at a time, transposed in registers (the same conversion, whole stores).
+      for (int j0 = 0; j0 < block; j0 += 16) {
+        const int nrows = std::clamp(n_cols - j0, 0, 16);
+        const float* s = nrows > 0 ? wl.w + w_tap + std::ptrdiff_t(co0 + j0) * wl.ld + r0 : nullptr;
+        simd::transpose_to_bf16_pairs(s, wl.ld, nrows, pairs, dst + 2 * j0, block);
+      }
+      return;
+    }
     std::uint16_t* t = scratch<std::uint16_t>(7, std::size_t(pairs) * 2);
     for (int j = 0; j < block; ++j) {
       if (j < n_cols) {
@@ -348,9 +357,15 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
   const float* base = wl.pack ? wl.w + w_tap + co0 + std::ptrdiff_t(r0) * wl.ld : wl.w + w_tap + cb * wl.block_stride + std::ptrdiff_t(r0) * wl.ld;
   const std::ptrdiff_t ld = wl.ld;
   const int n = wl.pack ? n_cols : block;
+  // The rows lie ld apart, often a page or more: the hardware prefetchers, which follow streams
+  // within a page, do not fetch the next rows, so each row's lines are asked for `ahead` rows early.
+  constexpr int ahead = 8;
+  const int lines = int((std::size_t(n) * sizeof(float) + 63) / 64);
   for (int r = 0; r < rows; r += 2) {
     std::uint16_t* d = dst + std::ptrdiff_t(r) * block;
     const float* a = base + std::ptrdiff_t(r) * ld;
+    for (int k = 0; k < 2 && r + ahead + k < rows; ++k)
+      for (int l = 0; l < lines; ++l) simd::prefetch(a + std::ptrdiff_t(ahead + k) * ld + 16 * l);
     pixel_pair_to_bf16(a, ld, r + 1 < rows, n, d);
     if (n < block) std::memset(static_cast<void*>(d + 2 * n), 0, sizeof(std::uint16_t) * 2 * (block - n));
   }
@@ -847,6 +862,17 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
           for (int ck = k0; ck < k1; ++ck) {
             const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
             float* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
+            {
+              // The next tile's gradient rows (Cb apart, often a page or more: no hardware
+              // prefetcher follows them) asked for now; with few pixels a tile's sums take less
+              // time than fetching the rows it adds them to.
+              const int nck = ck + 1 < k1 ? ck + 1 : k0, ni = ck + 1 < k1 ? i : i + 1;
+              if (ni < t_end) {
+                const float* next = gw + (std::ptrdiff_t(order[ni]) * Ca + plan.ci_start(nck)) * Cb + co0;
+                for (int c = 0; c < plan.ci_width(nck); ++c)
+                  for (int v = 0; v < NV; ++v) simd::prefetch(next + std::ptrdiff_t(c) * Cb + v * W);
+              }
+            }
             if (width == CIB) {
               weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
             } else if (width == 4) {
