@@ -223,6 +223,16 @@ void transpose_block(const T* src, std::ptrdiff_t ld, int co0, int n_cols, int r
   }
 }
 
+/// Asks the cache for `rows` rows of n values, ld apart, starting at p (no effect on any result).
+/// For rows a page or more apart, which no hardware prefetcher follows: the weights a pass packs,
+/// the gradient rows a weight tile adds to.
+template <class T>
+inline void prefetch_rows(const T* p, std::ptrdiff_t ld, int rows, int n) {
+  const int lines = int((std::size_t(n) * sizeof(T) + 63) / 64);
+  for (int r = 0; r < rows; ++r)
+    for (int l = 0; l < lines; ++l) simd::prefetch(p + std::ptrdiff_t(r) * ld + std::ptrdiff_t(l) * (64 / sizeof(T)));
+}
+
 /// How run_forward cuts its passes into work items: each pass's rows into register tiles
 /// (row_plan), the tiles into chunks of `chunk`, and each chunk into one item per output-channel
 /// block. Consecutive items share pixels and differ in output-channel block, so the inputs stay
@@ -357,15 +367,12 @@ inline void pack_bf16_pairs(const weight_layout<float>& wl, std::ptrdiff_t w_tap
   const float* base = wl.pack ? wl.w + w_tap + co0 + std::ptrdiff_t(r0) * wl.ld : wl.w + w_tap + cb * wl.block_stride + std::ptrdiff_t(r0) * wl.ld;
   const std::ptrdiff_t ld = wl.ld;
   const int n = wl.pack ? n_cols : block;
-  // The rows lie ld apart, often a page or more: the hardware prefetchers, which follow streams
-  // within a page, do not fetch the next rows, so each row's lines are asked for `ahead` rows early.
+  // The rows lie ld apart, often a page or more: each is asked for `ahead` rows early.
   constexpr int ahead = 8;
-  const int lines = int((std::size_t(n) * sizeof(float) + 63) / 64);
   for (int r = 0; r < rows; r += 2) {
     std::uint16_t* d = dst + std::ptrdiff_t(r) * block;
     const float* a = base + std::ptrdiff_t(r) * ld;
-    for (int k = 0; k < 2 && r + ahead + k < rows; ++k)
-      for (int l = 0; l < lines; ++l) simd::prefetch(a + std::ptrdiff_t(ahead + k) * ld + 16 * l);
+    if (r + ahead < rows) prefetch_rows(a + std::ptrdiff_t(ahead) * ld, ld, std::min(2, rows - r - ahead), n);
     pixel_pair_to_bf16(a, ld, r + 1 < rows, n, d);
     if (n < block) std::memset(static_cast<void*>(d + 2 * n), 0, sizeof(std::uint16_t) * 2 * (block - n));
   }
@@ -867,11 +874,8 @@ void run_weight_bf16(const weight_pass<float>& ps, int Ca, int Cb, float* gw) {
               // prefetcher follows them) asked for now; with few pixels a tile's sums take less
               // time than fetching the rows it adds them to.
               const int nck = ck + 1 < k1 ? ck + 1 : k0, ni = ck + 1 < k1 ? i : i + 1;
-              if (ni < t_end) {
-                const float* next = gw + (std::ptrdiff_t(order[ni]) * Ca + plan.ci_start(nck)) * Cb + co0;
-                for (int c = 0; c < plan.ci_width(nck); ++c)
-                  for (int v = 0; v < NV; ++v) simd::prefetch(next + std::ptrdiff_t(c) * Cb + v * W);
-              }
+              if (ni < t_end)
+                prefetch_rows(gw + (std::ptrdiff_t(order[ni]) * Ca + plan.ci_start(nck)) * Cb + co0, Cb, plan.ci_width(nck), NV * W);
             }
             if (width == CIB) {
               weight_tile_bf16<CIB, NV>(a16, g16, nr, pairs, nci, ci0 - ci_lo, dst, Cb, lanes_here);
@@ -929,6 +933,8 @@ void run_weight(const weight_pass<T>& ps, int Ca, int Cb, T* gw) {
         for (int ck = k0; ck < k1; ++ck) {
           const int ci0 = plan.ci_start(ck), width = plan.ci_width(ck);
           T* dst = gw + (std::ptrdiff_t(t) * Ca + ci0) * Cb + co0;
+          // The next tile's gradient rows, as in run_weight_bf16.
+          if (ck + 1 < k1) prefetch_rows(gw + (std::ptrdiff_t(t) * Ca + plan.ci_start(ck + 1)) * Cb + co0, Cb, plan.ci_width(ck + 1), NV * W);
           if (width == CIB) {
             weight_tile<CIB, NV>(a_rows, g_rows, nr, ps.a_tap[t] + ci0, ps.g_tap[t] + co0, nc, ps.a_col, ps.g_col, dst, Cb, lanes_here);
           } else if (width == 4) {
