@@ -112,6 +112,19 @@ TEST_CASE("adam: a snapshot restores values, moments and counters exactly") {
   nn::adam other;
   other.add(a);
   CHECK_THROWS_AS(other.restore(snap), std::invalid_argument);
+
+  // A snapshot taken into an earlier one's buffers holds the new state, in the same storage.
+  auto reused = snap;
+  const float* storage = reused.buffers[0].data();
+  step(4.0f);
+  adam.take_snapshot(reused);
+  CHECK(reused.buffers[0].data() == storage);
+  CHECK(reused.steps == adam.steps());
+  const std::vector<float> a_now(a.value.begin(), a.value.end());
+  step(-1.0f);
+  adam.restore(reused);
+  for (std::size_t i = 0; i < a.size(); ++i) REQUIRE(a.value[i] == a_now[i]);
+  CHECK(reused.counts == std::vector<long>{3, 3});
 }
 
 TEST_CASE("adam: converges on least squares through the tape") {

@@ -166,13 +166,21 @@ class basic_adam {
   };
   snapshot take_snapshot() const {
     snapshot s;
+    take_snapshot(s);
+    return s;
+  }
+  /// Takes a snapshot into `s`, reusing its buffers: one taken every few steps (the fine-tune's
+  /// divergence guard) allocates nothing after the first, so it costs a copy and no page faults.
+  void take_snapshot(snapshot& s) const {
+    s.buffers.resize(3 * states_.size());
+    s.counts.clear();
+    std::size_t i = 0;
     for (const auto& st : states_) {
       for (const aligned_buffer<T>* b : {static_cast<const aligned_buffer<T>*>(&st.parameter->value), &st.m, &st.v})
-        s.buffers.emplace_back(b->begin(), b->end());
+        s.buffers[i++].assign(b->begin(), b->end());
       s.counts.push_back(st.steps);
     }
     s.steps = steps_;
-    return s;
   }
   /// Puts back a snapshot taken from this optimiser (same parameters).
   void restore(const snapshot& s) {

@@ -283,7 +283,7 @@ class divergence_guard {
   }
   /// Takes a snapshot at `loss`.
   void take(nn::adam& adam, double loss) {
-    snapshot = adam.take_snapshot();
+    adam.take_snapshot(snapshot);  // into the previous snapshot's buffers
     snapshot_loss = loss;
   }
 
