@@ -116,6 +116,10 @@ class safetensors_file {
     entries_.push_back(std::move(e));
   }
 
+  /// Makes room for `bytes` bytes of tensors in all: a writer that knows its total adds them
+  /// without the data region growing (and being copied and faulted in) step by step.
+  void reserve(std::size_t bytes) { data_.reserve(bytes); }
+
   /// Appends a tensor of float, double, int32 or int64 values.
   template <class T>
   void add(std::string name, std::vector<std::int64_t> shape, const T* data, std::size_t count) {
@@ -435,6 +439,9 @@ void save_weights(const std::filesystem::path& file, Network& net, std::vector<s
                   weight_storage storage = weight_storage::f32) {
   safetensors_file contents;
   contents.metadata = std::move(metadata);
+  std::size_t total = 0;  // an upper bound (f16 storage halves some)
+  detail::visit_weights(net, [&](auto& p) { total += p.size() * sizeof(p.value[0]); });
+  contents.reserve(total);
   detail::visit_weights(net, [&](auto& p) {
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     std::vector<std::int64_t> shape(p.shape.begin(), p.shape.end());
