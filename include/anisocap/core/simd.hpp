@@ -372,8 +372,8 @@ inline void interleave_to_bf16(const float* a, const float* b, int n, std::uint1
   }
 }
 /// The bf16 pairs of 16 float rows, transposed: for l < 16 and q < pairs, the pair
-/// (bf16(row_l[2q]), bf16(row_l[2q + 1])) is written at dst + 2 (q stride + l), row l being
-/// src + l ld (2 pairs floats each) for l < nrows, and zero for the rows from nrows on (src is not
+/// (bf16(row_l[2q]), bf16(row_l[2q + 1])) is written at dst + 2 (q stride + l), row l being the
+/// 2 x pairs floats at src + l ld for l < nrows, and zero for the rows from nrows on (src is not
 /// read when nrows is 0). Rounded as convert_to_bf16 rounds; 16 pairs of the 16 rows at a time are
 /// converted into 16 registers, transposed in registers and stored as 16 whole registers.
 inline void transpose_to_bf16_pairs(const float* src, std::ptrdiff_t ld, int nrows, int pairs, std::uint16_t* dst,
