@@ -125,6 +125,12 @@ TEST_CASE("adam: a snapshot restores values, moments and counters exactly") {
   adam.restore(reused);
   for (std::size_t i = 0; i < a.size(); ++i) REQUIRE(a.value[i] == a_now[i]);
   CHECK(reused.counts == std::vector<long>{3, 3});
+
+  // state_bytes is the size of what save_state adds (a check-point reserves it).
+  nn::safetensors_file file;
+  adam.save_state(file);
+  CHECK(adam.state_bytes() == file.data().size());
+  CHECK(adam.state_bytes() == (2 * (37 + 5)) * sizeof(float) + 2 * sizeof(std::int64_t));
 }
 
 TEST_CASE("adam: converges on least squares through the tape") {

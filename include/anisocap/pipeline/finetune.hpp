@@ -325,8 +325,7 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
   const std::filesystem::path decoder_next = folder / "decoder.next.safetensors", state_next = folder / "state.next.safetensors";
   nn::save_weights(decoder_next, autoencoder, {{"step", std::to_string(step)}});
   nn::safetensors_file state;
-  std::size_t bytes = 0;  // Adam's moments and the guard's snapshot: the data region's size, reserved
-  adam.for_each_state([&](nn::parameter& p, auto&, auto&, long) { bytes += 2 * p.size() * sizeof(float) + sizeof(std::int64_t); });
+  std::size_t bytes = adam.state_bytes();  // and the guard's snapshot: the data region's size, reserved
   for (const auto& b : guard.snapshot.buffers) bytes += b.size() * sizeof(float);
   state.reserve(bytes + guard.snapshot.counts.size() * sizeof(std::int64_t));
   adam.save_state(state);
