@@ -150,6 +150,37 @@ TEST_CASE("safetensors: round trip is bit-identical") {
   CHECK_THROWS_AS(f.add<double>("e", {4}, d, 3), std::invalid_argument);
 }
 
+TEST_CASE("safetensors: borrowed tensors are written as copied ones, in the order added") {
+  // The same tensors added as copies, and as views mixed with copies, in an order that is not
+  // alphabetical: the two files are byte for byte the same, and read back in the order added.
+  std::vector<float> big(3000), small = {1.5f, -2.0f};
+  for (std::size_t i = 0; i < big.size(); ++i) big[i] = float(i) * 0.25f - 7.0f;
+  const std::int64_t count = 42;
+  nn::safetensors_file copied, borrowed;
+  copied.add<float>("z.big", {3, 1000}, big.data(), big.size());
+  copied.add<std::int64_t>("m.count", {1}, &count, 1);
+  copied.add<float>("a.small", {2}, small.data(), small.size());
+  borrowed.add_view<float>("z.big", {3, 1000}, big.data(), big.size());
+  borrowed.add<std::int64_t>("m.count", {1}, &count, 1);
+  borrowed.add_view<float>("a.small", {2}, small.data(), small.size());
+  CHECK(borrowed.data().size() == sizeof count);  // only the copied tensor is in the data region
+  CHECK(borrowed.data_bytes() == copied.data_bytes());
+  CHECK(borrowed.bytes(*borrowed.find("z.big")).data() == reinterpret_cast<const std::byte*>(big.data()));
+  const fs::path pc = scratch("copied.safetensors"), pb = scratch("borrowed.safetensors");
+  nn::write_safetensors(pc, copied);
+  nn::write_safetensors(pb, borrowed);
+  CHECK(read_all(pc) == read_all(pb));
+  const auto r = nn::read_safetensors(pb);
+  REQUIRE(r.entries().size() == 3);
+  CHECK(r.entries()[0].name == "z.big");
+  CHECK(r.entries()[1].name == "m.count");
+  CHECK(r.entries()[2].name == "a.small");
+  CHECK(std::memcmp(r.bytes(r.entries()[0]).data(), big.data(), big.size() * sizeof(float)) == 0);
+  CHECK(std::memcmp(r.bytes(r.entries()[2]).data(), small.data(), small.size() * sizeof(float)) == 0);
+  CHECK_THROWS_AS(borrowed.add_view<float>("z.big", {2}, small.data(), 2), std::invalid_argument);
+  CHECK_THROWS_AS(borrowed.add_view<float>("q", {3}, small.data(), 2), std::invalid_argument);
+}
+
 TEST_CASE("safetensors: corrupted and truncated files give clear errors") {
   const std::string good_header = R"({"w":{"dtype":"F32","shape":[2,2],"data_offsets":[0,16]}})";
   CHECK(read_error(raw_file(good_header, 16)) == "");  // the reference for the cases below

@@ -122,8 +122,8 @@ class basic_adam {
   void for_each_state(F&& f) {
     for (auto& s : states_) f(*s.parameter, s.m, s.v, s.steps);
   }
-  /// The bytes of tensors save_state adds (the moments and the update counts), for a caller that
-  /// reserves its check-point's data region.
+  /// The bytes of tensors save_state adds (the moments and the update counts): what it adds to a
+  /// written check-point's size.
   std::size_t state_bytes() const noexcept {
     std::size_t bytes = 0;
     for (const auto& s : states_) bytes += (s.m.size() + s.v.size()) * sizeof(T) + sizeof(std::int64_t);
@@ -131,12 +131,13 @@ class basic_adam {
   }
   /// Adds the optimiser's state to a check-point: per parameter "adam.m.<name>", "adam.v.<name>"
   /// (moments) and "adam.steps.<name>" (update count), and the step counter as metadata
-  /// "adam.steps". The one key scheme of every check-point (training and fine-tune).
+  /// "adam.steps". The one key scheme of every check-point (training and fine-tune). The file
+  /// borrows the moments (safetensors_file::add_view): write it before the next step.
   void save_state(safetensors_file& file) {
     for (auto& s : states_) {
       const std::int64_t count = s.steps;
-      file.template add<T>("adam.m." + s.parameter->name, {std::int64_t(s.m.size())}, s.m.data(), s.m.size());
-      file.template add<T>("adam.v." + s.parameter->name, {std::int64_t(s.v.size())}, s.v.data(), s.v.size());
+      file.template add_view<T>("adam.m." + s.parameter->name, {std::int64_t(s.m.size())}, s.m.data(), s.m.size());
+      file.template add_view<T>("adam.v." + s.parameter->name, {std::int64_t(s.v.size())}, s.v.data(), s.v.size());
       file.template add<std::int64_t>("adam.steps." + s.parameter->name, {1}, &count, 1);
     }
     file.metadata.emplace_back("adam.steps", std::to_string(steps_));

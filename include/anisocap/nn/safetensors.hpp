@@ -87,6 +87,9 @@ class safetensors_file {
     std::string dtype;
     std::vector<std::int64_t> shape;
     std::size_t begin = 0, end = 0;
+    /// Borrowed bytes (add_view), [view, view + end - begin); null: the bytes are the data
+    /// region's [begin, end).
+    const std::byte* view = nullptr;
     /// Number of elements (1 for a scalar of shape []).
     std::size_t count() const noexcept {
       std::size_t n = 1;
@@ -101,29 +104,38 @@ class safetensors_file {
   /// Appends a tensor (its bytes are copied). Throws std::invalid_argument for a repeated or
   /// reserved name, an unknown dtype, or a byte count that does not match dtype and shape.
   void add(std::string name, std::string dtype, std::vector<std::int64_t> shape, const void* data, std::size_t bytes) {
-    if (name.empty() || name == "__metadata__") throw std::invalid_argument("safetensors: invalid tensor name '" + name + "'");
-    if (find(name)) throw std::invalid_argument("safetensors: tensor '" + name + "' added twice");
-    const std::size_t element = safetensors_dtype_size(dtype);
-    if (!element) throw std::invalid_argument("safetensors: unknown dtype '" + dtype + "'");
-    entry e{std::move(name), std::move(dtype), std::move(shape), data_.size(), data_.size() + bytes};
-    for (auto d : e.shape)
-      if (d < 0) throw std::invalid_argument("safetensors: negative dimension in tensor '" + e.name + "'");
-    if (e.count() * element != bytes)
-      throw std::invalid_argument("safetensors: tensor '" + e.name + "' has " + std::to_string(bytes) +
-                                  " bytes, its dtype and shape need " + std::to_string(e.count() * element));
+    entry e = checked(std::move(name), std::move(dtype), std::move(shape), bytes);
+    e.begin = data_.size();
+    e.end = e.begin + bytes;
     const auto* p = static_cast<const std::byte*>(data);
     data_.insert(data_.end(), p, p + bytes);
     entries_.push_back(std::move(e));
   }
 
-  /// Makes room for `bytes` bytes of tensors in all: a writer that knows its total adds them
+  /// Appends a tensor without copying its bytes: the file borrows them, and they must stay alive
+  /// and unchanged until it is written (write_safetensors) or read through bytes(). A writer that
+  /// saves large buffers and writes at once (weights, optimiser moments) copies nothing. Throws
+  /// as add.
+  void add_view(std::string name, std::string dtype, std::vector<std::int64_t> shape, const void* data, std::size_t bytes) {
+    entry e = checked(std::move(name), std::move(dtype), std::move(shape), bytes);
+    e.end = bytes;
+    e.view = static_cast<const std::byte*>(data);
+    entries_.push_back(std::move(e));
+  }
+
+  /// Makes room for `bytes` bytes of copied tensors in all: a writer that knows its total adds them
   /// without the data region growing (and being copied and faulted in) step by step.
   void reserve(std::size_t bytes) { data_.reserve(bytes); }
 
-  /// Appends a tensor of float, double, int32 or int64 values.
+  /// Appends a tensor of float, double, int32 or int64 values (copied).
   template <class T>
   void add(std::string name, std::vector<std::int64_t> shape, const T* data, std::size_t count) {
     add(std::move(name), safetensors_dtype<T>(), std::move(shape), data, count * sizeof(T));
+  }
+  /// Appends a tensor of float, double, int32 or int64 values, borrowed (add_view).
+  template <class T>
+  void add_view(std::string name, std::vector<std::int64_t> shape, const T* data, std::size_t count) {
+    add_view(std::move(name), safetensors_dtype<T>(), std::move(shape), data, count * sizeof(T));
   }
 
   /// The tensor called `name`, or nullptr.
@@ -135,9 +147,17 @@ class safetensors_file {
   /// All tensors in file order.
   const std::vector<entry>& entries() const noexcept { return entries_; }
   /// The raw little-endian bytes of a tensor.
-  std::span<const std::byte> bytes(const entry& e) const noexcept { return {data_.data() + e.begin, e.end - e.begin}; }
-  /// The whole data region.
+  std::span<const std::byte> bytes(const entry& e) const noexcept {
+    return {e.view ? e.view : data_.data() + e.begin, e.end - e.begin};
+  }
+  /// The data region: the bytes of the tensors copied in (add) or read; borrowed ones are not in it.
   std::span<const std::byte> data() const noexcept { return data_; }
+  /// The bytes of all tensors, copied and borrowed: the size of a written file's data region.
+  std::size_t data_bytes() const noexcept {
+    std::size_t n = 0;
+    for (const auto& e : entries_) n += e.end - e.begin;
+    return n;
+  }
 
   /// Builds from parsed entries and the data region (used by read_safetensors).
   safetensors_file(std::vector<entry> entries, std::vector<std::byte> data,
@@ -146,6 +166,21 @@ class safetensors_file {
   safetensors_file() = default;
 
  private:
+  /// A new entry's name, dtype and shape checked against `bytes` (offsets not set).
+  entry checked(std::string name, std::string dtype, std::vector<std::int64_t> shape, std::size_t bytes) const {
+    if (name.empty() || name == "__metadata__") throw std::invalid_argument("safetensors: invalid tensor name '" + name + "'");
+    if (find(name)) throw std::invalid_argument("safetensors: tensor '" + name + "' added twice");
+    const std::size_t element = safetensors_dtype_size(dtype);
+    if (!element) throw std::invalid_argument("safetensors: unknown dtype '" + dtype + "'");
+    entry e{std::move(name), std::move(dtype), std::move(shape), 0, 0};
+    for (auto d : e.shape)
+      if (d < 0) throw std::invalid_argument("safetensors: negative dimension in tensor '" + e.name + "'");
+    if (e.count() * element != bytes)
+      throw std::invalid_argument("safetensors: tensor '" + e.name + "' has " + std::to_string(bytes) +
+                                  " bytes, its dtype and shape need " + std::to_string(e.count() * element));
+    return e;
+  }
+
   std::vector<entry> entries_;
   std::vector<std::byte> data_;
 };
@@ -220,7 +255,7 @@ inline std::vector<std::uint16_t> to_half(const std::string& name, const float* 
 /// A safetensors file's header: its tensors (names, dtypes, shapes and offsets into the data
 /// region), its metadata and the size of its data region, without the data.
 struct safetensors_header {
-  std::vector<safetensors_file::entry> entries;               ///< tensors in header order
+  std::vector<safetensors_file::entry> entries;               ///< tensors in file order (by offset)
   std::vector<std::pair<std::string, std::string>> metadata;  ///< the `__metadata__` pairs, in file order
   std::uint64_t data_size = 0;                                ///< bytes in the data region
 };
@@ -331,6 +366,7 @@ inline safetensors_header read_safetensors_header(const std::filesystem::path& f
     }
   }
   check_safetensors_tiling(file, entries, data_size);
+  std::stable_sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) { return a.begin < b.begin; });  // file order
   return {std::move(entries), std::move(metadata), data_size};
 }
 
@@ -356,8 +392,8 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
   return safetensors_file(std::move(header.entries), std::move(data), std::move(header.metadata));
 }
 
-/// Writes a safetensors file (metadata first, then the tensors in their order), through a temporary
-/// file renamed into place. Throws safetensors_error naming the file when it cannot be written.
+/// Writes a safetensors file (metadata first, then the tensors in their order, at offsets following
+/// one another), through a temporary file renamed into place. Throws safetensors_error naming the file when it cannot be written.
 inline void write_safetensors(const std::filesystem::path& file, const safetensors_file& contents) {
   json header = json::object();
   if (!contents.metadata.empty()) {
@@ -365,11 +401,13 @@ inline void write_safetensors(const std::filesystem::path& file, const safetenso
     for (const auto& [k, v] : contents.metadata) meta[k] = v;
     header["__metadata__"] = std::move(meta);
   }
+  std::uint64_t offset = 0;  // the tensors follow one another in entry order, copied or borrowed alike
   for (const auto& e : contents.entries()) {
     json entry = json::object();
     entry["dtype"] = e.dtype;
     entry["shape"] = e.shape;
-    entry["data_offsets"] = json::array({std::uint64_t(e.begin), std::uint64_t(e.end)});
+    entry["data_offsets"] = json::array({offset, offset + (e.end - e.begin)});
+    offset += e.end - e.begin;
     header[e.name] = std::move(entry);
   }
   std::string text = header.dump();
@@ -384,7 +422,10 @@ inline void write_safetensors(const std::filesystem::path& file, const safetenso
     if (!out) detail::safetensors_fail(file, "cannot create " + temporary.string());
     out.write(reinterpret_cast<const char*>(length_bytes), 8);
     out.write(text.data(), std::streamsize(text.size()));
-    out.write(reinterpret_cast<const char*>(contents.data().data()), std::streamsize(contents.data().size()));
+    for (const auto& e : contents.entries()) {  // straight from each tensor's bytes: nothing gathered first
+      const auto bytes = contents.bytes(e);
+      out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+    }
     out.flush();
     if (!out) {
       out.close();
@@ -437,11 +478,8 @@ void copy_tensor(const safetensors_file& contents, const safetensors_file::entry
 template <class Network>
 void save_weights(const std::filesystem::path& file, Network& net, std::vector<std::pair<std::string, std::string>> metadata = {},
                   weight_storage storage = weight_storage::f32) {
-  safetensors_file contents;
+  safetensors_file contents;  // the parameters' own bytes, borrowed; only half floats are made
   contents.metadata = std::move(metadata);
-  std::size_t total = 0;  // an upper bound (f16 storage halves some)
-  detail::visit_weights(net, [&](auto& p) { total += p.size() * sizeof(p.value[0]); });
-  contents.reserve(total);
   detail::visit_weights(net, [&](auto& p) {
     using T = std::remove_cvref_t<decltype(p.value[0])>;
     std::vector<std::int64_t> shape(p.shape.begin(), p.shape.end());
@@ -453,7 +491,7 @@ void save_weights(const std::filesystem::path& file, Network& net, std::vector<s
           return;
         }
       }
-      contents.add<T>(p.name, std::move(shape), p.value.data(), p.size());
+      contents.add_view<T>(p.name, std::move(shape), p.value.data(), p.size());
     } catch (const std::invalid_argument& e) {
       detail::safetensors_fail(file, e.what());
     }

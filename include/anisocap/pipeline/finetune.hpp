@@ -324,13 +324,10 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
   // torn only between two renames.
   const std::filesystem::path decoder_next = folder / "decoder.next.safetensors", state_next = folder / "state.next.safetensors";
   nn::save_weights(decoder_next, autoencoder, {{"step", std::to_string(step)}});
-  nn::safetensors_file state;
-  std::size_t bytes = adam.state_bytes();  // and the guard's snapshot: the data region's size, reserved
-  for (const auto& b : guard.snapshot.buffers) bytes += b.size() * sizeof(float);
-  state.reserve(bytes + guard.snapshot.counts.size() * sizeof(std::int64_t));
+  nn::safetensors_file state;  // borrows the moments and the snapshot: written from where they are, nothing copied
   adam.save_state(state);
   for (std::size_t i = 0; i < guard.snapshot.buffers.size(); ++i)
-    state.add<float>("guard.snapshot." + std::to_string(i), {std::int64_t(guard.snapshot.buffers[i].size())},
+    state.add_view<float>("guard.snapshot." + std::to_string(i), {std::int64_t(guard.snapshot.buffers[i].size())},
                      guard.snapshot.buffers[i].data(), guard.snapshot.buffers[i].size());
   if (!guard.snapshot.empty()) {
     const std::vector<std::int64_t> counts(guard.snapshot.counts.begin(), guard.snapshot.counts.end());

@@ -32,7 +32,7 @@ template <class Net>
 void save_checkpoint(const std::filesystem::path& dir, Net& net, nn::adam& opt, long step, json info) {
   nn::safetensors_file contents;
   nn::detail::visit_weights(net, [&](auto& p) {
-    contents.add<float>(p.name, std::vector<std::int64_t>(p.shape.begin(), p.shape.end()), p.value.data(), p.size());
+    contents.add_view<float>(p.name, std::vector<std::int64_t>(p.shape.begin(), p.shape.end()), p.value.data(), p.size());
   });
   opt.save_state(contents);
   const std::string file = "checkpoint-" + std::to_string(step) + ".safetensors";
