@@ -4,7 +4,9 @@
 #include <doctest/doctest.h>
 
 #include <atomic>
+#include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <new>
 #include <vector>
 
@@ -119,4 +121,28 @@ TEST_CASE("arena: after the first step, a training step allocates nothing") {
   auto* probe = new std::vector<int>(100);
   CHECK(heap_allocations.load() >= before + 2);
   delete probe;
+}
+
+TEST_CASE("aligned_allocate: large buffers start on a huge page, small ones on a cache line") {
+  // A buffer of huge_page_min_bytes or more is huge-page aligned (so that MADV_HUGEPAGE covers whole
+  // pages); one just below stays cache-line aligned, and both are usable to their last byte.
+  for (const std::size_t bytes : {huge_page_min_bytes, huge_page_min_bytes + 12345, huge_page_min_bytes - 64, std::size_t(1000)}) {
+    aligned_buffer<std::byte> b(bytes);
+    const auto address = reinterpret_cast<std::uintptr_t>(b.data());
+    CHECK(address % simd::alignment == 0);
+    if (bytes >= huge_page_min_bytes) CHECK(address % huge_page_bytes == 0);
+    b[bytes - 1] = std::byte{7};
+    CHECK(b[bytes - 1] == std::byte{7});
+    CHECK(b[0] == std::byte{0});  // zero-initialised
+  }
+  // Memory handed back and taken again is zero again, from calloc's heap and from a mapping alike.
+  for (const std::size_t bytes : {std::size_t(1000), huge_page_min_bytes}) {
+    for (int round = 0; round < 2; ++round) {
+      aligned_buffer<std::byte> b(bytes);
+      std::size_t nonzero = 0;
+      for (std::size_t i = 0; i < bytes; i += 997) nonzero += b[i] != std::byte{0};
+      CHECK(nonzero == 0);
+      std::memset(b.data(), 0xAB, bytes);
+    }
+  }
 }

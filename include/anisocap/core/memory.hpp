@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cstddef>
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <memory>
@@ -26,19 +27,55 @@ inline std::atomic<std::size_t>& system_allocation_count() {
   return count;
 }
 
-/// Allocations of at least this many bytes are aligned to, and rounded up to, a 2 MiB huge page
-/// and offered to the kernel's transparent huge pages (Linux). Weights, Adam's moments and the
-/// step's arena are streamed every step; with 4 KiB pages each 2 MiB of them costs 512 TLB entries.
+/// The size of a transparent huge page (x86-64 Linux).
 inline constexpr std::size_t huge_page_bytes = std::size_t(2) << 20;
 
-/// Allocates `bytes` aligned to simd::alignment (64), or to huge_page_bytes when at least that
-/// large (and then advised MADV_HUGEPAGE); throws std::bad_alloc on failure.
+/// Allocations of at least this many bytes are aligned to a huge page, rounded up to whole ones and
+/// advised MADV_HUGEPAGE (Linux; the kernel's transparent huge pages in madvise mode, Debian's
+/// default, otherwise give 4 KiB pages): weights, optimiser moments and arenas streamed every step
+/// then cost one TLB entry per 2 MiB instead of 512. Smaller buffers keep 4 KiB pages: on a huge page
+/// the physical address equals the virtual one modulo 2 MiB, so the planes of a map with a
+/// power-of-two stride all fall in the same sets of the physically indexed L2 and evict one another
+/// (a 2 MiB threshold made the refine stage 20% slower). Measured in bench/README.md, "Huge pages".
+inline constexpr std::size_t huge_page_min_bytes = std::size_t(16) << 20;
+
+namespace memory_detail {
+/// What aligned_deleter needs, stored just below an aligned_allocate block's start: where the
+/// system's allocation begins and, for a mapping, its length (0: from std::calloc).
+struct block_header {
+  void* base;
+  std::size_t mapped;
+};
+}  // namespace memory_detail
+
+/// Allocates `bytes` of zero-filled memory aligned to simd::alignment (64), or to huge_page_bytes
+/// when at least huge_page_min_bytes (then advised MADV_HUGEPAGE); throws std::bad_alloc on
+/// failure. Free it with aligned_deleter. The memory comes straight from the kernel for a large
+/// block (an anonymous mapping, Linux) and from std::calloc otherwise, which both leave pages fresh
+/// from the kernel untouched (already zero): a large buffer that is never written, such as the
+/// gradients of a network that only infers, costs no page faults, and a written one is faulted in
+/// once, by its first writer, on huge pages.
 inline void* aligned_allocate(std::size_t bytes) {
-  const std::size_t align = bytes >= huge_page_bytes ? huge_page_bytes : simd::alignment;
+  using memory_detail::block_header;
+  const std::size_t align = bytes >= huge_page_min_bytes ? huge_page_bytes : simd::alignment;
   std::size_t rounded = (bytes + align - 1) / align * align;
   if (rounded == 0) rounded = simd::alignment;
-  void* p = std::aligned_alloc(align, rounded);
-  if (!p) throw std::bad_alloc();
+  const std::size_t total = rounded + align + sizeof(block_header);  // room for the header below the aligned start
+  block_header header{nullptr, 0};
+#if defined(__linux__)
+  if (align == huge_page_bytes) {
+    void* m = ::mmap(nullptr, total, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (m == MAP_FAILED) throw std::bad_alloc();
+    header = {m, total};
+  }
+#endif
+  if (!header.base) {
+    header.base = std::calloc(1, total);
+    if (!header.base) throw std::bad_alloc();
+  }
+  const std::uintptr_t start = (reinterpret_cast<std::uintptr_t>(header.base) + sizeof(block_header) + align - 1) / align * align;
+  void* p = reinterpret_cast<void*>(start);
+  std::memcpy(static_cast<std::byte*>(p) - sizeof(block_header), &header, sizeof(block_header));
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
   if (align == huge_page_bytes) ::madvise(p, rounded, MADV_HUGEPAGE);  // advice only: failure is harmless
 #endif
@@ -48,7 +85,18 @@ inline void* aligned_allocate(std::size_t bytes) {
 
 /// Deleter for aligned_allocate.
 struct aligned_deleter {
-  void operator()(void* p) const noexcept { std::free(p); }
+  void operator()(void* p) const noexcept {
+    if (!p) return;
+    memory_detail::block_header header;
+    std::memcpy(&header, static_cast<std::byte*>(p) - sizeof(header), sizeof(header));
+#if defined(__linux__)
+    if (header.mapped) {
+      ::munmap(header.base, header.mapped);
+      return;
+    }
+#endif
+    std::free(header.base);
+  }
 };
 
 /// An owning, 64-byte-aligned, zero-initialised array of T (T trivially copyable).
@@ -56,9 +104,7 @@ template <class T>
 class aligned_buffer {
  public:
   aligned_buffer() = default;
-  explicit aligned_buffer(std::size_t n) : size_(n), data_(static_cast<T*>(aligned_allocate(n * sizeof(T)))) {
-    std::memset(static_cast<void*>(data_.get()), 0, n * sizeof(T));
-  }
+  explicit aligned_buffer(std::size_t n) : size_(n), data_(static_cast<T*>(aligned_allocate(n * sizeof(T)))) {}  // zero-filled
   aligned_buffer(const aligned_buffer& o) : aligned_buffer(o.size_) {
     if (size_) std::memcpy(static_cast<void*>(data_.get()), o.data(), size_ * sizeof(T));
   }

@@ -33,9 +33,8 @@ class tensor {
   tensor(int batch, int height, int width) : batch_(batch), height_(height), width_(width) {
     check_shape();
     std::size_t n = dense_size();
-    owner_ = std::shared_ptr<void>(aligned_allocate(n * sizeof(T)), aligned_deleter{});
+    owner_ = std::shared_ptr<void>(aligned_allocate(n * sizeof(T)), aligned_deleter{});  // zero-filled
     data_ = static_cast<T*>(owner_.get());
-    std::memset(static_cast<void*>(data_), 0, n * sizeof(T));
     set_dense_strides();
   }
 
