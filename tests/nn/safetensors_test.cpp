@@ -3,11 +3,13 @@
 // /usr/bin/python3 has torch (tests/nn/safetensors_torch_check.py; skipped otherwise).
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <string>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -323,6 +325,22 @@ TEST_CASE("safetensors: half-float storage rounds the large tensors to the neare
   }
   nn::write_safetensors(refused, broken);
   CHECK_THROWS_WITH_AS(nn::load_weights(refused, d), doctest::Contains("not finite at element 4"), nn::safetensors_error);
+  // And a float NaN at the last element, found on the bits where they lie; nothing is loaded.
+  a.fc.weight.value[3] = 1.0f;
+  nn::save_weights(full, a);
+  nn::safetensors_file with_nan = nn::read_safetensors(full), broken_f32;
+  for (const auto& e : with_nan.entries()) {
+    std::vector<std::byte> bytes(with_nan.bytes(e).begin(), with_nan.bytes(e).end());
+    if (e.name == "fc.weight") {
+      const float nan = std::numeric_limits<float>::quiet_NaN();
+      std::memcpy(bytes.data() + 2047 * 4, &nan, 4);
+    }
+    broken_f32.add(e.name, e.dtype, e.shape, bytes.data(), bytes.size());
+  }
+  nn::write_safetensors(refused, broken_f32);
+  const std::vector<float> before(d.fc.weight.value.begin(), d.fc.weight.value.end());
+  CHECK_THROWS_WITH_AS(nn::load_weights(refused, d), doctest::Contains("not finite at element 2047"), nn::safetensors_error);
+  CHECK(std::equal(before.begin(), before.end(), d.fc.weight.value.begin()));
 }
 
 TEST_CASE("safetensors: exchange with PyTorch") {

@@ -452,13 +452,42 @@ void visit_weights(Network& net, F&& f) {
 
 /// Throws safetensors_error naming `file` and the tensor when a value of tensor `e` (a
 /// loadable_dtype of T) is not finite: a NaN weight would only show as NaN maps much later.
+/// Float and half-float tensors are checked on their bits where they lie (an exponent of all ones is
+/// an infinity or a NaN), without decoding a copy: the paper preset's networks load 390 MB.
 template <class T>
 void check_finite(const std::filesystem::path& file, const safetensors_file& contents, const safetensors_file::entry& e) {
+  const auto fail = [&](std::size_t i) {
+    safetensors_fail(file, "tensor '" + e.name + "' holds a value that is not finite at element " + std::to_string(i));
+  };
+  const std::span<const std::byte> bytes = contents.bytes(e);
+  const auto first_with_exponent = [&]<class Bits>(Bits mask) {  // index of the first value whose exponent bits are all set
+    const std::size_t n = bytes.size() / sizeof(Bits);
+    for (std::size_t start = 0; start < n; start += 4096) {  // blocks: a vectorisable test, then the exact index
+      const std::size_t end = std::min(n, start + 4096);
+      bool any = false;
+      for (std::size_t i = start; i < end; ++i) {
+        Bits v;
+        std::memcpy(&v, bytes.data() + i * sizeof(Bits), sizeof(Bits));
+        any |= (v & mask) == mask;
+      }
+      if (!any) continue;
+      for (std::size_t i = start; i < end; ++i) {
+        Bits v;
+        std::memcpy(&v, bytes.data() + i * sizeof(Bits), sizeof(Bits));
+        if ((v & mask) == mask) return i;
+      }
+    }
+    return n;
+  };
+  if (e.dtype == "F32" || e.dtype == "F16") {
+    const std::size_t i = e.dtype == "F32" ? first_with_exponent(std::uint32_t(0x7F800000u)) : first_with_exponent(std::uint16_t(0x7C00u));
+    if (i < e.count()) fail(i);
+    return;
+  }
   std::vector<T> values(e.count());
-  decode_tensor<T>(e.dtype, contents.bytes(e), values);
+  decode_tensor<T>(e.dtype, bytes, values);
   for (std::size_t i = 0; i < values.size(); ++i)
-    if (!std::isfinite(double(values[i])))
-      safetensors_fail(file, "tensor '" + e.name + "' holds a value that is not finite at element " + std::to_string(i));
+    if (!std::isfinite(double(values[i]))) fail(i);
 }
 
 /// Copies a checked tensor (a loadable_dtype of the parameter's type, its shape) into parameter p.
