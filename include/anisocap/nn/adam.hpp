@@ -122,13 +122,6 @@ class basic_adam {
   void for_each_state(F&& f) {
     for (auto& s : states_) f(*s.parameter, s.m, s.v, s.steps);
   }
-  /// The bytes of tensors save_state adds (the moments and the update counts): what it adds to a
-  /// written check-point's size.
-  std::size_t state_bytes() const noexcept {
-    std::size_t bytes = 0;
-    for (const auto& s : states_) bytes += (s.m.size() + s.v.size()) * sizeof(T) + sizeof(std::int64_t);
-    return bytes;
-  }
   /// Adds the optimiser's state to a check-point: per parameter "adam.m.<name>", "adam.v.<name>"
   /// (moments) and "adam.steps.<name>" (update count), and the step counter as metadata
   /// "adam.steps". The one key scheme of every check-point (training and fine-tune). The file

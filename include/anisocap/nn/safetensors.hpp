@@ -123,10 +123,6 @@ class safetensors_file {
     entries_.push_back(std::move(e));
   }
 
-  /// Makes room for `bytes` bytes of copied tensors in all: a writer that knows its total adds them
-  /// without the data region growing (and being copied and faulted in) step by step.
-  void reserve(std::size_t bytes) { data_.reserve(bytes); }
-
   /// Appends a tensor of float, double, int32 or int64 values (copied).
   template <class T>
   void add(std::string name, std::vector<std::int64_t> shape, const T* data, std::size_t count) {
@@ -393,7 +389,8 @@ inline safetensors_file read_safetensors(const std::filesystem::path& file) {
 }
 
 /// Writes a safetensors file (metadata first, then the tensors in their order, at offsets following
-/// one another), through a temporary file renamed into place. Throws safetensors_error naming the file when it cannot be written.
+/// one another), through a temporary file renamed into place. Throws safetensors_error naming the
+/// file when it cannot be written.
 inline void write_safetensors(const std::filesystem::path& file, const safetensors_file& contents) {
   json header = json::object();
   if (!contents.metadata.empty()) {
