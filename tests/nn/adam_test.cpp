@@ -132,7 +132,11 @@ TEST_CASE("adam: a snapshot restores values, moments and counters exactly") {
   CHECK(file.data_bytes() == (2 * (37 + 5)) * sizeof(float) + 2 * sizeof(std::int64_t));
   CHECK(file.data().size() == 2 * sizeof(std::int64_t));
   REQUIRE(file.find("adam.m.a") != nullptr);
-  CHECK(file.bytes(*file.find("adam.m.a")).data() != file.data().data());
+  const void* moments_of_a = nullptr;
+  adam.for_each_state([&](nn::parameter& p, auto& m, auto&, long) {
+    if (&p == &a) moments_of_a = m.data();
+  });
+  CHECK(static_cast<const void*>(file.bytes(*file.find("adam.m.a")).data()) == moments_of_a);
 }
 
 TEST_CASE("adam: converges on least squares through the tape") {

@@ -320,19 +320,17 @@ inline safetensors_file::entry parse_safetensors_entry(const std::filesystem::pa
   return e;
 }
 
-/// Checks that the tensors tile the data region of `data_size` bytes: sorted by offset, each starts
-/// where the previous ends, and the last ends at its end.
-inline void check_safetensors_tiling(const std::filesystem::path& file, const std::vector<safetensors_file::entry>& entries,
-                                     std::uint64_t data_size) {
-  std::vector<const safetensors_file::entry*> by_offset;
-  for (const auto& e : entries) by_offset.push_back(&e);
-  std::sort(by_offset.begin(), by_offset.end(), [](auto* a, auto* b) { return a->begin != b->begin ? a->begin < b->begin : a->end < b->end; });
+/// Sorts the tensors into file order (by offset) and checks that they tile the data region of
+/// `data_size` bytes: each starts where the previous ends, and the last ends at its end.
+inline void sort_and_check_safetensors_tiling(const std::filesystem::path& file, std::vector<safetensors_file::entry>& entries,
+                                              std::uint64_t data_size) {
+  std::sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) { return a.begin != b.begin ? a.begin < b.begin : a.end < b.end; });
   std::size_t position = 0;
-  for (auto* e : by_offset) {
-    if (e->begin != position)
-      safetensors_fail(file, "tensor '" + e->name + "' starts at data byte " + std::to_string(e->begin) + ", expected " +
-                                 std::to_string(position) + (e->begin < position ? " (overlapping tensors)" : " (a gap)"));
-    position = e->end;
+  for (const auto& e : entries) {
+    if (e.begin != position)
+      safetensors_fail(file, "tensor '" + e.name + "' starts at data byte " + std::to_string(e.begin) + ", expected " +
+                                 std::to_string(position) + (e.begin < position ? " (overlapping tensors)" : " (a gap)"));
+    position = e.end;
   }
   if (position != data_size) safetensors_fail(file, std::to_string(data_size - position) + " bytes of data after the last tensor");
 }
@@ -361,8 +359,7 @@ inline safetensors_header read_safetensors_header(const std::filesystem::path& f
       metadata.emplace_back(key, text.get<std::string>());
     }
   }
-  check_safetensors_tiling(file, entries, data_size);
-  std::stable_sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) { return a.begin < b.begin; });  // file order
+  sort_and_check_safetensors_tiling(file, entries, data_size);
   return {std::move(entries), std::move(metadata), data_size};
 }
 

@@ -328,7 +328,7 @@ void save_checkpoint(const std::filesystem::path& folder, auto_encoder<P>& autoe
   adam.save_state(state);
   for (std::size_t i = 0; i < guard.snapshot.buffers.size(); ++i)
     state.add_view<float>("guard.snapshot." + std::to_string(i), {std::int64_t(guard.snapshot.buffers[i].size())},
-                     guard.snapshot.buffers[i].data(), guard.snapshot.buffers[i].size());
+                          guard.snapshot.buffers[i].data(), guard.snapshot.buffers[i].size());
   if (!guard.snapshot.empty()) {
     const std::vector<std::int64_t> counts(guard.snapshot.counts.begin(), guard.snapshot.counts.end());
     state.add<std::int64_t>("guard.snapshot.counts", {std::int64_t(counts.size())}, counts.data(), counts.size());
